@@ -1,0 +1,27 @@
+"""Identification of the base parameters f1..f9 from position-only logs.
+
+Pipeline position: objective (output error of paper eq. 4, on the plant's
+closed-loop simulator) + optimiser (the paper's multi-population GA, then
+prediction-error refinement) -> :class:`IdentificationResult`.
+"""
+from .api import DEFAULT_METHOD, METHODS, identify
+from .filtering import apply_lowpass, lowpass_sos
+from .ga import GAResult, run_ga
+from .objective import IDENTIFICATION_SUBSTEPS, OutputError
+from .refine import PredictionErrorProblem, refine
+from .result import IdentificationResult
+
+__all__ = [
+    "identify",
+    "METHODS",
+    "DEFAULT_METHOD",
+    "IdentificationResult",
+    "OutputError",
+    "IDENTIFICATION_SUBSTEPS",
+    "run_ga",
+    "GAResult",
+    "PredictionErrorProblem",
+    "refine",
+    "lowpass_sos",
+    "apply_lowpass",
+]

@@ -1,0 +1,858 @@
+"""Rig logs: read, validate, window and save a CSV log with its JSON sidecar.
+
+A log is two files with the same stem (see the project README, "Log format"):
+
+* ``STEM.csv``, one row per controller sample, header
+  ``t_s,q2_ref_rad,q3_ref_rad,e2_pulses,e3_pulses,i2_A,i3_A``;
+* ``STEM.json``, the sidecar with the rig constants, the reference trajectory,
+  the start state and the search ranges of f1..f9.
+
+:func:`load_log` checks everything and raises :class:`plant.LogError` (a
+``ValueError``) with a one-line message naming the file and the line, column
+or key at fault. The library never reads ``STEM.truth.json``.
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import io
+import json
+import math
+import os
+import re
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ._errors import LogError
+from .rig import F_NAMES, Rig
+from .trajectory import Trajectory
+
+__all__ = [
+    "COLUMNS",
+    "ExperimentLog",
+    "load_log",
+    "rig_from_sidecar",
+    "example_log_path",
+    "load_example",
+]
+
+#: Exact CSV header (the order of the columns in a file may differ).
+COLUMNS = ("t_s", "q2_ref_rad", "q3_ref_rad", "e2_pulses", "e3_pulses", "i2_A", "i3_A")
+
+#: Tolerance (s) of the check t_k == k * Ts and of window boundaries.
+T_TOL_S = 1e-9
+
+#: Largest allowed |q_ref_csv - trajectory(t)| (rad).
+Q_REF_TOL_RAD = 1e-6
+
+#: Coulomb ramp speed used when every Coulomb value is zero (then it has no effect).
+_UNUSED_RAMP_SPEED = 1.0
+
+_RAMP_NOTE_RE = re.compile(r"below\s+([0-9.eE+-]+)\s*rad/s")
+
+_EXAMPLE_STEM = "puma560_paper_rigid"
+
+
+# --------------------------------------------------------------------------- helpers
+def _one_line(msg: str) -> str:
+    return msg.replace("\r", "\\r").replace("\n", "\\n")
+
+
+def _err(source: Any, msg: str) -> LogError:
+    return LogError(_one_line(f"{source}: {msg}"))
+
+
+def _short(value: Any, n: int = 60) -> str:
+    r = repr(value)
+    return r if len(r) <= n else r[: n - 3] + "..."
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _resolve(path: str | os.PathLike) -> tuple[Path, Path, str]:
+    """Return (csv path, json path, stem) for STEM, STEM.csv or STEM.json."""
+    p = Path(path)
+    name = p.name
+    if name.lower().endswith(".truth.json"):
+        raise _err(p, "a truth file is not a log; pass STEM, STEM.csv or STEM.json")
+    stem = name
+    for suffix in (".csv", ".json"):
+        if name.lower().endswith(suffix):
+            stem = name[: -len(suffix)]
+            break
+    if not stem:
+        raise _err(p, "no file stem")
+    return p.with_name(stem + ".csv"), p.with_name(stem + ".json"), stem
+
+
+# ------------------------------------------------------------------- sidecar parsing
+class _Keys:
+    """Typed access to sidecar keys with one-line LogErrors naming the key."""
+
+    def __init__(self, data: Mapping[str, Any], source: Any):
+        self.data = data
+        self.source = source
+
+    def err(self, key: str, msg: str) -> LogError:
+        return _err(self.source, f"key '{key}' {msg}")
+
+    def get(self, key: str, *, required: bool = True, default: Any = None) -> Any:
+        node: Any = self.data
+        parts = key.split(".")
+        for i, part in enumerate(parts):
+            if not isinstance(node, Mapping):
+                raise self.err(".".join(parts[:i]), "must be an object")
+            if part not in node:
+                if required:
+                    raise self.err(".".join(parts[: i + 1]), "is missing")
+                return default
+            node = node[part]
+        return node
+
+    def _check(self, key: str, x: Any, what: str, positive: bool, nonneg: bool,
+               nonzero: bool, integer: bool) -> float | int:
+        if not _is_number(x):
+            raise self.err(key, f"must be {what}, got {_short(x)}")
+        if not math.isfinite(x):
+            raise self.err(key, f"must be finite, got {_short(x)}")
+        if integer:
+            if float(x) != math.floor(x):
+                raise self.err(key, f"must be an integer, got {_short(x)}")
+            x = int(x)
+        if positive and not x > 0:
+            raise self.err(key, f"must be > 0, got {_short(x)}")
+        if nonneg and not x >= 0:
+            raise self.err(key, f"must be >= 0, got {_short(x)}")
+        if nonzero and x == 0:
+            raise self.err(key, "must be nonzero")
+        return x if integer else float(x)
+
+    def number(self, key: str, *, positive=False, nonneg=False, nonzero=False,
+               integer=False, required=True, default=None):
+        x = self.get(key, required=required, default=default)
+        if x is None and not required:
+            return default
+        return self._check(key, x, "an integer" if integer else "a number",
+                           positive, nonneg, nonzero, integer)
+
+    def vector(self, key: str, n: int = 2, *, positive=False, nonneg=False,
+               nonzero=False, integer=False, value: Any = None) -> tuple:
+        x = self.get(key) if value is None else value
+        what = f"a list of {n} {'integers' if integer else 'numbers'}"
+        if not isinstance(x, (list, tuple)) or len(x) != n:
+            raise self.err(key, f"must be {what}, got {_short(x)}")
+        return tuple(
+            self._check(f"{key}[{i}]", v, "an integer" if integer else "a number",
+                        positive, nonneg, nonzero, integer)
+            for i, v in enumerate(x)
+        )
+
+
+def _ramp_speed_from_note(note: Any) -> float | None:
+    if not isinstance(note, str):
+        return None
+    m = _RAMP_NOTE_RE.search(note)
+    if not m:
+        return None
+    try:
+        return float(m.group(1))
+    except ValueError:
+        return None
+
+
+def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig:
+    """Build the :class:`~plant.rig.Rig` described by a log sidecar.
+
+    Parameters
+    ----------
+    sidecar : mapping
+        The parsed ``STEM.json``. Keys read: ``sample_time_s`` (s, > 0),
+        ``gear_ratio`` (2, nonzero), ``encoder_ppr`` (2 positive integers),
+        ``p_gain_A_per_pulse`` (2, > 0), ``torque_constant_Nm_per_A`` (2, > 0),
+        ``viscous_friction_Nms_per_rad`` (2, >= 0),
+        ``coulomb_friction_Nm`` ([[pos, neg], [pos, neg]], >= 0),
+        ``coulomb_ramp_speed_rad_per_s`` (> 0) or else the speed in
+        ``coulomb_friction_note`` ("... below 0.5 rad/s ..."),
+        ``gravity_m_s2``, ``a3_m``, ``start_state.q_rad`` (2),
+        ``start_state.qd_rad_per_s`` (2), ``f_search_ranges`` (``f1``..``f9``
+        -> [low, high], low < high), optional ``current_full_scale_A``
+        (> 0 or null) and ``payload`` (null or ``{"mass_kg": number or null}``).
+        When every Coulomb value is zero and no ramp speed is given, the ramp
+        speed is set to 1.0 rad/s; it has no effect then.
+    source : str or Path, optional
+        File name used in error messages.
+
+    Returns
+    -------
+    Rig
+
+    Raises
+    ------
+    LogError
+        A key is missing, has the wrong shape, a non-finite or out-of-range
+        value, or a search range is inverted (low > high) or empty
+        (low == high).
+    """
+    k = _Keys(sidecar, source)
+    if not isinstance(sidecar, Mapping):
+        raise _err(source, "sidecar must be a JSON object")
+    ts = k.number("sample_time_s", positive=True)
+    gear = k.vector("gear_ratio", nonzero=True)
+    ppr = k.vector("encoder_ppr", integer=True, positive=True)
+    p_gain = k.vector("p_gain_A_per_pulse", positive=True)
+    kt = k.vector("torque_constant_Nm_per_A", positive=True)
+    visc = k.vector("viscous_friction_Nms_per_rad", nonneg=True)
+    coul_raw = k.get("coulomb_friction_Nm")
+    if not isinstance(coul_raw, (list, tuple)) or len(coul_raw) != 2:
+        raise k.err("coulomb_friction_Nm",
+                    f"must be [[pos, neg], [pos, neg]] (2 x 2 numbers), got {_short(coul_raw)}")
+    coul = tuple(
+        k.vector(f"coulomb_friction_Nm[{j}]", nonneg=True, value=coul_raw[j]) for j in range(2)
+    )
+    ramp = k.number("coulomb_ramp_speed_rad_per_s", positive=True, required=False)
+    if ramp is None:
+        note = sidecar.get("coulomb_friction_note")
+        ramp = _ramp_speed_from_note(note)
+        if ramp is not None and not (math.isfinite(ramp) and ramp > 0):
+            raise k.err("coulomb_friction_note", f"gives a ramp speed that is not > 0: {ramp!r}")
+        if ramp is None:
+            if any(v != 0.0 for row in coul for v in row):
+                raise k.err(
+                    "coulomb_ramp_speed_rad_per_s",
+                    "is missing and 'coulomb_friction_note' names no 'below X rad/s' "
+                    "(needed for the Coulomb friction ramp)",
+                )
+            ramp = _UNUSED_RAMP_SPEED
+    gravity = k.number("gravity_m_s2")
+    a3 = k.number("a3_m")
+    q0 = k.vector("start_state.q_rad")
+    qd0 = k.vector("start_state.qd_rad_per_s")
+
+    ranges = k.get("f_search_ranges")
+    if not isinstance(ranges, Mapping):
+        raise k.err("f_search_ranges", "must be an object with keys f1..f9")
+    extra = [name for name in ranges if name not in F_NAMES]
+    if extra:
+        raise k.err(f"f_search_ranges.{extra[0]}", "is not one of f1..f9")
+    bounds = []
+    for name in F_NAMES:
+        key = f"f_search_ranges.{name}"
+        lo, hi = k.vector(key)
+        if lo > hi:
+            raise k.err(key, f"is inverted: low {lo!r} > high {hi!r}")
+        if lo == hi:
+            raise k.err(key, f"is empty: low == high == {lo!r}")
+        bounds.append((lo, hi))
+
+    full_scale = k.number("current_full_scale_A", positive=True, required=False)
+    payload = sidecar.get("payload")
+    if payload is None:
+        mass = None
+    elif isinstance(payload, Mapping):
+        mass = k.number("payload.mass_kg", nonneg=True, required=False)
+    else:
+        raise k.err("payload", f"must be null or an object, got {_short(payload)}")
+
+    return Rig(
+        sample_time_s=ts,
+        gear_ratio=gear,
+        encoder_ppr=ppr,
+        p_gain_A_per_pulse=p_gain,
+        torque_constant_Nm_per_A=kt,
+        viscous_friction_Nms_per_rad=visc,
+        coulomb_friction_Nm=coul,
+        coulomb_ramp_speed_rad_per_s=float(ramp),
+        gravity_m_s2=gravity,
+        a3_m=a3,
+        q0_rad=q0,
+        qd0_rad_per_s=qd0,
+        f_bounds=tuple(bounds),
+        current_full_scale_A=full_scale,
+        payload_mass_kg=mass,
+    )
+
+
+def _rig_into_sidecar(rig: Rig, d: dict) -> None:
+    """Write the numeric values of ``rig`` into sidecar dict ``d`` (in place)."""
+    d["sample_time_s"] = float(rig.sample_time_s)
+    d["gear_ratio"] = [float(x) for x in rig.gear_ratio]
+    d["encoder_ppr"] = [int(x) for x in rig.encoder_ppr]
+    d["p_gain_A_per_pulse"] = [float(x) for x in rig.p_gain_A_per_pulse]
+    d["torque_constant_Nm_per_A"] = [float(x) for x in rig.torque_constant_Nm_per_A]
+    d["viscous_friction_Nms_per_rad"] = [float(x) for x in rig.viscous_friction_Nms_per_rad]
+    d["coulomb_friction_Nm"] = [[float(v) for v in row] for row in rig.coulomb_friction_Nm]
+    ramp = float(rig.coulomb_ramp_speed_rad_per_s)
+    # The numeric key wins over the note on loading: write it unless the note
+    # already states exactly this speed.
+    note_speed = _ramp_speed_from_note(d.get("coulomb_friction_note"))
+    if "coulomb_ramp_speed_rad_per_s" in d or note_speed != ramp:
+        d["coulomb_ramp_speed_rad_per_s"] = ramp
+    d["gravity_m_s2"] = float(rig.gravity_m_s2)
+    d["a3_m"] = float(rig.a3_m)
+    start = d.get("start_state")
+    start = dict(start) if isinstance(start, Mapping) else {}
+    start["q_rad"] = [float(x) for x in rig.q0_rad]
+    start["qd_rad_per_s"] = [float(x) for x in rig.qd0_rad_per_s]
+    d["start_state"] = start
+    ranges = d.get("f_search_ranges")
+    ranges = dict(ranges) if isinstance(ranges, Mapping) else {}
+    for name, (lo, hi) in zip(F_NAMES, rig.f_bounds):
+        ranges[name] = [float(lo), float(hi)]
+    d["f_search_ranges"] = ranges
+    if rig.current_full_scale_A is None:
+        d.pop("current_full_scale_A", None)
+    else:
+        d["current_full_scale_A"] = float(rig.current_full_scale_A)
+    payload = d.get("payload")
+    if rig.payload_mass_kg is None:
+        if isinstance(payload, Mapping) and payload.get("mass_kg") is not None:
+            payload = dict(payload)
+            payload["mass_kg"] = None
+            d["payload"] = payload
+    else:
+        payload = dict(payload) if isinstance(payload, Mapping) else {}
+        payload["mass_kg"] = float(rig.payload_mass_kg)
+        d["payload"] = payload
+
+
+def _parse_window(sidecar: Mapping[str, Any], source: Any) -> tuple[float, float] | None:
+    w = sidecar.get("window_s")
+    if w is None:
+        return None
+    k = _Keys(sidecar, source)
+    start, stop = k.vector("window_s")
+    if start < 0:
+        raise k.err("window_s", f"start must be >= 0, got {start!r}")
+    if not start < stop:
+        raise k.err("window_s", f"must be [start, stop] with start < stop, got {_short(w)}")
+    return (start, stop)
+
+
+# ----------------------------------------------------------------------- CSV parsing
+def _read_text(path: Path, what: str) -> str:
+    try:
+        with open(path, "r", encoding="utf-8-sig", newline="") as fh:
+            return fh.read()
+    except FileNotFoundError:
+        raise _err(path, f"{what} not found") from None
+    except IsADirectoryError:
+        raise _err(path, f"{what} is a directory") from None
+    except UnicodeDecodeError as e:
+        raise _err(path, f"{what} is not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise _err(path, f"cannot read {what} ({e.strerror or e})") from None
+
+
+def _split_rows(text: str, path: Path):
+    """Split CSV text into (header cells, body rows as cell lists or None, body line numbers,
+    body line strings or None).
+
+    Files without a quote character (every file this library writes) take a
+    fast path: plain line and comma splitting, with the numbers parsed later by
+    numpy's C reader. Files with quotes go through the :mod:`csv` module.
+    """
+    if '"' not in text:
+        raw = text.split("\n")
+        if "\r" in text:
+            raw = [ln[:-1] if ln.endswith("\r") else ln for ln in raw]
+        header = raw[0].split(",")
+        body = raw[1:]
+        while body and not body[-1].strip():  # trailing blank lines are allowed
+            body.pop()
+        lines = np.arange(2, len(body) + 2, dtype=np.int64)
+        return header, None, lines, body
+    reader = csv.reader(io.StringIO(text))
+    rows: list = []
+    line_nums: list = []
+    try:
+        header = next(reader)
+        for row in reader:
+            rows.append(row)
+            line_nums.append(reader.line_num)
+    except csv.Error as e:
+        raise _err(path, f"line {reader.line_num}: malformed CSV ({e})") from None
+    while rows and (not rows[-1] or all(not c.strip() for c in rows[-1])):
+        rows.pop()
+        line_nums.pop()
+    return header, rows, np.asarray(line_nums, dtype=np.int64), None
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    """Parse and check the CSV; returns column name -> array (pulses int64)."""
+    text = _read_text(path, "log file")
+    if not text.strip():
+        raise _err(path, "empty file (no header row)")
+    header, rows, lines, body = _split_rows(text, path)
+    if not header or all(not h.strip() for h in header):
+        raise _err(path, "line 1: empty header row")
+    names = [h.strip() for h in header]
+    seen = set()
+    for h in names:
+        if h in seen:
+            raise _err(path, f"line 1: duplicate column '{h}'")
+        seen.add(h)
+    missing = [c for c in COLUMNS if c not in seen]
+    extra = [h for h in names if h not in COLUMNS]
+    if missing or extra:
+        parts = []
+        if missing:
+            parts.append("missing column(s) " + ", ".join(f"'{c}'" for c in missing))
+        if extra:
+            parts.append("unexpected column(s) " + ", ".join(f"'{c}'" for c in extra))
+        raise _err(path, "line 1: " + "; ".join(parts)
+                   + " (expected header " + ",".join(COLUMNS) + ")")
+    n = len(body) if rows is None else len(rows)
+    if n == 0:
+        raise _err(path, "no data rows (header only)")
+    ncol = len(names)
+
+    # ragged rows
+    if rows is None:
+        counts = [ln.count(",") + 1 if ln.strip() else 0 for ln in body]
+    else:
+        counts = [len(r) for r in rows]
+    lengths = np.fromiter(counts, dtype=np.int64, count=n)
+    bad = np.flatnonzero(lengths != ncol)
+    if bad.size:
+        i = int(bad[0])
+        if lengths[i] == 0:
+            raise _err(path, f"line {lines[i]}: empty row, expected {ncol} fields")
+        raise _err(path, f"line {lines[i]}: ragged row with {lengths[i]} fields, expected {ncol}")
+
+    def cell(i: int, ci: int) -> str:
+        return body[i].split(",")[ci] if rows is None else rows[i][ci]
+
+    def parses(text: str) -> bool:
+        # the same parser as the bulk conversion below
+        if not text.strip():
+            return False
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if rows is None:
+                    np.loadtxt([text], delimiter=",", comments=None, dtype=float, ndmin=2)
+                else:
+                    np.array([text], dtype=float)
+        except ValueError:
+            return False
+        return True
+
+    def locate_non_numeric() -> LogError:
+        for i in range(n):
+            if rows is None and parses(body[i]):
+                continue
+            for ci, name in enumerate(names):
+                c = cell(i, ci)
+                if not parses(c):
+                    return _err(path, f"line {lines[i]}, column '{name}': "
+                                      f"non-numeric value {_short(c)}")
+        return _err(path, "non-numeric values")  # pragma: no cover - parsers disagree
+
+    try:
+        if rows is None:
+            data = np.loadtxt(body, delimiter=",", comments=None, dtype=float, ndmin=2)
+        else:
+            data = np.array(rows, dtype=float)
+    except ValueError:
+        raise locate_non_numeric() from None
+    if data.shape != (n, ncol):  # pragma: no cover - guarded by the ragged check
+        raise locate_non_numeric()
+
+    out: dict[str, np.ndarray] = {}
+    finite = np.isfinite(data)
+    if not finite.all():
+        i, ci = (int(x) for x in np.argwhere(~finite)[0])
+        raise _err(path, f"line {lines[i]}, column '{names[ci]}': "
+                         f"non-finite value {_short(cell(i, ci).strip())}")
+    for ci, name in enumerate(names):
+        a = np.ascontiguousarray(data[:, ci])
+        if name.endswith("_pulses"):
+            nonint = (a != np.round(a)) | (np.abs(a) > 2.0**53)
+            if nonint.any():
+                i = int(np.flatnonzero(nonint)[0])
+                raise _err(path, f"line {lines[i]}, column '{name}': "
+                                 f"non-integer pulse value {_short(cell(i, ci).strip())}")
+            a = a.astype(np.int64)
+        out[name] = a
+    out["_lines"] = lines
+    return out
+
+
+def _read_sidecar(path: Path) -> dict:
+    text = _read_text(path, "sidecar")
+    if not text.strip():
+        raise _err(path, "empty sidecar (no JSON)")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise _err(path, f"invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+    if not isinstance(data, dict):
+        raise _err(path, f"sidecar must be a JSON object, got {type(data).__name__}")
+    return data
+
+
+# ---------------------------------------------------------------------- the log type
+def _frozen_array(a, dtype) -> np.ndarray:
+    a = np.array(a, dtype=dtype)  # private copy
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ExperimentLog:
+    """One P-control experiment: the logged samples, the rig and the reference.
+
+    Build it with :func:`load_log`. The arrays are read-only. The log may be
+    a window of a longer run that started at t = 0 from
+    ``rig.q0_rad`` / ``rig.qd0_rad_per_s``; then ``t[0] = start_index * Ts``
+    and a simulation must start at t = 0 and run ``n_total`` samples.
+
+    Two logs compare equal when they hold the same data (``t``, ``q_ref``,
+    ``e_pulses``, ``i_A``, ``rig``, ``trajectory``, ``start_index``,
+    ``window_s`` and ``sidecar``), wherever they are stored: ``path`` and
+    ``name`` are not compared.
+
+    Attributes
+    ----------
+    path : Path
+        The CSV file (``STEM.csv``).
+    name : str
+        The stem.
+    t : ndarray, shape (n,), float
+        Sample times t_k = k Ts (s), k = start_index .. start_index + n - 1.
+    q_ref : ndarray, shape (n, 2), float
+        Reference angles of joints 2 and 3 at t_k (rad).
+    e_pulses : ndarray, shape (n, 2), int64
+        Tracking errors ref_pulses - act_pulses at t_k (motor-encoder pulses).
+    i_A : ndarray, shape (n, 2), float
+        Motor currents applied over [t_k, t_k + Ts) (A).
+    rig : Rig
+        Rig constants from the sidecar.
+    trajectory : Trajectory
+        Reference trajectory (time measured from the start of the run).
+    start_index : int
+        k0, the sample index of the first row (0 for a full run).
+    window_s : tuple of 2 float or None
+        (t_start, t_stop) (s) if the log is the window [t_start, t_stop) of a
+        longer run, else None.
+    sidecar : dict
+        The raw sidecar, for reference (treat as read-only).
+    """
+
+    path: Path
+    name: str
+    t: np.ndarray
+    q_ref: np.ndarray
+    e_pulses: np.ndarray
+    i_A: np.ndarray
+    rig: Rig
+    trajectory: Trajectory
+    start_index: int = 0
+    window_s: tuple | None = None
+    sidecar: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = _frozen_array(self.t, float).reshape(-1)
+        n = t.shape[0]
+        arrays = {
+            "q_ref": _frozen_array(self.q_ref, float),
+            "e_pulses": _frozen_array(self.e_pulses, np.int64),
+            "i_A": _frozen_array(self.i_A, float),
+        }
+        for name, a in arrays.items():
+            if a.shape != (n, 2):
+                raise ValueError(f"ExperimentLog: {name} must have shape ({n}, 2), got {a.shape}")
+        object.__setattr__(self, "path", Path(self.path))
+        object.__setattr__(self, "t", t)
+        for name, a in arrays.items():
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "start_index", int(self.start_index))
+        if self.window_s is not None:
+            object.__setattr__(self, "window_s", (float(self.window_s[0]), float(self.window_s[1])))
+
+    # ---------------------------------------------------------------- properties
+    @property
+    def n_samples(self) -> int:
+        """Number of rows n."""
+        return int(self.t.shape[0])
+
+    @property
+    def sample_index(self) -> np.ndarray:
+        """Sample indices k of the rows, ``start_index + arange(n)``, shape (n,), int64."""
+        return self.start_index + np.arange(self.n_samples, dtype=np.int64)
+
+    @property
+    def n_total(self) -> int:
+        """Samples a simulation must run from t = 0 to cover the log: ``start_index + n``."""
+        return self.start_index + self.n_samples
+
+    # ------------------------------------------------------------------- methods
+    def replace(self, **changes: Any) -> "ExperimentLog":
+        """Return a copy with some fields replaced (:func:`dataclasses.replace`).
+
+        The sidecar is not updated; :meth:`save` writes the current rig,
+        trajectory, ``n_samples`` and ``window_s`` into the saved sidecar.
+        """
+        return dataclasses.replace(self, **changes)
+
+    def window(self, t_start: float, t_stop: float) -> "ExperimentLog":
+        """Cut the rows with ``t_start <= t < t_stop`` (s, times from the start of the run).
+
+        Boundaries are compared with a tolerance of 1e-9 s, so a boundary on a
+        sample time counts as exactly on it.
+
+        Parameters
+        ----------
+        t_start, t_stop : float
+            Window boundaries (s), finite, ``t_start < t_stop``.
+
+        Returns
+        -------
+        ExperimentLog
+            The window, with ``start_index`` = k of its first row, ``window_s``
+            = (t_start, t_stop) (intersected with this log's window, if any;
+            t_start clipped at 0) and the sidecar updated (``n_samples``,
+            ``window_s``).
+
+        Raises
+        ------
+        ValueError
+            Non-finite or inverted boundaries, or no row in the window.
+        """
+        t_start, t_stop = float(t_start), float(t_stop)
+        if not (math.isfinite(t_start) and math.isfinite(t_stop)) or not t_start < t_stop:
+            raise ValueError(f"window: need finite t_start < t_stop, got [{t_start}, {t_stop})")
+        t_start = max(t_start, 0.0)
+        if self.window_s is not None:
+            t_start = max(t_start, self.window_s[0])
+            t_stop = min(t_stop, self.window_s[1])
+        mask = (self.t >= t_start - T_TOL_S) & (self.t < t_stop - T_TOL_S)
+        idx = np.flatnonzero(mask)
+        if idx.size == 0 or not t_start < t_stop:
+            raise ValueError(
+                f"window [{t_start}, {t_stop}) holds no sample of {self.name} "
+                f"(t from {self.t[0]} to {self.t[-1]} s)"
+            )
+        i0, i1 = int(idx[0]), int(idx[-1]) + 1
+        new = dataclasses.replace(
+            self,
+            t=self.t[i0:i1],
+            q_ref=self.q_ref[i0:i1],
+            e_pulses=self.e_pulses[i0:i1],
+            i_A=self.i_A[i0:i1],
+            start_index=self.start_index + i0,
+            window_s=(t_start, t_stop),
+        )
+        object.__setattr__(new, "sidecar", new._synced_sidecar())
+        return new
+
+    def _synced_sidecar(self) -> dict:
+        """A deep copy of the sidecar with n_samples, window_s, trajectory and rig updated."""
+        d = copy.deepcopy(dict(self.sidecar))
+        d["n_samples"] = self.n_samples
+        if self.window_s is None:
+            d.pop("window_s", None)
+        else:
+            d["window_s"] = [float(self.window_s[0]), float(self.window_s[1])]
+        traj = d.get("trajectory")
+        traj = dict(traj) if isinstance(traj, Mapping) else {}
+        traj["parameters"] = self.trajectory.to_parameters()
+        d["trajectory"] = traj
+        _rig_into_sidecar(self.rig, d)
+        return d
+
+    def save(self, stem_path: str | os.PathLike) -> Path:
+        """Write the log as ``STEM.csv`` + ``STEM.json``.
+
+        Each file is written to a temporary file in the target directory and
+        moved into place with :func:`os.replace`, so a reader never sees a
+        partly written file. The sidecar is this log's sidecar with
+        ``n_samples``, ``window_s``, ``trajectory.parameters`` and the rig
+        values updated; floats are written with full (round-trip) precision,
+        so ``load_log(log.save(p)) == log``.
+
+        Parameters
+        ----------
+        stem_path : str or Path
+            ``STEM``, ``STEM.csv`` or ``STEM.json``; the directory must exist.
+
+        Returns
+        -------
+        Path
+            The CSV file written.
+        """
+        csv_path, json_path, _ = _resolve(stem_path)
+        out = io.StringIO()
+        out.write(",".join(COLUMNS) + "\n")
+        t = self.t.tolist()
+        q = self.q_ref.tolist()
+        e = self.e_pulses.tolist()
+        i = self.i_A.tolist()
+        out.write(
+            "".join(
+                f"{tk!r},{qk[0]!r},{qk[1]!r},{ek[0]},{ek[1]},{ik[0]!r},{ik[1]!r}\n"
+                for tk, qk, ek, ik in zip(t, q, e, i)
+            )
+        )
+        _atomic_write(csv_path, out.getvalue())
+        _atomic_write(json_path, json.dumps(self._synced_sidecar(), indent=2) + "\n")
+        return csv_path
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ExperimentLog):
+            return NotImplemented
+        return (
+            self.start_index == other.start_index
+            and self.window_s == other.window_s
+            and np.array_equal(self.t, other.t)
+            and np.array_equal(self.q_ref, other.q_ref)
+            and np.array_equal(self.e_pulses, other.e_pulses)
+            and np.array_equal(self.i_A, other.i_A)
+            and self.rig == other.rig
+            and self.trajectory == other.trajectory
+            and self.sidecar == other.sidecar
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        win = f", window_s={self.window_s}" if self.window_s is not None else ""
+        return (
+            f"ExperimentLog(name={self.name!r}, n_samples={self.n_samples}, "
+            f"start_index={self.start_index}{win}, path={str(self.path)!r})"
+        )
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+# ------------------------------------------------------------------------ public API
+def load_log(path: str | os.PathLike) -> ExperimentLog:
+    """Read and validate a rig log (``STEM.csv`` and its sidecar ``STEM.json``).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``STEM.csv``, ``STEM.json`` or ``STEM``.
+
+    Returns
+    -------
+    ExperimentLog
+        ``t`` (n,) s, ``q_ref`` (n, 2) rad, ``e_pulses`` (n, 2) int64,
+        ``i_A`` (n, 2) A, ``rig``, ``trajectory``, ``start_index`` = round(t[0]/Ts),
+        ``window_s`` and the raw ``sidecar``.
+
+    Raises
+    ------
+    LogError
+        With a one-line message naming the file and the line, column or key,
+        if: the CSV or sidecar is missing or unreadable; the sidecar is not
+        valid JSON; the CSV is empty or has a header but no data rows; a
+        column is missing, unexpected or duplicated; a row has the wrong
+        number of fields; a value is non-numeric, NaN or inf; a pulse value
+        is not an integer; t_k differs from k Ts by more than 1e-9 s; a
+        sidecar key is missing, has the wrong shape or an invalid value (see
+        :func:`rig_from_sidecar`, :meth:`Trajectory.from_sidecar`); a search
+        range is inverted or empty; ``n_samples`` disagrees with the number of
+        rows; ``window_s`` is invalid or does not contain the rows; or the
+        q*_ref_rad columns differ from the sidecar's trajectory by more than
+        1e-6 rad.
+    """
+    csv_path, json_path, stem = _resolve(path)
+    cols = _read_csv(csv_path)
+    sidecar = _read_sidecar(json_path)
+    rig = rig_from_sidecar(sidecar, json_path)
+    trajectory = Trajectory.from_sidecar(sidecar, source=str(json_path))
+    window_s = _parse_window(sidecar, json_path)
+
+    t = cols["t_s"]
+    lines = cols["_lines"]
+    n = t.shape[0]
+    k = _Keys(sidecar, json_path)
+    n_declared = k.number("n_samples", integer=True, nonneg=True)
+    if n_declared != n:
+        raise k.err("n_samples", f"is {n_declared} but {csv_path.name} has {n} data rows")
+
+    ts = rig.sample_time_s
+    if t[0] < -T_TOL_S:
+        raise _err(csv_path, f"line {lines[0]}, column 't_s': negative time {float(t[0])!r}")
+    k0 = int(round(t[0] / ts))
+    dev = np.abs(t - (k0 + np.arange(n)) * ts)
+    bad = np.flatnonzero(dev > T_TOL_S)
+    if bad.size:
+        i = int(bad[0])
+        raise _err(csv_path, f"line {lines[i]}, column 't_s': t = {float(t[i])!r} s is not k*Ts "
+                             f"(expected {float((k0 + i) * ts)!r} with Ts = {ts!r} s)")
+    if window_s is not None:
+        if t[0] < window_s[0] - T_TOL_S or t[-1] >= window_s[1] + T_TOL_S:
+            raise k.err("window_s", f"{list(window_s)} does not contain the rows "
+                                    f"(t from {float(t[0])!r} to {float(t[-1])!r} s)")
+
+    q_ref = np.column_stack([cols["q2_ref_rad"], cols["q3_ref_rad"]])
+    q_traj = trajectory.position(t)
+    diff = np.abs(q_ref - q_traj)
+    worst = np.unravel_index(int(np.argmax(diff)), diff.shape)
+    if diff[worst] > Q_REF_TOL_RAD:
+        col = ("q2_ref_rad", "q3_ref_rad")[worst[1]]
+        raise _err(json_path, f"trajectory in sidecar does not match q*_ref_rad columns "
+                              f"(|diff| = {diff[worst]:.3g} rad > {Q_REF_TOL_RAD:g} at "
+                              f"{csv_path.name} line {lines[worst[0]]}, column '{col}')")
+
+    return ExperimentLog(
+        path=csv_path,
+        name=stem,
+        t=t,
+        q_ref=q_ref,
+        e_pulses=np.column_stack([cols["e2_pulses"], cols["e3_pulses"]]),
+        i_A=np.column_stack([cols["i2_A"], cols["i3_A"]]),
+        rig=rig,
+        trajectory=trajectory,
+        start_index=k0,
+        window_s=window_s,
+        sidecar=sidecar,
+    )
+
+
+def example_log_path() -> Path:
+    """Path of the bundled example log ``plant/data/puma560_paper_rigid.csv``.
+
+    The paper's experiment (eq. 6 reference, T = 3.65 s, rigid joints, no
+    payload), 5215 samples at Ts = 0.7 ms; the sidecar is next to it.
+
+    Returns
+    -------
+    Path
+    """
+    return Path(__file__).resolve().parent / "data" / f"{_EXAMPLE_STEM}.csv"
+
+
+def load_example() -> ExperimentLog:
+    """Load the bundled example log (see :func:`example_log_path`).
+
+    Returns
+    -------
+    ExperimentLog
+    """
+    return load_log(example_log_path())
