@@ -51,6 +51,26 @@ def _check_bounds(bounds, log, n=9):
     return b
 
 
+#: Default search box of the payload vector [m (kg), m xp (kg m), m yp (kg m),
+#: J = Izz + m (xp^2 + yp^2) (kg m^2)]: up to 5 kg (twice the PUMA 560's rated
+#: payload) with its centre of mass within 0.6 m of the link-3 frame origin
+#: (the flange of a PUMA 560 is ~0.43 m from it along the forearm).
+DEFAULT_PAYLOAD_BOUNDS = np.array([[0.0, 5.0], [-3.0, 3.0], [-3.0, 3.0], [0.0, 2.0]])
+
+
+def _prior_f(prior):
+    if prior is None:
+        raise ValueError("payload identification needs prior= (the unloaded robot's f)")
+    f = prior.get("f") if isinstance(prior, dict) else getattr(prior, "f", prior)
+    try:
+        f = np.asarray(f, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("prior must hold 9 numbers f1..f9") from None
+    if f.shape != (9,) or not np.all(np.isfinite(f)):
+        raise ValueError(f"prior must hold 9 finite numbers f1..f9, got shape {f.shape}")
+    return f
+
+
 def _seed_of(rng):
     if rng is None or isinstance(rng, (int, np.integer)):
         return None if rng is None else int(rng)
@@ -70,6 +90,9 @@ def identify(
     substeps=IDENTIFICATION_SUBSTEPS,
     ga_options=None,
     refine_options=None,
+    payload=False,
+    prior=None,
+    payload_bounds=None,
 ):
     """Identify the base parameters f1..f9 from a P-control log.
 
@@ -114,6 +137,17 @@ def identify(
     refine_options : dict, optional
         ``gain`` (replay output injection, default 0.02), ``n_starts``
         (default 4), ``max_nfev`` (per start, default 40).
+    payload : bool
+        On-line payload identification: keep the robot's f from ``prior``
+        and search only the payload vector ``p = [m, m xp, m yp, J]``
+        (:mod:`plant.payload`; f is linear in p), typically on a short log
+        or a window of a longer run.  The default method solves it by the
+        prediction-error Gauss-Newton directly (it is smooth and has 4
+        unknowns); ``'paper'`` runs the GA on the output error over p.
+    prior : IdentificationResult, dict with ``'f'``, or array_like (9,)
+        The unloaded robot's f (required with ``payload``).
+    payload_bounds : array_like, shape (4, 2), optional
+        Search box of p (default :data:`DEFAULT_PAYLOAD_BOUNDS`).
 
     Returns
     -------
@@ -122,7 +156,8 @@ def identify(
     Raises
     ------
     ValueError
-        On an unknown method, bad bounds or options.
+        On an unknown method, bad bounds or options, or ``payload`` without
+        a valid ``prior``.
     plant.LogError
         If ``log`` is a path to a malformed log.
     """
@@ -143,6 +178,11 @@ def identify(
     if unknown:
         raise ValueError(f"unknown refine option(s): {', '.join(sorted(unknown))}")
     ropts.update(refine_options or {})
+
+    if payload:
+        return _identify_payload(log, method, _prior_f(prior), payload_bounds, rng, seed,
+                                 ga_settings, ropts, callback, workers, progress, lowpass_hz,
+                                 substeps)
 
     compile_s = warm_up()
     t0 = time.perf_counter()
@@ -209,4 +249,106 @@ def identify(
         log_name=log.name, log=log, bounds=bounds,
         settings=dict(ga=ga_settings, refine=ropts if method == "ga+pem" else None,
                       substeps=int(substeps), lowpass_hz=lowpass_hz),
+    )
+
+
+def _identify_payload(log, method, f_prior, payload_bounds, rng, seed, ga_settings, ropts,
+                      callback, workers, progress, lowpass_hz, substeps):
+    """Payload mode of :func:`identify`: search p = [m, m xp, m yp, J] only."""
+    from plant.payload import payload_delta_matrix, payload_from_vector
+
+    pb = DEFAULT_PAYLOAD_BOUNDS if payload_bounds is None else payload_bounds
+    pb = _check_bounds(pb, log, n=4)
+    M = payload_delta_matrix(log.rig.a3_m)  # (9, 4): f = f_prior + M p
+
+    def to_f(p):
+        return f_prior + M @ np.asarray(p, dtype=float)
+
+    compile_s = warm_up()
+    t0 = time.perf_counter()
+    objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers)
+
+    def objective_p(P):
+        return objective(np.atleast_2d(P) @ M.T + f_prior)
+
+    ga = None
+    refinement = None
+    evaluations_refine = 0
+    if method == "paper":
+        def ga_callback(state):
+            if callback is None:
+                return False
+            return bool(callback(OptimizeResult(x=state.best_x, fun=state.best_objective,
+                                                stage="ga", generation=state.generation,
+                                                evaluations=objective.evaluations)))
+
+        ga = run_ga(objective_p, pb, rng=rng, callback=ga_callback, progress=progress,
+                    **ga_settings)
+        p, interrupted, message = np.asarray(ga.x_best), ga.interrupted, ga.message
+    else:
+        # Gauss-Newton on the prediction errors over x = [p (4), state at the first
+        # sample (4)]: the state is a nuisance parameter (no quantised simulation
+        # before a window, which would not be smooth in p).  Its initial guess: the
+        # centre of the first count interval and the reference velocity.
+        from plant.simulate import measured_counts
+
+        scale = log.rig.pulses_per_rad
+        q_first = measured_counts(log)[0] / scale
+        t_first = log.t[:1]
+        _, qd_ref, _ = log.trajectory.evaluate(t_first)
+        x_state = np.concatenate([q_first, qd_ref[0]])
+        dq = 2.0 / np.abs(scale)
+        dqd = 0.2 * np.abs(qd_ref[0]) + 0.05
+        state_bounds = np.column_stack([x_state - np.r_[dq, dqd], x_state + np.r_[dq, dqd]])
+        xb = np.vstack([pb, state_bounds])
+        problem = PredictionErrorProblem(log, to_f=lambda x: to_f(x[:4]),
+                                         to_state=lambda x: x[4:], gain=ropts["gain"],
+                                         substeps=substeps, lowpass_hz=lowpass_hz,
+                                         workers=workers)
+        lo, hi = pb[:, 0], pb[:, 1]
+        # start at a light payload near the frame origin and at mid-range mass
+        starts = np.array([lo + (hi - lo) * np.array([0.2, 0.5, 0.5, 0.1]),
+                           lo + (hi - lo) * np.array([0.6, 0.5, 0.5, 0.3])])
+        starts = starts[: max(1, int(ropts["n_starts"]))]
+        starts = np.hstack([starts, np.tile(x_state, (len(starts), 1))])
+
+        def refine_callback(x, cost):
+            if callback is None:
+                return False
+            return bool(callback(OptimizeResult(x=x, fun=cost, stage="refine",
+                                                evaluations=problem.evaluations)))
+
+        ref = refine(problem, starts, xb, max_nfev=int(ropts["max_nfev"]),
+                     callback=refine_callback)
+        p, interrupted = ref.x[:4], ref.interrupted
+        message = "payload: " + ref.message
+        refinement = dict(start_costs=ref.start_costs, costs=ref.costs, cost=ref.cost,
+                          evaluations=ref.evaluations, gain=ropts["gain"],
+                          initial_state=ref.x[4:])
+        evaluations_refine = ref.evaluations
+
+    f = to_f(p)
+    y = float(objective(f[None])[0])
+    wall = time.perf_counter() - t0
+    pl = payload_from_vector(p, clip_negative_inertia=True)
+    payload_info = dict(mass_kg=pl.mass_kg, com_m=list(pl.com_m), izz_kgm2=pl.izz_kgm2,
+                        vector=list(map(float, p)),
+                        vector_names=["m_kg", "m_xp_kgm", "m_yp_kgm", "J_kgm2"])
+    if ga is not None:
+        hist = {k: np.asarray(v) for k, v in ga.history.items()}
+        hist["generation"] = np.arange(len(hist["best"]))
+    else:
+        hist = {"generation": np.arange(1), "best": np.array([y]), "mean": np.array([y]),
+                "evaluations": np.array([objective.evaluations + evaluations_refine])}
+    return IdentificationResult(
+        f=f, x=f, objective=y, fun=y, method=method, seed=seed, history=hist,
+        refinement=refinement, population=None if ga is None else ga.population,
+        population_objective=None if ga is None else ga.population_objective,
+        evaluations=int(objective.evaluations + evaluations_refine), wall_time_s=wall,
+        compile_time_s=compile_s, interrupted=bool(interrupted), success=not interrupted,
+        message=message, log_name=log.name, log=log, bounds=pb, payload=payload_info,
+        prior_f=f_prior,
+        settings=dict(payload=True, substeps=int(substeps), lowpass_hz=lowpass_hz,
+                      ga=ga_settings if method == "paper" else None,
+                      refine=ropts if method != "paper" else None),
     )

@@ -46,14 +46,18 @@ class PredictionErrorProblem:
     to_f : callable, optional
         Maps the searched vector x (k,) to f (9,) (identity by default; the
         payload identification searches 4 payload parameters).
+    to_state : callable, optional
+        Maps x to the state (q2, q3, qd2, qd3) at the log's first sample when
+        the initial state is estimated with the parameters (window logs).
     gain, substeps, lowpass_hz, workers
         See :func:`plant.prediction_errors` and
         :class:`identification.objective.OutputError`.
     """
 
-    def __init__(self, log, *, to_f=None, gain=DEFAULT_GAIN, substeps=2, lowpass_hz=None,
-                 workers=None):
+    def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=2,
+                 lowpass_hz=None, workers=None):
         self.log = log
+        self.to_state = to_state
         self.to_f = to_f if to_f is not None else (lambda x: np.asarray(x, dtype=float))
         self.gain = float(gain)
         self.substeps = int(substeps)
@@ -65,8 +69,10 @@ class PredictionErrorProblem:
 
     def _batch(self, X):
         F = np.array([self.to_f(x) for x in X])
+        X0 = None if self.to_state is None else np.array([self.to_state(x) for x in X])
         eps, status = plant.prediction_errors(
-            self.log, F, gain=self.gain, substeps=self.substeps, workers=self.workers
+            self.log, F, gain=self.gain, substeps=self.substeps, workers=self.workers,
+            initial_state=X0,
         )
         self.evaluations += F.shape[0]
         if self._sos is not None:

@@ -93,17 +93,13 @@ def friction_torque(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
 
 
 @_jit
-def joint_acceleration(f, q2, q3, qd2, qd3, tau2, tau3, grav):
-    """Forward dynamics qdd = D^-1 (tau - h - g) of the rigid model.
+def joint_acceleration_sc(f, s2, c2, s3, c3, qd2, qd3, tau2, tau3, grav):
+    """Forward dynamics from the sines and cosines of q2 and q3.
 
-    Returns ``(qdd2, qdd3, det)``; ``det = det D(q)``.  The caller must treat
-    ``det <= 0`` (or ``f1 <= 0``) as a non-positive-definite D(q): the
-    accelerations are then meaningless.
+    Same as :func:`joint_acceleration`, for callers that already hold
+    ``sin``/``cos`` of the joint angles (the fast simulation path).  Returns
+    ``(qdd2, qdd3, det D)``.
     """
-    s2 = math.sin(q2)
-    c2 = math.cos(q2)
-    s3 = math.sin(q3)
-    c3 = math.cos(q3)
     s23 = s2 * c3 + c2 * s3
     c23 = c2 * c3 - s2 * s3
     d11, d12, d22 = mass_terms(f, c3, s3)
@@ -114,6 +110,19 @@ def joint_acceleration(f, q2, q3, qd2, qd3, tau2, tau3, grav):
     det = d11 * d22 - d12 * d12
     inv = 1.0 / det
     return (d22 * r1 - d12 * r2) * inv, (d11 * r2 - d12 * r1) * inv, det
+
+
+@_jit
+def joint_acceleration(f, q2, q3, qd2, qd3, tau2, tau3, grav):
+    """Forward dynamics qdd = D^-1 (tau - h - g) of the rigid model.
+
+    Returns ``(qdd2, qdd3, det)``; ``det = det D(q)``.  The caller must treat
+    ``det <= 0`` (or ``f1 <= 0``) as a non-positive-definite D(q): the
+    accelerations are then meaningless.
+    """
+    return joint_acceleration_sc(
+        f, math.sin(q2), math.cos(q2), math.sin(q3), math.cos(q3), qd2, qd3, tau2, tau3, grav
+    )
 
 
 @_jit

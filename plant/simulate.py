@@ -44,7 +44,7 @@ import numpy as np
 from numba import prange
 
 from ._errors import SimulationError
-from .model import friction_torque, joint_acceleration
+from .model import friction_torque, joint_acceleration, joint_acceleration_sc
 
 __all__ = [
     "DEFAULT_SUBSTEPS",
@@ -161,6 +161,73 @@ def _accel(f, r, q2, q3, w2, w3, u2, u3):
 
 
 @_jit
+def _sincos_near(q, qb, sb, cb):
+    """sin q, cos q from sin/cos of a nearby angle qb (angle addition, Taylor in q - qb).
+
+    Exact to rounding for |q - qb| < 0.05 rad (truncation < 1e-17); falls back
+    to libm beyond.
+    """
+    d = q - qb
+    if abs(d) > 0.05:
+        return math.sin(q), math.cos(q)
+    d2 = d * d
+    sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)))
+    cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)))
+    return sb * cd + cb * sd, cb * cd - sb * sd
+
+
+@_jit
+def _accel_fast(f, r, q2, q3, w2, w3, u2, u3, q2b, s2b, c2b, q3b, s3b, c3b):
+    tau2 = u2 + friction_torque(w2, r[_R_VISC], r[_R_CPOS], r[_R_CNEG], r[_R_VREG])
+    tau3 = u3 + friction_torque(w3, r[_R_VISC + 1], r[_R_CPOS + 1], r[_R_CNEG + 1], r[_R_VREG + 1])
+    s2, c2 = _sincos_near(q2, q2b, s2b, c2b)
+    s3, c3 = _sincos_near(q3, q3b, s3b, c3b)
+    return joint_acceleration_sc(f, s2, c2, s3, c3, w2, w3, tau2, tau3, r[_R_G])
+
+
+@_jit
+def integrate_sample_fast(f, r, q2, q3, w2, w3, u2, u3, substeps):
+    """:func:`integrate_sample` with one libm sin/cos per joint and sample.
+
+    The Runge-Kutta stages inside the sample take their sines and cosines by
+    angle addition from the sample's start angle (:func:`_sincos_near`): the
+    same integrator, with trigonometric values equal to rounding; the tests
+    check that it gives the same pulses as the reference path.
+    """
+    h = r[_R_TS] / substeps
+    ok = f[0] > 0.0
+    q2b = q2
+    q3b = q3
+    s2b = math.sin(q2)
+    c2b = math.cos(q2)
+    s3b = math.sin(q3)
+    c3b = math.cos(q3)
+    for _ in range(substeps):
+        a12, a13, d1 = _accel_fast(f, r, q2, q3, w2, w3, u2, u3, q2b, s2b, c2b, q3b, s3b, c3b)
+        v12 = w2 + 0.5 * h * a12
+        v13 = w3 + 0.5 * h * a13
+        a22, a23, d2 = _accel_fast(f, r, q2 + 0.5 * h * w2, q3 + 0.5 * h * w3, v12, v13, u2, u3,
+                                   q2b, s2b, c2b, q3b, s3b, c3b)
+        v22 = w2 + 0.5 * h * a22
+        v23 = w3 + 0.5 * h * a23
+        a32, a33, d3 = _accel_fast(f, r, q2 + 0.5 * h * v12, q3 + 0.5 * h * v13, v22, v23, u2,
+                                   u3, q2b, s2b, c2b, q3b, s3b, c3b)
+        v32 = w2 + h * a32
+        v33 = w3 + h * a33
+        a42, a43, d4 = _accel_fast(f, r, q2 + h * v22, q3 + h * v23, v32, v33, u2, u3,
+                                   q2b, s2b, c2b, q3b, s3b, c3b)
+        if not (ok and d1 > 0.0 and d2 > 0.0 and d3 > 0.0 and d4 > 0.0):
+            return q2, q3, w2, w3, STATUS_NOT_PD
+        q2 += h / 6.0 * (w2 + 2.0 * v12 + 2.0 * v22 + v32)
+        q3 += h / 6.0 * (w3 + 2.0 * v13 + 2.0 * v23 + v33)
+        w2 += h / 6.0 * (a12 + 2.0 * a22 + 2.0 * a32 + a42)
+        w3 += h / 6.0 * (a13 + 2.0 * a23 + 2.0 * a33 + a43)
+    if not (math.isfinite(q2) and math.isfinite(q3) and math.isfinite(w2) and math.isfinite(w3)):
+        return q2, q3, w2, w3, STATUS_NONFINITE
+    return q2, q3, w2, w3, STATUS_OK
+
+
+@_jit
 def integrate_sample(f, r, q2, q3, w2, w3, u2, u3, substeps):
     """Advance the rigid robot over one sample with constant drive torques.
 
@@ -193,7 +260,8 @@ def integrate_sample(f, r, q2, q3, w2, w3, u2, u3, substeps):
 
 
 @_jit
-def _run(f, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, continuous_out):
+def _run(f, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, continuous_out,
+         fast):
     """Simulate one candidate; return (output error, status, samples compared).
 
     ``ref`` (n_total, 2) unquantised reference counts; ``e_log`` (n, 2) logged
@@ -243,7 +311,12 @@ def _run(f, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, contin
                 err_out[i, 1] = o3
         if k == n_total - 1:
             break
-        q2, q3, w2, w3, st = integrate_sample(f, r, q2, q3, w2, w3, p2 * e2, p3 * e3, substeps)
+        if fast:
+            q2, q3, w2, w3, st = integrate_sample_fast(f, r, q2, q3, w2, w3, p2 * e2, p3 * e3,
+                                                       substeps)
+        else:
+            q2, q3, w2, w3, st = integrate_sample(f, r, q2, q3, w2, w3, p2 * e2, p3 * e3,
+                                                  substeps)
         if st != STATUS_OK:
             status = st
             break
@@ -253,14 +326,16 @@ def _run(f, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, contin
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _batch(F, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, continuous_out):
+def _batch(F, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, continuous_out,
+           fast):
     m = F.shape[0]
     obj = np.empty(m)
     status = np.empty(m, dtype=np.int64)
     compared = np.empty(m, dtype=np.int64)
     for c in prange(m):
         o, s, n_c = _run(
-            F[c], r, ref, e_log, k0, substeps, quantize, bound, err_out[c], write, continuous_out
+            F[c], r, ref, e_log, k0, substeps, quantize, bound, err_out[c], write, continuous_out,
+            fast,
         )
         obj[c] = o
         status[c] = s
@@ -336,6 +411,7 @@ def simulate_batch(
     bound=None,
     workers=None,
     continuous_output=False,
+    fast=True,
 ):
     """Simulate the logged closed-loop experiment for a population of candidates.
 
@@ -363,6 +439,9 @@ def simulate_batch(
         Compare and return the unquantised model error ``ref - q k N / 2 pi``
         (float) while the feedback stays as set by ``quantize``.  This output
         varies smoothly with f where the integer one flips by whole pulses.
+    fast : bool
+        Use :func:`integrate_sample_fast` (default) instead of the reference
+        :func:`integrate_sample`; both give the same pulses (tested).
 
     Returns
     -------
@@ -381,7 +460,7 @@ def simulate_batch(
     err = np.zeros((m, n, 2)) if errors else np.zeros((m, 0, 2))
     obj, status, compared = _batch(
         F, r, ref, e_log, int(log.start_index), substeps, bool(quantize), bound, err,
-        bool(errors), bool(continuous_output),
+        bool(errors), bool(continuous_output), bool(fast),
     )
     if errors and quantize and not continuous_output:
         err = err.astype(np.int64)
@@ -461,6 +540,18 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
 # ----------------------------------------------------------------------------
 # Logged-input replay: one-step prediction errors (refinement stage)
 # ----------------------------------------------------------------------------
+def measured_counts(log):
+    """Centres of the count intervals the log allows, shape (n_samples, 2) (pulses).
+
+    The logged error gives the integer count ``a = trunc(ref) - e``; the
+    continuous count c satisfies ``trunc(c) == a``, an interval of width 1
+    (width 2 around 0) whose centre is returned.
+    """
+    ref = _cached_inputs(log)[1][log.start_index :]
+    a = np.trunc(ref) - log.e_pulses
+    return np.where(a > 0, a + 0.5, np.where(a < 0, a - 0.5, 0.0))
+
+
 @_jit
 def _count_interval_centre(a):
     """Centre of the continuous counts c with trunc(c) == a (a an integer count)."""
@@ -472,7 +563,7 @@ def _count_interval_centre(a):
 
 
 @_jit
-def _replay_run(f, r, ref, e_log, k0, substeps, gain, bound, out):
+def _replay_run(f, r, ref, e_log, k0, substeps, gain, bound, out, x0, use_x0):
     n_total = ref.shape[0]
     s2 = r[_R_SCALE]
     s3 = r[_R_SCALE + 1]
@@ -484,16 +575,26 @@ def _replay_run(f, r, ref, e_log, k0, substeps, gain, bound, out):
     w3 = r[_R_QD0 + 1]
     status = STATUS_OK
     done = 0
-    for k in range(n_total):
+    k_start = 0
+    if use_x0:
+        # given state at the first logged sample: no simulation before it
+        k_start = k0
+        q2 = x0[0]
+        q3 = x0[1]
+        w2 = x0[2]
+        w3 = x0[3]
+    for k in range(k_start, n_total):
         c2 = q2 * s2
         c3 = q3 * s3
         if abs(ref[k, 0] - c2) > bound or abs(ref[k, 1] - c3) > bound:
             status = STATUS_DIVERGED
             break
         if k < k0:
-            # Before a window: the run's own P loop from t = 0 (exact experiment).
-            u2 = float(math.trunc(ref[k, 0]) - math.trunc(c2))
-            u3 = float(math.trunc(ref[k, 1]) - math.trunc(c3))
+            # Before a window: the run's own P loop from t = 0, with continuous
+            # counts (the smooth closed loop) so that the state reached at the
+            # window is a smooth function of f.
+            u2 = ref[k, 0] - c2
+            u3 = ref[k, 1] - c3
         else:
             i = k - k0
             m2 = _count_interval_centre(float(math.trunc(ref[k, 0])) - e_log[i, 0])
@@ -506,7 +607,8 @@ def _replay_run(f, r, ref, e_log, k0, substeps, gain, bound, out):
             u3 = e_log[i, 1] + gain * (m3 - c3)
         if k == n_total - 1:
             break
-        q2, q3, w2, w3, st = integrate_sample(f, r, q2, q3, w2, w3, p2 * u2, p3 * u3, substeps)
+        q2, q3, w2, w3, st = integrate_sample_fast(f, r, q2, q3, w2, w3, p2 * u2, p3 * u3,
+                                                   substeps)
         if st != STATUS_OK:
             status = st
             break
@@ -517,16 +619,18 @@ def _replay_run(f, r, ref, e_log, k0, substeps, gain, bound, out):
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _replay_batch(F, r, ref, e_log, k0, substeps, gain, bound, out):
+def _replay_batch(F, r, ref, e_log, k0, substeps, gain, bound, out, X0, use_x0):
     m = F.shape[0]
     status = np.empty(m, dtype=np.int64)
     for c in prange(m):
-        status[c] = _replay_run(F[c], r, ref, e_log, k0, substeps, gain, bound, out[c])
+        status[c] = _replay_run(F[c], r, ref, e_log, k0, substeps, gain, bound, out[c],
+                                X0[c], use_x0)
     return status
 
 
 def prediction_errors(
-    log, F, *, gain=0.02, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None
+    log, F, *, gain=0.02, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None,
+    initial_state=None,
 ):
     """One-step prediction errors of the rigid model replaying the logged input.
 
@@ -541,7 +645,10 @@ def prediction_errors(
     2nd ed., sec. 7).  The prediction errors ``m_k - c_k`` are smooth in f:
     unlike the integer output error of eq. 4 they do not flip by whole pulses,
     so a Gauss-Newton method can use them.  A window log is first simulated
-    under its P loop from t = 0 up to the window.
+    under its P loop from t = 0 up to the window (with continuous counts in
+    the feedback: the quantised loop is not smooth in f, the smooth one
+    reaches the same state to a fraction of a pulse), unless
+    ``initial_state`` gives the state at its first sample.
 
     Parameters
     ----------
@@ -560,6 +667,9 @@ def prediction_errors(
         prediction error from the failure on.
     workers : int, optional
         Threads for the parallel loop over candidates.
+    initial_state : array_like, shape (n_candidates, 4) or (4,), optional
+        State (q2, q3, qd2, qd3) in rad, rad/s at the log's first sample, per
+        candidate; the replay then starts there.
 
     Returns
     -------
@@ -575,9 +685,17 @@ def prediction_errors(
     if not gain >= 0:
         raise ValueError(f"gain must be >= 0, got {gain}")
     r, ref = _cached_inputs(log)
-    out = np.empty((F2.shape[0], e_log.shape[0], 2))
+    m = F2.shape[0]
+    if initial_state is None:
+        X0, use_x0 = np.zeros((m, 4)), False
+    else:
+        X0 = np.ascontiguousarray(np.broadcast_to(np.asarray(initial_state, float), (m, 4)))
+        if not np.all(np.isfinite(X0)):
+            raise ValueError("initial_state contains NaN or inf")
+        use_x0 = True
+    out = np.empty((m, e_log.shape[0], 2))
     status = _replay_batch(F2, r, ref, e_log, int(log.start_index), substeps, float(gain),
-                           bound, out)
+                           bound, out, X0, use_x0)
     if single:
         return out[0], int(status[0])
     return out, status
@@ -600,9 +718,11 @@ def warm_up():
     ref = np.zeros((3, 2))
     e_log = np.zeros((3, 2))
     err = np.zeros((1, 3, 2))
-    for write in (False, True):
-        for quantize in (False, True):
-            _batch(F, r, ref, e_log, 0, 1, quantize, 100.0, err, write, False)
-    _batch(F, r, ref, e_log, 0, 1, True, 100.0, err, True, True)
-    _replay_batch(F, r, ref, e_log, 0, 1, 0.02, 100.0, err)
+    for fast in (True, False):
+        for write in (False, True):
+            for quantize in (False, True):
+                _batch(F, r, ref, e_log, 0, 1, quantize, 100.0, err, write, False, fast)
+        _batch(F, r, ref, e_log, 0, 1, True, 100.0, err, True, True, fast)
+    for use_x0 in (False, True):
+        _replay_batch(F, r, ref, e_log, 0, 1, 0.02, 100.0, err, np.zeros((1, 4)), use_x0)
     return time.perf_counter() - t0

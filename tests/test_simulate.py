@@ -1,0 +1,178 @@
+"""Acceptance of the exact closed-loop simulator (issue 3) and its failure handling."""
+import numpy as np
+import pytest
+
+import plant
+from plant.simulate import (
+    DEFAULT_SUBSTEPS,
+    STATUS_DIVERGED,
+    STATUS_NOT_PD,
+    STATUS_OK,
+    default_bound,
+    prediction_errors,
+    simulate_batch,
+)
+
+
+def _true_f(truth, log):
+    return np.array(truth(log.name)["f_vector"])
+
+
+@pytest.fixture(scope="module")
+def rigid_logs(paper_log, validation_log):
+    return [paper_log, validation_log]
+
+
+def test_true_f_reproduces_rigid_logs(rigid_logs, truth):
+    """100 % of samples within +-1 pulse, >= 75 % identical (issue 3 acceptance)."""
+    for log in rigid_logs:
+        e = plant.simulate_experiment(log, _true_f(truth, log))
+        d = e - log.e_pulses
+        assert e.shape == (log.n_samples, 2) and e.dtype == np.int64
+        assert np.abs(d).max() <= 1, log.name
+        identical = np.mean(np.all(d == 0, axis=1))
+        assert identical >= 0.75, (log.name, identical)
+
+
+def test_default_substeps_converged(rigid_logs, truth):
+    """Doubling the substeps of the default changes no pulse (convergence test)."""
+    for log in rigid_logs:
+        f = _true_f(truth, log)
+        a = plant.simulate_experiment(log, f, substeps=DEFAULT_SUBSTEPS)
+        b = plant.simulate_experiment(log, f, substeps=2 * DEFAULT_SUBSTEPS)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_coarse_substeps_stay_within_one_pulse(paper_log, truth):
+    """The identification's coarse integration is off by single-pulse flips only."""
+    e = plant.simulate_experiment(paper_log, _true_f(truth, paper_log), substeps=2)
+    assert np.abs(e - paper_log.e_pulses).max() <= 1
+
+
+def test_output_error_true_far_below_centre(rigid_logs, truth):
+    for log in rigid_logs:
+        lo, hi = log.rig.bounds.T
+        y_true = plant.output_error(log, _true_f(truth, log))
+        y_centre = plant.output_error(log, 0.5 * (lo + hi))
+        assert y_true < 0.01 * y_centre, (log.name, y_true, y_centre)
+
+
+def test_batch_matches_single_and_objective(paper_log, truth):
+    f = _true_f(truth, paper_log)
+    F = np.vstack([f, f * 1.01, f * 0.98])
+    sim = simulate_batch(paper_log, F, substeps=2)
+    for i in range(3):
+        e = plant.simulate_experiment(paper_log, F[i], substeps=2)
+        np.testing.assert_array_equal(sim.e_pulses[i], e)
+        assert sim.objective[i] == np.sum((paper_log.e_pulses - e) ** 2)
+    only = simulate_batch(paper_log, F, substeps=2, errors=False)
+    assert only.e_pulses is None
+    np.testing.assert_array_equal(only.objective, sim.objective)
+
+
+def test_same_result_with_one_or_two_threads(paper_log, truth):
+    f = _true_f(truth, paper_log)
+    F = f * (1 + 0.05 * np.random.default_rng(0).standard_normal((6, 9)))
+    a = simulate_batch(paper_log, F, substeps=2, errors=False, workers=1).objective
+    b = simulate_batch(paper_log, F, substeps=2, errors=False, workers=2).objective
+    np.testing.assert_array_equal(a, b)
+
+
+def test_window_log_simulates_from_t0(paper_log, truth):
+    f = _true_f(truth, paper_log)
+    full = plant.simulate_experiment(paper_log, f, substeps=4)
+    w = paper_log.window(1.0, 1.2)
+    assert w.start_index == 1429
+    part = plant.simulate_experiment(w, f, substeps=4)
+    np.testing.assert_array_equal(part, full[w.start_index : w.start_index + w.n_samples])
+
+
+def test_not_positive_definite_candidate_gets_penalty(paper_log, truth):
+    f = _true_f(truth, paper_log)
+    bad = f.copy()
+    bad[1] = 2.3  # f2 >> f1: det D < 0 at every q3
+    assert not plant.is_positive_definite(bad)
+    sim = simulate_batch(paper_log, np.vstack([f, bad]), substeps=2, errors=False)
+    assert sim.status[0] == STATUS_OK and sim.status[1] == STATUS_NOT_PD
+    bound = default_bound(paper_log.e_pulses)
+    # fails right after the first sample (e = 0 at t = 0): the rest is charged the penalty
+    assert sim.n_compared[1] == 1
+    assert sim.objective[1] == pytest.approx(2 * bound**2 * (paper_log.n_samples - 1), rel=1e-12)
+    assert np.isfinite(sim.objective[1]) and sim.objective[1] > sim.objective[0]
+    with pytest.raises(plant.SimulationError, match="not positive definite"):
+        plant.simulate_experiment(paper_log, bad)
+
+
+def test_diverging_candidate_stops_early_and_penalty_orders_failures(paper_log, truth):
+    f = _true_f(truth, paper_log)
+    # a far too small joint-3 inertia makes the sampled P loop unstable
+    light, lighter = f.copy(), f.copy()
+    light[0], lighter[0] = 0.05, 0.04
+    sim = simulate_batch(paper_log, np.vstack([light, lighter]), substeps=2, errors=False,
+                         bound=200.0)
+    assert np.all(sim.status == STATUS_DIVERGED)
+    assert np.all(sim.n_compared < paper_log.n_samples)
+    # the later failure has the smaller penalty
+    assert sim.n_compared[0] > sim.n_compared[1]
+    assert sim.objective[0] < sim.objective[1]
+    with pytest.raises(plant.SimulationError, match="left the bound"):
+        plant.simulate_experiment(paper_log, light, substeps=2, bound=200.0)
+
+
+@pytest.mark.parametrize(
+    "F, match",
+    [
+        (np.ones(8), "shape"),
+        (np.full(9, np.nan), "NaN"),
+    ],
+)
+def test_bad_candidates_raise(paper_log, F, match):
+    with pytest.raises(ValueError, match=match):
+        plant.output_error(paper_log, np.atleast_2d(F) if F.size == 9 else F)
+
+
+def test_bad_substeps_raise(paper_log):
+    with pytest.raises(ValueError, match="substeps"):
+        plant.output_error(paper_log, np.ones(9), substeps=0)
+
+
+def test_pure_replay_of_true_f_stays_in_count_intervals(paper_log, truth):
+    """Driven by the logged current, the true model's count lies in every logged interval."""
+    from plant.simulate import reference_counts
+
+    eps, status = prediction_errors(paper_log, _true_f(truth, paper_log), gain=0.0,
+                                    substeps=DEFAULT_SUBSTEPS)
+    assert status == STATUS_OK
+    a = np.trunc(reference_counts(paper_log)) - paper_log.e_pulses
+    centre = np.where(a > 0, a + 0.5, np.where(a < 0, a - 0.5, 0.0))
+    np.testing.assert_array_equal(np.trunc(centre - eps), a)
+
+
+def test_prediction_errors_smooth_in_f(paper_log, truth):
+    """Unlike the integer output error, the replay cost changes smoothly with f."""
+    f = _true_f(truth, paper_log)
+    steps = np.linspace(-1e-3, 1e-3, 9)
+    F = f[None] * (1 + steps[:, None] * np.eye(9)[6])  # vary f7
+    eps, status = prediction_errors(paper_log, F, substeps=2)
+    assert np.all(status == STATUS_OK)
+    cost = np.einsum("mnj,mnj->m", eps, eps)
+    # a parabola fits the cost to 1e-3 relative: no flips, no jumps
+    c = np.polyfit(steps, cost, 2)
+    assert np.max(np.abs(np.polyval(c, steps) - cost)) < 1e-3 * cost.min()
+    assert c[0] > 0
+
+
+@pytest.mark.parametrize("substeps", [1, 2])
+def test_fast_path_gives_the_reference_pulses(paper_log, validation_log, truth, substeps):
+    """The fast kernel (angle-addition trig in the RK4 stages) == the reference kernel."""
+    for log in (paper_log, validation_log):
+        f = _true_f(truth, log)
+        rng = np.random.default_rng(3)
+        lo, hi = log.rig.bounds.T
+        F = np.vstack([f, f * (1 + 0.02 * rng.standard_normal((7, 9))),
+                       lo + (hi - lo) * rng.random((8, 9))])
+        a = simulate_batch(log, F, substeps=substeps, fast=True)
+        b = simulate_batch(log, F, substeps=substeps, fast=False)
+        np.testing.assert_array_equal(a.e_pulses, b.e_pulses)
+        np.testing.assert_array_equal(a.status, b.status)
+        np.testing.assert_array_equal(a.objective, b.objective)
