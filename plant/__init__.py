@@ -5,6 +5,7 @@ model (:mod:`plant.model`, derived symbolically in :mod:`plant.symbolic`) ->
 closed-loop simulation (:mod:`plant.simulate`).
 """
 from ._errors import LogError, SimulationError
+from .closed_loop import ClosedLoopResponse, FlexibleJoints, simulate_closed_loop
 from .log import ExperimentLog, example_log_path, load_example, load_log
 from .model import (
     coriolis_centrifugal,
@@ -57,4 +58,7 @@ __all__ = [
     "output_error",
     "prediction_errors",
     "plot_tracking_errors",
+    "simulate_closed_loop",
+    "ClosedLoopResponse",
+    "FlexibleJoints",
 ]

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from .model import friction_torque, is_positive_definite, mass_terms, coriolis_terms, gravity_terms
+from .model import friction_torque, is_positive_definite, joint_acceleration
 from .simulate import (
     _R_CNEG,
     _R_CPOS,
@@ -171,7 +171,7 @@ class ClosedLoopResponse:
         return m
 
     def max_abs_error(self, after_s: float = 0.0) -> np.ndarray:
-        """Largest |e| per joint over the samples with t >= after_s.
+        """Largest abs(e) per joint over the samples with t >= after_s.
 
         Parameters
         ----------
@@ -181,7 +181,7 @@ class ClosedLoopResponse:
         Returns
         -------
         ndarray, shape (2,), int64
-            max |e| (pulses) of joints 2 and 3.
+            max abs(e) (pulses) of joints 2 and 3.
 
         Raises
         ------
@@ -201,7 +201,7 @@ class ClosedLoopResponse:
         return np.sqrt(np.mean(e * e, axis=0))
 
     def within(self, pulses: int = 1, after_s: float = 0.0) -> bool:
-        """Whether |e| <= pulses on both joints for every sample with t >= after_s.
+        """Whether abs(e) <= pulses on both joints for every sample with t >= after_s.
 
         A run that failed (``success`` False) is never within.
         """
@@ -302,56 +302,57 @@ _jit = numba.njit(cache=True, nogil=True)
 
 
 @_jit
-def _flex_deriv(fl, r, fx, x, u2, u3):
-    """Time derivative of the flexible state (q2, q3, w2, w3, th2, th3, v2, v3)."""
-    q2, q3, w2, w3, th2, th3, v2, v3 = x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7]
+def _flex_deriv(fl, r, fx, q2, q3, w2, w3, th2, th3, v2, v3, u2, u3):
+    """Accelerations of the flexible robot: (link a2, a3, motor b2, b3, det D_link)."""
     ts2 = fx[0] * (th2 - q2) + fx[2] * (v2 - w2)
     ts3 = fx[1] * (th3 - q3) + fx[3] * (v3 - w3)
-    s2 = math.sin(q2)
-    c2 = math.cos(q2)
-    s3 = math.sin(q3)
-    c3 = math.cos(q3)
-    s23 = s2 * c3 + c2 * s3
-    c23 = c2 * c3 - s2 * s3
-    d11, d12, d22 = mass_terms(fl, c3, s3)
-    h1, h2 = coriolis_terms(fl, c3, s3, w2, w3)
-    g1, g2 = gravity_terms(fl, c2, s2, c23, s23, r[_R_G])
-    r1 = ts2 - h1 - g1
-    r2 = ts3 - h2 - g2
-    det = d11 * d22 - d12 * d12
-    a2 = (d22 * r1 - d12 * r2) / det
-    a3 = (d11 * r2 - d12 * r1) / det
+    a2, a3, det = joint_acceleration(fl, q2, q3, w2, w3, ts2, ts3, r[_R_G])
     fr2 = friction_torque(v2, r[_R_VISC], r[_R_CPOS], r[_R_CNEG], r[_R_VREG])
     fr3 = friction_torque(v3, r[_R_VISC + 1], r[_R_CPOS + 1], r[_R_CNEG + 1], r[_R_VREG + 1])
     b2 = (u2 + fr2 - ts2) / fx[4]
     b3 = (u3 + fr3 - ts3) / fx[5]
-    out = np.empty(8)
-    out[0] = w2
-    out[1] = w3
-    out[2] = a2
-    out[3] = a3
-    out[4] = v2
-    out[5] = v3
-    out[6] = b2
-    out[7] = b3
-    return out, det
+    return a2, a3, b2, b3, det
 
 
 @_jit
 def _flex_integrate_sample(fl, r, fx, x, u2, u3, substeps):
-    """RK4 over one sample of the flexible robot; updates ``x`` (8,) in place, returns status."""
+    """RK4 over one sample of the flexible robot; updates ``x`` (8,) in place, returns status.
+
+    ``x = (q2, q3, w2, w3, th2, th3, v2, v3)``: link angles and rates, motor
+    angles and rates (joint side, motor angle / k).
+    """
     h = r[_R_TS] / substeps
     if not fl[0] > 0.0:
         return STATUS_NOT_PD
+    q2, q3, w2, w3, th2, th3, v2, v3 = x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7]
+    hh = 0.5 * h
     for _ in range(substeps):
-        k1, d1 = _flex_deriv(fl, r, fx, x, u2, u3)
-        k2, d2 = _flex_deriv(fl, r, fx, x + 0.5 * h * k1, u2, u3)
-        k3, d3 = _flex_deriv(fl, r, fx, x + 0.5 * h * k2, u2, u3)
-        k4, d4 = _flex_deriv(fl, r, fx, x + h * k3, u2, u3)
+        a12, a13, b12, b13, d1 = _flex_deriv(fl, r, fx, q2, q3, w2, w3, th2, th3, v2, v3, u2, u3)
+        a22, a23, b22, b23, d2 = _flex_deriv(
+            fl, r, fx, q2 + hh * w2, q3 + hh * w3, w2 + hh * a12, w3 + hh * a13,
+            th2 + hh * v2, th3 + hh * v3, v2 + hh * b12, v3 + hh * b13, u2, u3)
+        a32, a33, b32, b33, d3 = _flex_deriv(
+            fl, r, fx, q2 + hh * (w2 + hh * a12), q3 + hh * (w3 + hh * a13),
+            w2 + hh * a22, w3 + hh * a23,
+            th2 + hh * (v2 + hh * b12), th3 + hh * (v3 + hh * b13),
+            v2 + hh * b22, v3 + hh * b23, u2, u3)
+        a42, a43, b42, b43, d4 = _flex_deriv(
+            fl, r, fx, q2 + h * (w2 + hh * a22), q3 + h * (w3 + hh * a23),
+            w2 + h * a32, w3 + h * a33,
+            th2 + h * (v2 + hh * b22), th3 + h * (v3 + hh * b23),
+            v2 + h * b32, v3 + h * b33, u2, u3)
         if not (d1 > 0.0 and d2 > 0.0 and d3 > 0.0 and d4 > 0.0):
+            x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7] = q2, q3, w2, w3, th2, th3, v2, v3
             return STATUS_NOT_PD
-        for i in range(8):
-            x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        q2 += h / 6.0 * (w2 + 2.0 * (w2 + hh * a12) + 2.0 * (w2 + hh * a22) + (w2 + h * a32))
+        q3 += h / 6.0 * (w3 + 2.0 * (w3 + hh * a13) + 2.0 * (w3 + hh * a23) + (w3 + h * a33))
+        th2 += h / 6.0 * (v2 + 2.0 * (v2 + hh * b12) + 2.0 * (v2 + hh * b22) + (v2 + h * b32))
+        th3 += h / 6.0 * (v3 + 2.0 * (v3 + hh * b13) + 2.0 * (v3 + hh * b23) + (v3 + h * b33))
+        w2 += h / 6.0 * (a12 + 2.0 * a22 + 2.0 * a32 + a42)
+        w3 += h / 6.0 * (a13 + 2.0 * a23 + 2.0 * a33 + a43)
+        v2 += h / 6.0 * (b12 + 2.0 * b22 + 2.0 * b32 + b42)
+        v3 += h / 6.0 * (b13 + 2.0 * b23 + 2.0 * b33 + b43)
+    x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7] = q2, q3, w2, w3, th2, th3, v2, v3
     for i in range(8):
         if not math.isfinite(x[i]):
             return STATUS_NONFINITE

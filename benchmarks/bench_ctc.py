@@ -1,0 +1,98 @@
+"""Timing of the computed-torque controller and its closed-loop tools (printed, not asserted).
+
+Measures, on the bundled paper log:
+
+* one call of ``ComputedTorqueController.__call__`` (the per-sample work a
+  real control PC would do at Ts = 0.7 ms; target <= 20 us), of its compiled
+  step alone, and of ``PController.__call__``;
+* one closed-loop run of the paper log (5215 samples) with
+  :func:`plant.closed_loop.simulate_closed_loop` for P and CTC;
+* the casadi evaluation (:func:`ctc.evaluate.evaluate_ctc`): graph build and
+  run over the whole log;
+* :func:`ctc.design.design_gains`.
+
+The model f is the centre of the sidecar's search ranges (no truth file
+needed; timing does not depend on f).  JIT compilation is timed separately
+(the first call) and excluded from the steady-state figures.
+
+Run from the repository root: ``python benchmarks/bench_ctc.py``.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+from ctc import ComputedTorqueController, PController, design_gains
+from ctc.computed_torque import _ctc_step
+from plant.closed_loop import simulate_closed_loop
+from plant.log import load_example
+
+
+def per_call(fn, n):
+    t0 = time.perf_counter()
+    for k in range(n):
+        fn(k)
+    return (time.perf_counter() - t0) / n
+
+
+def best_of(fn, repeat=5):
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main():
+    warnings.simplefilter("ignore")
+    log = load_example()
+    f = log.rig.bounds.mean(axis=1)
+    n_ref = log.n_total
+
+    t0 = time.perf_counter()
+    ctc = ComputedTorqueController.from_log(f, log)
+    q = np.array([0.001, -0.002])
+    e = np.array([1, 2], dtype=np.int64)
+    ctc.reset()
+    ctc(0, 0.0, q, e)
+    t_first = time.perf_counter() - t0
+    p = PController.from_log(log)
+
+    n = 200_000
+    rows = []
+    ctc.reset()
+    dt = min(per_call(lambda k: ctc(k % n_ref, 0.0, q, e), n) for _ in range(3))
+    rows.append(("CTC __call__ (public, per sample)", dt * 1e6, "us"))
+    args = (ctc.f, ctc._p, ctc._ref, ctc._state)
+    dt = min(per_call(lambda k: _ctc_step(k % n_ref, q, *args), n) for _ in range(3))
+    rows.append(("CTC compiled step alone", dt * 1e6, "us"))
+    dt = min(per_call(lambda k: p(k, 0.0, q, e), n) for _ in range(3))
+    rows.append(("PController __call__", dt * 1e6, "us"))
+
+    for sub in (24, 32):
+        rows.append((f"closed loop P, 5215 samples, {sub} substeps",
+                     best_of(lambda: simulate_closed_loop(log, f, p, substeps=sub)) * 1e3, "ms"))
+        rows.append((f"closed loop CTC, 5215 samples, {sub} substeps",
+                     best_of(lambda: simulate_closed_loop(log, f, ctc, substeps=sub)) * 1e3, "ms"))
+
+    from ctc.evaluate import build_step_function, evaluate_ctc
+
+    rows.append(("casadi step Function build (32 substeps)",
+                 best_of(lambda: build_step_function(ctc, f, substeps=32), 3) * 1e3, "ms"))
+    rows.append(("casadi evaluation, 5215 samples (build + run)",
+                 best_of(lambda: evaluate_ctc(ctc, f, substeps=32), 3) * 1e3, "ms"))
+    rows.append(("design_gains (observer)", best_of(lambda: design_gains(log.rig), 5) * 1e3, "ms"))
+
+    print(f"first CTC build + call (includes JIT load/compile): {t_first * 1e3:.1f} ms")
+    print(f"{'measure':<48} {'value':>10}")
+    for name, v, unit in rows:
+        print(f"{name:<48} {v:>8.2f} {unit}")
+    budget = rows[0][1]
+    print(f"\nCTC per-sample call: {budget:.2f} us = {budget / 700 * 100:.2f} % of the 0.7 ms sample (target <= 20 us)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,35 @@
+"""Computed-torque control of PUMA 560 links 2-3 built on the identified model.
+
+* :mod:`ctc.protocol` -- the sampled-controller protocol and the paper's
+  :class:`PController`;
+* :mod:`ctc.computed_torque` -- :class:`ComputedTorqueController`;
+* :mod:`ctc.design` -- gain design and analysis with python-control
+  (:func:`design_gains`);
+* :mod:`ctc.evaluate` -- closed-loop evaluation with casadi
+  (:func:`evaluate_ctc`).
+
+Run a controller against the model robot with
+:func:`plant.closed_loop.simulate_closed_loop`.
+"""
+from .computed_torque import ComputedTorqueController
+from .design import GainDesign, design_gains
+from .protocol import PController, SampledController
+
+__all__ = [
+    "SampledController",
+    "PController",
+    "ComputedTorqueController",
+    "GainDesign",
+    "design_gains",
+    "evaluate_ctc",
+    "CasadiEvaluation",
+]
+
+
+def __getattr__(name):
+    # casadi evaluation imported lazily (builds symbolic graphs)
+    if name in ("evaluate_ctc", "CasadiEvaluation"):
+        from . import evaluate
+
+        return getattr(evaluate, name)
+    raise AttributeError(f"module 'ctc' has no attribute {name!r}")

@@ -1,0 +1,363 @@
+"""Computed-torque controller (CTC) built on the identified base parameters.
+
+Control law (Craig, *Introduction to Robotics*, sec. 10.5; Spong,
+Hutchinson & Vidyasagar, *Robot Modeling and Control*, sec. 8.3), per sample
+``t_k = k Ts``::
+
+    a   = qdd_d + Kv (qd_d - qd_hat) + Kp (q_d - q_hat)          (outer loop)
+    tau = D_hat(q_hat) a + h_hat(q_hat, v_h) + g_hat(q_hat) - tau_f(v_f)
+    i   = tau / (k Kt)                                            (motor current)
+
+* ``D_hat``, ``h_hat`` (Coriolis/centrifugal) and ``g_hat`` are the model of
+  :mod:`plant.model` instantiated with the controller's ``f`` (9,): the
+  compiled kernels ``mass_terms``, ``coriolis_terms`` and ``gravity_terms``
+  are called from this module's compiled step -- there is no second copy of
+  the dynamics.
+* ``tau_f`` is the drive friction of the sidecar, :func:`plant.model.friction_torque`
+  with the joint-side constants of :func:`plant.simulate.rig_vector`; the
+  feed-forward ``-tau_f`` cancels it.
+* ``q_d, qd_d, qdd_d`` come from the log's trajectory (analytic), tabulated at
+  ``t_k = k Ts`` when the controller is built.
+* ``q_hat, qd_hat`` come from the velocity estimator (default: a current
+  observer of the double integrator driven by the previous command ``a``
+  and by the quantised position taken at the centre of its pulse cell;
+  alternative: a low-pass filtered backward difference), see
+  :mod:`ctc.design`.
+* ``v_h``, ``v_f``: the velocity used in ``h_hat`` and in the friction
+  feed-forward.  Default: the reference velocity ``qd_d`` (``nonlinear_velocity=
+  "reference"``), because the robot tracks to a pulse and ``qd_d`` is
+  noise-free; this matters for the Coulomb term, whose sign flips at each
+  velocity reversal.  ``"estimate"`` uses ``qd_hat`` instead.
+
+Choice of the velocity estimate (measured on the paper trajectory, rigid
+robot, true f, default gains; max abs(e) after 50 ms and RMS abs(e) in pulses,
+joint 2 / joint 3):
+
+============================================  ==========  =============
+estimator                                     max abs(e)  RMS abs(e)
+============================================  ==========  =============
+observer, cell centre, qd_d in h and tau_f    1 / 1       0.263 / 0.288
+observer, cell centre, qd_hat in h and tau_f  1 / 1       0.269 / 0.284
+observer, truncated count (no centring)       1 / 1       0.711 / 0.706
+filtered difference (85.7 Hz), cell centre    2 / 2       0.660 / 1.261
+============================================  ==========  =============
+
+The observer wins because it uses the commanded acceleration, which after
+feedback linearisation *is* the acceleration, so it needs the quantised
+measurement only to correct slow drift; a difference of positions that
+move by a fraction of a pulse per sample is mostly quantisation noise.
+Taking the count at the centre of its cell removes the half-pulse bias of
+truncation.  ``qd_d`` and ``qd_hat`` in the nonlinear terms are equivalent
+here; ``qd_d`` is the default because it is noise-free.
+
+Per-sample cost: one call of a compiled function on preallocated arrays;
+the only allocation is the returned (2,) array (``benchmarks/bench_ctc.py``:
+about 2.5 us per call, target <= 20 us).
+"""
+from __future__ import annotations
+
+
+import numba
+import numpy as np
+
+from plant.model import (
+    friction_torque,
+    inverse_dynamics_terms,
+    is_positive_definite,
+)
+from plant.simulate import rig_vector
+
+from .design import ESTIMATORS, GainDesign, design_gains
+
+__all__ = ["ComputedTorqueController"]
+
+# Layout of the controller's parameter vector (joint-side quantities).
+_P_TS = 0
+_P_SCALE = 1  # 1, 2: pulses per joint rad (k N / 2 pi)
+_P_KKT = 3  # 3, 4: k Kt (N m / A)
+_P_VISC = 5  # 5, 6
+_P_CPOS = 7  # 7, 8
+_P_CNEG = 9  # 9, 10
+_P_VREG = 11  # 11, 12
+_P_G = 13
+_P_KP = 14  # 14, 15
+_P_KV = 16  # 16, 17
+_P_LQ = 18  # 18, 19 observer position gain
+_P_LW = 20  # 20, 21 observer velocity gain (1/s)
+_P_ALPHA = 22  # 22, 23 difference low-pass pole
+_P_EST = 24  # 0 observer, 1 difference
+_P_NLV = 25  # 0 reference velocity in h and friction, 1 estimate
+_P_FRIC = 26  # 1 friction feed-forward on, 0 off
+_P_MID = 27  # 1 centre-of-cell position, 0 raw truncated count
+_P_LEN = 28
+
+# Layout of the state vector.
+_S_INIT = 0
+_S_Q = 1  # 1, 2 position estimate
+_S_W = 3  # 3, 4 velocity estimate
+_S_A = 5  # 5, 6 previous outer-loop command
+_S_Y = 7  # 7, 8 previous measured position
+_S_LEN = 9
+
+_NLV = {"reference": 0.0, "estimate": 1.0}
+
+
+@numba.njit(cache=True, nogil=True)
+def _joint_update(j, k, qm, p, ref, s):
+    """Estimator and outer loop of joint ``j`` (0 or 1); returns (y, q_hat, qd_hat, a, v_nl)."""
+    ts = p[_P_TS]
+    sc = p[_P_SCALE + j]
+    if p[_P_MID] != 0.0:
+        # centre of the pulse cell: count c covers [c, c+1) (c > 0),
+        # (c-1, c] (c < 0) and (-1, 1) (c = 0) in units of q k N / 2 pi.
+        c = float(round(qm * sc))
+        if c > 0.0:
+            c += 0.5
+        elif c < 0.0:
+            c -= 0.5
+        y = c / sc
+    else:
+        y = qm
+    if s[_S_INIT] == 0.0:
+        qh = y
+        wh = ref[k, 2 + j]
+    elif p[_P_EST] == 0.0:
+        # current observer: predict with the previous command, correct with y
+        qb = s[_S_Q + j] + ts * s[_S_W + j] + 0.5 * ts * ts * s[_S_A + j]
+        wb = s[_S_W + j] + ts * s[_S_A + j]
+        r = y - qb
+        qh = qb + p[_P_LQ + j] * r
+        wh = wb + p[_P_LW + j] * r
+    else:
+        # low-pass filtered backward difference
+        al = p[_P_ALPHA + j]
+        qh = y
+        wh = al * s[_S_W + j] + (1.0 - al) * (y - s[_S_Y + j]) / ts
+    a = ref[k, 4 + j] + p[_P_KV + j] * (ref[k, 2 + j] - wh) + p[_P_KP + j] * (ref[k, j] - qh)
+    vn = ref[k, 2 + j] if p[_P_NLV] == 0.0 else wh
+    return y, qh, wh, a, vn
+
+
+@numba.njit(cache=True, nogil=True)
+def _ctc_step(k, q_meas, f, p, ref, s):
+    """One CTC sample: update the estimator state ``s`` in place, return the currents (2,).
+
+    ``ref`` (n, 6) holds q_d (2), qd_d (2), qdd_d (2) per sample; row ``k`` is
+    used.  The only allocation is the returned array.
+    """
+    y2, q2, w2, a2, v2 = _joint_update(0, k, q_meas[0], p, ref, s)
+    y3, q3, w3, a3, v3 = _joint_update(1, k, q_meas[1], p, ref, s)
+    t2, t3 = inverse_dynamics_terms(f, q2, q3, v2, v3, a2, a3, p[_P_G])
+    if p[_P_FRIC] != 0.0:
+        t2 -= friction_torque(v2, p[_P_VISC], p[_P_CPOS], p[_P_CNEG], p[_P_VREG])
+        t3 -= friction_torque(v3, p[_P_VISC + 1], p[_P_CPOS + 1], p[_P_CNEG + 1], p[_P_VREG + 1])
+    s[_S_Q] = q2
+    s[_S_Q + 1] = q3
+    s[_S_W] = w2
+    s[_S_W + 1] = w3
+    s[_S_A] = a2
+    s[_S_A + 1] = a3
+    s[_S_Y] = y2
+    s[_S_Y + 1] = y3
+    s[_S_INIT] = 1.0
+    out = np.empty(2)
+    out[0] = t2 / p[_P_KKT]
+    out[1] = t3 / p[_P_KKT + 1]
+    return out
+
+
+def _reference_table(trajectory, t):
+    q, qd, qdd = trajectory.evaluate(t)
+    return np.ascontiguousarray(np.hstack([q, qd, qdd]), dtype=np.float64)
+
+
+class ComputedTorqueController:
+    """Computed-torque controller following the sampled-controller protocol.
+
+    Build it with :meth:`from_log`.  Calling it returns the motor currents
+    (2,) A for sample ``k``; see the module docstring for the law.
+
+    Parameters
+    ----------
+    f : array_like, shape (9,)
+        Model base parameters f1..f9 (e.g. the identified ones).
+    rig : plant.rig.Rig
+        Rig constants: Ts, gear ratios, encoders, Kt, friction, gravity.
+    trajectory : plant.trajectory.Trajectory
+        Reference (analytic q, qd, qdd).
+    gains : ctc.design.GainDesign
+        Outer-loop gains and velocity estimator (:func:`ctc.design.design_gains`).
+    n_samples : int
+        Samples from t = 0 for which the reference is tabulated; later samples
+        evaluate the trajectory on the fly (slower, allocates).
+    nonlinear_velocity : {"reference", "estimate"}
+        Velocity used in h_hat and the friction feed-forward.
+    friction : bool
+        Friction feed-forward on (default) or off.
+    cell_centre : bool
+        Take the quantised position at the centre of its pulse cell (default)
+        rather than at the truncated count.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape or non-finite ``f``, D_hat(q) not positive definite for
+        ``f`` (checked over a full turn of q3), bad options.
+
+    Notes
+    -----
+    Sources: computed-torque / inverse-dynamics control, J. J. Craig,
+    *Introduction to Robotics*, 3rd ed., sec. 10.5 (partitioned control,
+    model-based part + servo part); M. W. Spong, S. Hutchinson, M. Vidyasagar,
+    *Robot Modeling and Control*, sec. 8.3; the model is the paper's eq. 2
+    (corrected) with f from eq. 3.
+    """
+
+    def __init__(self, f, rig, trajectory, gains, *, n_samples, nonlinear_velocity="reference",
+                 friction=True, cell_centre=True):
+        f = np.asarray(f, dtype=np.float64)
+        if f.shape != (9,):
+            raise ValueError(f"f must have shape (9,) (f1..f9), got {f.shape}")
+        if not np.all(np.isfinite(f)):
+            raise ValueError("f contains NaN or inf")
+        if not is_positive_definite(f):
+            raise ValueError("D_hat(q) is not positive definite for this f (checked over a full turn of q3)")
+        if not isinstance(gains, GainDesign):
+            raise ValueError(f"gains must be a ctc.design.GainDesign, got {type(gains).__name__}")
+        if gains.estimator not in ESTIMATORS:
+            raise ValueError(f"unknown estimator {gains.estimator!r}")
+        if nonlinear_velocity not in _NLV:
+            raise ValueError(f"nonlinear_velocity must be one of {tuple(_NLV)}, got {nonlinear_velocity!r}")
+        if abs(gains.ts - rig.sample_time_s) > 1e-12 * rig.sample_time_s:
+            raise ValueError(f"gains designed for Ts = {gains.ts} s, rig has {rig.sample_time_s} s")
+        n = int(n_samples)
+        if n < 1:
+            raise ValueError(f"n_samples must be >= 1, got {n_samples}")
+        self.f = np.ascontiguousarray(f)
+        self.rig = rig
+        self.trajectory = trajectory
+        self.gains = gains
+        self.nonlinear_velocity = nonlinear_velocity
+        self.friction = bool(friction)
+        self.cell_centre = bool(cell_centre)
+        r = rig_vector(rig)
+        p = np.zeros(_P_LEN)
+        p[_P_TS] = rig.sample_time_s
+        p[_P_SCALE : _P_SCALE + 2] = r[1:3]
+        p[_P_KKT : _P_KKT + 2] = r[5:7]
+        p[_P_VISC : _P_VISC + 2] = r[7:9]
+        p[_P_CPOS : _P_CPOS + 2] = r[9:11]
+        p[_P_CNEG : _P_CNEG + 2] = r[11:13]
+        p[_P_VREG : _P_VREG + 2] = r[13:15]
+        p[_P_G] = r[15]
+        p[_P_KP : _P_KP + 2] = gains.Kp
+        p[_P_KV : _P_KV + 2] = gains.Kv
+        p[_P_LQ : _P_LQ + 2] = gains.observer_gain[:, 0]
+        p[_P_LW : _P_LW + 2] = gains.observer_gain[:, 1]
+        p[_P_ALPHA : _P_ALPHA + 2] = gains.alpha
+        p[_P_EST] = float(ESTIMATORS.index(gains.estimator))
+        p[_P_NLV] = _NLV[nonlinear_velocity]
+        p[_P_FRIC] = 1.0 if self.friction else 0.0
+        p[_P_MID] = 1.0 if self.cell_centre else 0.0
+        self._p = p
+        self._ts = float(rig.sample_time_s)
+        self._ref = _reference_table(trajectory, np.arange(n) * self._ts)
+        if not np.all(np.isfinite(self._ref)):
+            raise ValueError("the reference trajectory is not finite")
+        self._n = n
+        self._scratch = np.zeros((1, 6))
+        self._state = np.zeros(_S_LEN)
+
+    @classmethod
+    def from_log(cls, f, log, *, gains=None, nonlinear_velocity="reference", friction=True,
+                 cell_centre=True, n_samples=None, **design):
+        """Build the CTC of a log's rig and reference.
+
+        Parameters
+        ----------
+        f : array_like, shape (9,)
+            Model base parameters f1..f9 (e.g. ``identification.identify(log).f``).
+        log : plant.ExperimentLog
+            Source of the rig constants (gear, encoder, Kt, Ts, friction,
+            gravity) and of the reference trajectory.
+        gains : ctc.design.GainDesign, optional
+            Ready-made gains; otherwise ``design_gains(log.rig, **design)``.
+        nonlinear_velocity, friction, cell_centre
+            See the class docstring.
+        n_samples : int, optional
+            Samples to tabulate (default ``log.n_total``).
+        **design
+            Keyword arguments of :func:`ctc.design.design_gains`
+            (``bandwidth_hz``, ``damping``, ``estimator``,
+            ``estimator_bandwidth_hz``, ``delay_samples``).
+
+        Returns
+        -------
+        ComputedTorqueController
+
+        Raises
+        ------
+        ValueError
+            See the class docstring; also for ``gains`` given together with
+            design keywords.
+        """
+        if gains is None:
+            gains = design_gains(log.rig, **design)
+        elif design:
+            raise ValueError(f"give either gains or design keywords, not both ({sorted(design)})")
+        return cls(
+            f, log.rig, log.trajectory, gains,
+            n_samples=log.n_total if n_samples is None else n_samples,
+            nonlinear_velocity=nonlinear_velocity, friction=friction, cell_centre=cell_centre,
+        )
+
+    # ------------------------------------------------------------ protocol
+    def reset(self) -> None:
+        """Clear the estimator state (call before a new run)."""
+        self._state[:] = 0.0
+
+    def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
+        """Motor currents (2,) A for sample ``k`` at time ``t`` (s).
+
+        Parameters
+        ----------
+        k : int
+            Sample index (t = k Ts); samples must come in order after :meth:`reset`.
+        t : float
+            Sample time (s); used only beyond the tabulated reference.
+        q_meas : ndarray, shape (2,)
+            Quantised joint angles (rad) from the encoder counts.
+        e_pulses : ndarray, shape (2,)
+            Pulse errors (unused: the CTC forms its error from the continuous
+            reference and the position estimate).
+
+        Returns
+        -------
+        ndarray, shape (2,)
+            Motor currents (A).
+        """
+        if type(q_meas) is not np.ndarray or q_meas.dtype != np.float64:
+            q_meas = np.asarray(q_meas, dtype=np.float64)
+        if q_meas.shape != (2,):
+            raise ValueError(f"q_meas must have shape (2,), got {q_meas.shape}")
+        if 0 <= k < self._n:
+            return _ctc_step(k, q_meas, self.f, self._p, self._ref, self._state)
+        self._scratch[:] = _reference_table(self.trajectory, np.array([float(t)]))
+        return _ctc_step(0, q_meas, self.f, self._p, self._scratch, self._state)
+
+    def torque(self, q, qd, qdd) -> np.ndarray:
+        """Model torque ``D_hat(q) qdd + h_hat(q, qd) + g_hat(q)`` (N m), friction excluded.
+
+        Convenience for checks; calls :func:`plant.model.inverse_dynamics`.
+        """
+        from plant.model import inverse_dynamics
+
+        return inverse_dynamics(self.f, q, qd, qdd, self.rig.gravity_m_s2)
+
+    def __repr__(self) -> str:
+        g = self.gains
+        return (
+            f"ComputedTorqueController(estimator={g.estimator!r}, "
+            f"bandwidth_hz={g.bandwidth_hz.tolist()}, damping={g.damping.tolist()}, "
+            f"nonlinear_velocity={self.nonlinear_velocity!r}, friction={self.friction})"
+        )

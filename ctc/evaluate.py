@@ -1,0 +1,309 @@
+"""Closed-loop evaluation of the computed-torque controller with casadi (design card).
+
+:func:`evaluate_ctc` builds the sampled closed loop -- computed-torque
+controller (the same law, estimator and options as a
+:class:`~ctc.ComputedTorqueController`) acting on the model robot -- as a
+casadi graph and evaluates it over a run:
+
+* one sample is a casadi ``Function`` ``step(x_k, u_k) -> (x_{k+1}, y_k)``:
+  encoder truncation ``trunc(x) = sign(x) floor(|x|)`` of the robot angles
+  and of the reference counts, the pulse errors, the controller (centre of
+  the pulse cell, current observer or filtered difference, outer loop,
+  ``D_hat a + h_hat + g_hat - tau_f``, division by ``k Kt``), the clip at
+  the current full scale, and the ZOH torque integrated by the same fixed
+  step RK4 as :func:`plant.simulate.integrate_sample` (``substeps`` steps);
+* the run is ``step.mapaccum(n)``, evaluated once on the tabulated
+  reference.
+
+State ``x`` (13,): robot ``q2, q3, qd2, qd3``; controller ``init``,
+``q_hat`` (2), ``qd_hat`` (2), previous command ``a`` (2), previous position
+``y`` (2).  Per-sample input ``u`` (8,): ``q_d, qd_d, qdd_d`` (6) and the
+unquantised reference counts (2).  Output ``y`` (6,): pulse errors (2),
+currents (2), robot angles (2) at ``t_k``.
+
+The rigid-body model is the casadi model of :mod:`plant.symbolic`
+(``derive_base_model``), which the plant's tests prove equal to the numeric
+model of :mod:`plant.model` to 1e-12; the drive friction is the casadi form of
+:func:`plant.model.friction_torque` (:func:`friction_sx`, tested against it).
+
+Agreement with the numba simulator.  Both evaluate the same arithmetic up to
+rounding (1e-16); the quantised loop is chaotic at the pulse level, so after
+a while a rounding difference flips one count at a pulse boundary and the
+two runs then differ by single pulses at scattered samples.  With 32 RK4
+substeps in both, they agree sample for sample over the first second of the
+paper trajectory (``tests/test_ctc.py``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from plant.simulate import rig_vector
+from plant.symbolic import derive_base_model
+
+from .computed_torque import (
+    _P_ALPHA,
+    _P_CNEG,
+    _P_CPOS,
+    _P_EST,
+    _P_FRIC,
+    _P_G,
+    _P_KKT,
+    _P_KP,
+    _P_KV,
+    _P_LQ,
+    _P_LW,
+    _P_MID,
+    _P_NLV,
+    _P_SCALE,
+    _P_TS,
+    _P_VISC,
+    _P_VREG,
+    ComputedTorqueController,
+)
+
+__all__ = ["CasadiEvaluation", "evaluate_ctc", "build_step_function", "friction_sx"]
+
+_NX = 13
+_NU = 8
+_NY = 6
+
+
+def friction_sx(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
+    """casadi form of :func:`plant.model.friction_torque` (joint side, N m).
+
+    ``-(viscous qd + Tc clip(qd / ramp_speed, -1, 1))`` with ``Tc =
+    coulomb_pos`` for qd > 0 and ``coulomb_neg`` otherwise.
+    """
+    r = ca.fmin(ca.fmax(qd / ramp_speed, -1.0), 1.0)
+    tc = ca.if_else(qd > 0, coulomb_pos, coulomb_neg)
+    return -(viscous * qd + tc * r)
+
+
+def _trunc(x):
+    return ca.sign(x) * ca.floor(ca.fabs(x))
+
+
+def build_step_function(controller: ComputedTorqueController, f_robot, *, substeps=32,
+                        current_full_scale_A=None):
+    """The one-sample closed-loop step as a casadi Function.
+
+    Parameters
+    ----------
+    controller : ComputedTorqueController
+        Supplies the model f, rig constants, gains and options.
+    f_robot : array_like, shape (9,)
+        True f of the model robot.
+    substeps : int
+        RK4 steps per sample.
+    current_full_scale_A : float, optional
+        Current clip (default: the rig's, none if it gives none).
+
+    Returns
+    -------
+    casadi.Function
+        ``step(x (13,), u (8,)) -> (x_next (13,), y (6,))`` (layout in the
+        module docstring).
+    """
+    p = controller._p
+    fm = ca.DM(controller.f)
+    fr = ca.DM(np.asarray(f_robot, dtype=float))
+    rig = controller.rig
+    r = rig_vector(rig)
+    model = derive_base_model()
+    grav = float(p[_P_G])
+    ts = float(p[_P_TS])
+    i_fs = rig.current_full_scale_A if current_full_scale_A is None else current_full_scale_A
+
+    x = ca.SX.sym("x", _NX)
+    u = ca.SX.sym("u", _NU)
+    q = x[0:2]
+    w = x[2:4]
+    init = x[4]
+    qd_ref = u[0:2]
+    wd_ref = u[2:4]
+    ad_ref = u[4:6]
+    refc = u[6:8]
+
+    e_out = []
+    y_list, qh_list, wh_list, a_list, vn_list = [], [], [], [], []
+    for j in range(2):
+        sc = float(p[_P_SCALE + j])
+        cnt = _trunc(q[j] * sc)
+        e_out.append(_trunc(refc[j]) - cnt)
+        if p[_P_MID] != 0.0:
+            yj = (cnt + 0.5 * ca.sign(cnt)) / sc
+        else:
+            yj = cnt / sc
+        if p[_P_EST] == 0.0:
+            qb = x[5 + j] + ts * x[7 + j] + 0.5 * ts * ts * x[9 + j]
+            wb = x[7 + j] + ts * x[9 + j]
+            res = yj - qb
+            qh_run = qb + float(p[_P_LQ + j]) * res
+            wh_run = wb + float(p[_P_LW + j]) * res
+        else:
+            al = float(p[_P_ALPHA + j])
+            qh_run = yj
+            wh_run = al * x[7 + j] + (1.0 - al) * (yj - x[11 + j]) / ts
+        qh = ca.if_else(init == 0, yj, qh_run)
+        wh = ca.if_else(init == 0, wd_ref[j], wh_run)
+        a = ad_ref[j] + float(p[_P_KV + j]) * (wd_ref[j] - wh) + float(p[_P_KP + j]) * (qd_ref[j] - qh)
+        vn = wd_ref[j] if p[_P_NLV] == 0.0 else wh
+        y_list.append(yj)
+        qh_list.append(qh)
+        wh_list.append(wh)
+        a_list.append(a)
+        vn_list.append(vn)
+    qh = ca.vertcat(*qh_list)
+    vn = ca.vertcat(*vn_list)
+    a = ca.vertcat(*a_list)
+    zero2 = ca.DM.zeros(2)
+    tau = model.D(fm, qh, vn, zero2, grav) @ a + model.h(fm, qh, vn, zero2, grav) + model.g(fm, qh, vn, zero2, grav)
+    cur = []
+    for j in range(2):
+        tj = tau[j]
+        if p[_P_FRIC] != 0.0:
+            tj = tj - friction_sx(vn[j], p[_P_VISC + j], p[_P_CPOS + j], p[_P_CNEG + j], p[_P_VREG + j])
+        ij = tj / float(p[_P_KKT + j])
+        if i_fs is not None:
+            ij = ca.fmin(ca.fmax(ij, -float(i_fs)), float(i_fs))
+        cur.append(ij)
+    cur = ca.vertcat(*cur)
+    u_tau = ca.vertcat(float(r[5]) * cur[0], float(r[6]) * cur[1])
+
+    def accel(qq, ww):
+        fric = ca.vertcat(
+            friction_sx(ww[0], r[7], r[9], r[11], r[13]),
+            friction_sx(ww[1], r[8], r[10], r[12], r[14]),
+        )
+        return model.forward(fr, qq, ww, u_tau + fric, grav)
+
+    h = ts / int(substeps)
+    qq, ww = q, w
+    for _ in range(int(substeps)):  # same stages as plant.simulate.integrate_sample
+        a1 = accel(qq, ww)
+        v1 = ww + 0.5 * h * a1
+        a2 = accel(qq + 0.5 * h * ww, v1)
+        v2 = ww + 0.5 * h * a2
+        a3 = accel(qq + 0.5 * h * v1, v2)
+        v3 = ww + h * a3
+        a4 = accel(qq + h * v2, v3)
+        qq = qq + h / 6.0 * (ww + 2.0 * v1 + 2.0 * v2 + v3)
+        ww = ww + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    x_next = ca.vertcat(qq, ww, 1.0, qh, ca.vertcat(*wh_list), a, ca.vertcat(*y_list))
+    y = ca.vertcat(ca.vertcat(*e_out), cur, q)
+    return ca.Function("ctc_step", [x, u], [x_next, y], ["x", "u"], ["x_next", "y"])
+
+
+@dataclass(frozen=True)
+class CasadiEvaluation:
+    """Result of :func:`evaluate_ctc`.
+
+    Attributes
+    ----------
+    t : ndarray, shape (n,)
+        Sample times (s).
+    e_pulses : ndarray, shape (n, 2), int64
+        Pulse errors ref - act at t_k.
+    i_A : ndarray, shape (n, 2)
+        Motor currents (A).
+    q : ndarray, shape (n, 2)
+        Robot joint angles at t_k (rad).
+    max_abs_error : ndarray, shape (2,)
+        max abs(e) per joint over t >= after_s (pulses).
+    max_abs_error_all : ndarray, shape (2,)
+        max abs(e) per joint over the whole run.
+    within_one_pulse : bool
+        Whether abs(e) <= pulses on both joints for t >= after_s.
+    after_s : float
+        Start of the evaluated part (s).
+    function : casadi.Function
+        The run Function ``(x0 (13,), U (8, n)) -> (X (13, n), Y (6, n))``
+        (``step.mapaccum(n)``).
+    """
+
+    t: np.ndarray
+    e_pulses: np.ndarray
+    i_A: np.ndarray
+    q: np.ndarray
+    max_abs_error: np.ndarray
+    max_abs_error_all: np.ndarray
+    within_one_pulse: bool
+    after_s: float
+    function: object
+
+    def summary(self) -> str:
+        """One line: max abs(e) per joint and the ±1 pulse verdict."""
+        m, a = self.max_abs_error, self.max_abs_error_all
+        return (
+            f"casadi CTC evaluation over {self.t[-1] + (self.t[1] - self.t[0] if len(self.t) > 1 else 0):.3f} s: "
+            f"max |e| = {m[0]} / {m[1]} pulses after {self.after_s * 1e3:.0f} ms "
+            f"({a[0]} / {a[1]} whole run); within ±1 pulse: {'yes' if self.within_one_pulse else 'no'}"
+        )
+
+
+def evaluate_ctc(controller: ComputedTorqueController, f_robot, *, n_samples=None, substeps=32,
+                 after_s=0.05, pulses=1, q0=None, qd0=None) -> CasadiEvaluation:
+    """Evaluate the CTC closed loop on the model robot with casadi.
+
+    Parameters
+    ----------
+    controller : ComputedTorqueController
+        The controller (its model f, rig, reference, gains and options).
+    f_robot : array_like, shape (9,)
+        True f of the simulated robot.
+    n_samples : int, optional
+        Samples from t = 0 (default: all tabulated in the controller).
+    substeps : int
+        RK4 steps per sample (use the same as the numba simulator to compare).
+    after_s : float
+        The ±``pulses`` check starts at this time (s); default 50 ms.
+    pulses : int
+        Tolerance of the check (pulses).
+    q0, qd0 : array_like, shape (2,), optional
+        Start state (default: the rig's).
+
+    Returns
+    -------
+    CasadiEvaluation
+
+    Raises
+    ------
+    ValueError
+        Wrong controller type, f_robot not 9 finite numbers, n_samples out of
+        range, substeps < 1.
+    """
+    if not isinstance(controller, ComputedTorqueController):
+        raise ValueError(f"controller must be a ComputedTorqueController, got {type(controller).__name__}")
+    f_robot = np.asarray(f_robot, dtype=float)
+    if f_robot.shape != (9,) or not np.all(np.isfinite(f_robot)):
+        raise ValueError(f"f_robot must be 9 finite numbers, got shape {f_robot.shape}")
+    n_max = controller._ref.shape[0]
+    n = n_max if n_samples is None else int(n_samples)
+    if not 1 <= n <= n_max:
+        raise ValueError(f"n_samples must be in 1..{n_max} (the controller's reference table), got {n_samples}")
+    if int(substeps) < 1:
+        raise ValueError(f"substeps must be >= 1, got {substeps}")
+    rig = controller.rig
+    step = build_step_function(controller, f_robot, substeps=substeps)
+    run = step.mapaccum("ctc_run", n)
+    t = np.arange(n) * rig.sample_time_s
+    refc = controller.trajectory.position(t) * rig.pulses_per_rad
+    U = np.hstack([controller._ref[:n], refc]).T
+    x0 = np.zeros(_NX)
+    x0[0:2] = rig.q0_rad if q0 is None else np.asarray(q0, float)
+    x0[2:4] = rig.qd0_rad_per_s if qd0 is None else np.asarray(qd0, float)
+    _, Y = run(x0, U)
+    Y = np.asarray(Y).T
+    e = np.rint(Y[:, 0:2]).astype(np.int64)
+    mask = t >= after_s - 1e-12
+    if not np.any(mask):
+        raise ValueError(f"no sample at or after after_s = {after_s} s")
+    m = np.max(np.abs(e[mask]), axis=0)
+    return CasadiEvaluation(
+        t=t, e_pulses=e, i_A=Y[:, 2:4], q=Y[:, 4:6], max_abs_error=m,
+        max_abs_error_all=np.max(np.abs(e), axis=0), within_one_pulse=bool(np.all(m <= pulses)),
+        after_s=float(after_s), function=run,
+    )

@@ -1,0 +1,91 @@
+"""The sampled-controller protocol and the paper's P controller.
+
+A *sampled controller* is any object with
+
+``reset()``
+    Forget everything from a previous run (called once before a run).
+``__call__(k, t, q_meas, e_pulses) -> ndarray (2,)``
+    The motor currents (A) of joints 2 and 3 to apply over
+    ``[t_k, t_k + Ts)``, computed at sample ``k`` (time ``t = k Ts``, s) from
+
+    * ``q_meas`` (2,) rad: the quantised joint angles read from the motor
+      encoders, ``count * 2 pi / (k N)`` with ``count = trunc(q k N / 2 pi)``;
+    * ``e_pulses`` (2,) int: the pulse errors ``ref - act`` as the rig forms
+      them, ``trunc(q_ref k N / 2 pi) - count``.
+
+    It is called once per sample, in order (k = 0, 1, 2, ...).
+
+:func:`plant.closed_loop.simulate_closed_loop` runs any such object against
+the model robot; :class:`PController` (the paper's controller, ``i = P e``)
+and :class:`ctc.ComputedTorqueController` follow it.
+"""
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["SampledController", "PController"]
+
+
+@runtime_checkable
+class SampledController(Protocol):
+    """Structural type of a sampled controller (see the module docstring)."""
+
+    def reset(self) -> None:  # pragma: no cover - protocol
+        """Forget the state of a previous run."""
+
+    def __call__(self, k: int, t: float, q_meas: np.ndarray, e_pulses: np.ndarray) -> np.ndarray:  # pragma: no cover
+        """Motor currents (2,) A for sample k."""
+
+
+class PController:
+    """The paper's decentralised P position controller, ``i = P e``.
+
+    Parameters
+    ----------
+    p_gain_A_per_pulse : array_like, shape (2,)
+        P gains of joints 2 and 3 (A per pulse of error), > 0.
+
+    Raises
+    ------
+    ValueError
+        If the gains are not 2 finite positive numbers.
+
+    Notes
+    -----
+    Source: the paper's experiment (section 3): the current reference of an
+    ideal current loop is ``P e`` with the integer encoder error ``e``,
+    computed at ``t_k`` and held over the sample.  It is stateless.
+    """
+
+    def __init__(self, p_gain_A_per_pulse):
+        p = np.asarray(p_gain_A_per_pulse, dtype=np.float64)
+        if p.shape != (2,) or not np.all(np.isfinite(p)) or np.any(p <= 0):
+            raise ValueError(f"p_gain_A_per_pulse must be 2 finite numbers > 0, got {p_gain_A_per_pulse!r}")
+        self.p_gain = p
+
+    @classmethod
+    def from_log(cls, log) -> "PController":
+        """The P controller of a log's rig (``rig.p_gain_A_per_pulse``).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog or plant.rig.Rig
+
+        Returns
+        -------
+        PController
+        """
+        rig = getattr(log, "rig", log)
+        return cls(rig.p_gain_A_per_pulse)
+
+    def reset(self) -> None:
+        """Nothing to reset (stateless)."""
+
+    def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
+        """Currents ``P e`` (2,) A from the pulse errors ``e_pulses`` (2,)."""
+        return self.p_gain * e_pulses
+
+    def __repr__(self) -> str:
+        return f"PController(p_gain_A_per_pulse={self.p_gain.tolist()})"
