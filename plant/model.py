@@ -80,8 +80,8 @@ def friction_torque(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
 
     ``tau_f = -(viscous qd + Tc clip(qd / ramp_speed, -1, 1))`` with
     ``Tc = coulomb_pos`` for qd > 0 and ``coulomb_neg`` otherwise; all arguments
-    joint side (viscous = k^2 B, Coulomb = |k| Tc_motor, ramp_speed =
-    motor ramp speed / |k|).
+    joint side (viscous = k^2 B, Coulomb = abs(k) Tc_motor, ramp_speed =
+    motor ramp speed / abs(k)).
     """
     r = qd / ramp_speed
     if r > 1.0:

@@ -36,7 +36,7 @@ class Rig:
         Motor-side viscous friction B (joint side: k^2 B).
     coulomb_friction_Nm : tuple of 2 (float, float)
         Motor-side Coulomb friction per joint, (magnitude for positive joint
-        velocity, magnitude for negative joint velocity); joint side: |k| Tc.
+        velocity, magnitude for negative joint velocity); joint side: abs(k) Tc.
     coulomb_ramp_speed_rad_per_s : float
         Motor speed below which the Coulomb friction ramps linearly to zero.
     gravity_m_s2 : float

@@ -432,7 +432,7 @@ def simulate_batch(
         Truncate encoder counts as the rig does (True: exact experiment).  False
         gives the smooth surrogate closed loop with continuous counts.
     bound : float, optional
-        Early-termination bound on |e| (pulses); default :func:`default_bound`.
+        Early-termination bound on abs(e) (pulses); default :func:`default_bound`.
     workers : int, optional
         Number of threads (default: numba's current setting).
     continuous_output : bool
@@ -508,7 +508,7 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
         Truncate counts as the rig does (default); False gives float errors of
         the smooth surrogate.
     bound : float, optional
-        Divergence bound on |e| in pulses (default :func:`default_bound`).
+        Divergence bound on abs(e) in pulses (default :func:`default_bound`).
 
     Returns
     -------
