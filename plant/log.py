@@ -598,10 +598,14 @@ class ExperimentLog:
     def replace(self, **changes: Any) -> "ExperimentLog":
         """Return a copy with some fields replaced (:func:`dataclasses.replace`).
 
-        The sidecar is not updated; :meth:`save` writes the current rig,
-        trajectory, ``n_samples`` and ``window_s`` into the saved sidecar.
+        Unless ``sidecar`` is among the changes, the copy's sidecar is updated
+        with its rig, trajectory, ``n_samples`` and ``window_s`` (what
+        :meth:`save` writes), so a saved and reloaded copy compares equal.
         """
-        return dataclasses.replace(self, **changes)
+        new = dataclasses.replace(self, **changes)
+        if "sidecar" not in changes:
+            new = dataclasses.replace(new, sidecar=new._synced_sidecar())
+        return new
 
     def window(self, t_start: float, t_stop: float) -> "ExperimentLog":
         """Cut the rows with ``t_start <= t < t_stop`` (s, times from the start of the run).
