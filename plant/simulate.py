@@ -370,6 +370,24 @@ class ExperimentSimulation:
     n_compared: np.ndarray
 
 
+def _kernel(fn, *args):
+    """Call a compiled kernel; a Ctrl-C inside it surfaces as KeyboardInterrupt.
+
+    numba reports a signal that arrives while compiled code runs as
+    ``SystemError: ... returned a result with an exception set`` chained to
+    the KeyboardInterrupt; callers (the GA, the CLI) expect the interrupt.
+    """
+    try:
+        return fn(*args)
+    except SystemError as exc:
+        cause = exc
+        while cause is not None:  # numba chains several SystemErrors to the interrupt
+            if isinstance(cause, KeyboardInterrupt):
+                raise KeyboardInterrupt() from None
+            cause = cause.__cause__ or cause.__context__
+        raise
+
+
 def _prepare(log, F, substeps, bound, workers):
     F = np.asarray(F, dtype=np.float64)
     if F.ndim != 2 or F.shape[1] != 9:
@@ -458,8 +476,8 @@ def simulate_batch(
     r, ref = _cached_inputs(log)
     m, n = F.shape[0], e_log.shape[0]
     err = np.zeros((m, n, 2)) if errors else np.zeros((m, 0, 2))
-    obj, status, compared = _batch(
-        F, r, ref, e_log, int(log.start_index), substeps, bool(quantize), bound, err,
+    obj, status, compared = _kernel(
+        _batch, F, r, ref, e_log, int(log.start_index), substeps, bool(quantize), bound, err,
         bool(errors), bool(continuous_output), bool(fast),
     )
     if errors and quantize and not continuous_output:
@@ -694,8 +712,8 @@ def prediction_errors(
             raise ValueError("initial_state contains NaN or inf")
         use_x0 = True
     out = np.empty((m, e_log.shape[0], 2))
-    status = _replay_batch(F2, r, ref, e_log, int(log.start_index), substeps, float(gain),
-                           bound, out, X0, use_x0)
+    status = _kernel(_replay_batch, F2, r, ref, e_log, int(log.start_index), substeps,
+                     float(gain), bound, out, X0, use_x0)
     if single:
         return out[0], int(status[0])
     return out, status

@@ -176,3 +176,21 @@ def test_fast_path_gives_the_reference_pulses(paper_log, validation_log, truth, 
         np.testing.assert_array_equal(a.e_pulses, b.e_pulses)
         np.testing.assert_array_equal(a.status, b.status)
         np.testing.assert_array_equal(a.objective, b.objective)
+
+
+def test_ctrl_c_inside_the_kernel_is_a_keyboard_interrupt(paper_log, truth):
+    """numba's SystemError wrapping of SIGINT is translated back to KeyboardInterrupt."""
+    import os
+    import signal
+    import threading
+
+    f = _true_f(truth, paper_log)
+    simulate_batch(paper_log, f[None], substeps=1, errors=False)  # compiled
+    timer = threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            for _ in range(50):  # long enough for the timer on any machine
+                simulate_batch(paper_log, np.tile(f, (200, 1)), substeps=8, errors=False)
+    finally:
+        timer.cancel()
