@@ -171,8 +171,10 @@ def _sincos_near(q, qb, sb, cb):
     if abs(d) > 0.05:
         return math.sin(q), math.cos(q)
     d2 = d * d
-    sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)))
-    cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)))
+    # Horner forms of the Taylor series, multiplications only (hot loop)
+    sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))))
+    cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0)
+                                                       * (1.0 - d2 * (1.0 / 56.0))))
     return sb * cd + cb * sd, cb * cd - sb * sd
 
 
@@ -195,6 +197,8 @@ def integrate_sample_fast(f, r, q2, q3, w2, w3, u2, u3, substeps):
     check that it gives the same pulses as the reference path.
     """
     h = r[_R_TS] / substeps
+    hh = 0.5 * h
+    h6 = h * (1.0 / 6.0)
     ok = f[0] > 0.0
     q2b = q2
     q3b = q3
@@ -204,13 +208,13 @@ def integrate_sample_fast(f, r, q2, q3, w2, w3, u2, u3, substeps):
     c3b = math.cos(q3)
     for _ in range(substeps):
         a12, a13, d1 = _accel_fast(f, r, q2, q3, w2, w3, u2, u3, q2b, s2b, c2b, q3b, s3b, c3b)
-        v12 = w2 + 0.5 * h * a12
-        v13 = w3 + 0.5 * h * a13
-        a22, a23, d2 = _accel_fast(f, r, q2 + 0.5 * h * w2, q3 + 0.5 * h * w3, v12, v13, u2, u3,
+        v12 = w2 + hh * a12
+        v13 = w3 + hh * a13
+        a22, a23, d2 = _accel_fast(f, r, q2 + hh * w2, q3 + hh * w3, v12, v13, u2, u3,
                                    q2b, s2b, c2b, q3b, s3b, c3b)
-        v22 = w2 + 0.5 * h * a22
-        v23 = w3 + 0.5 * h * a23
-        a32, a33, d3 = _accel_fast(f, r, q2 + 0.5 * h * v12, q3 + 0.5 * h * v13, v22, v23, u2,
+        v22 = w2 + hh * a22
+        v23 = w3 + hh * a23
+        a32, a33, d3 = _accel_fast(f, r, q2 + hh * v12, q3 + hh * v13, v22, v23, u2,
                                    u3, q2b, s2b, c2b, q3b, s3b, c3b)
         v32 = w2 + h * a32
         v33 = w3 + h * a33
@@ -218,10 +222,10 @@ def integrate_sample_fast(f, r, q2, q3, w2, w3, u2, u3, substeps):
                                    q2b, s2b, c2b, q3b, s3b, c3b)
         if not (ok and d1 > 0.0 and d2 > 0.0 and d3 > 0.0 and d4 > 0.0):
             return q2, q3, w2, w3, STATUS_NOT_PD
-        q2 += h / 6.0 * (w2 + 2.0 * v12 + 2.0 * v22 + v32)
-        q3 += h / 6.0 * (w3 + 2.0 * v13 + 2.0 * v23 + v33)
-        w2 += h / 6.0 * (a12 + 2.0 * a22 + 2.0 * a32 + a42)
-        w3 += h / 6.0 * (a13 + 2.0 * a23 + 2.0 * a33 + a43)
+        q2 += h6 * (w2 + 2.0 * v12 + 2.0 * v22 + v32)
+        q3 += h6 * (w3 + 2.0 * v13 + 2.0 * v23 + v33)
+        w2 += h6 * (a12 + 2.0 * a22 + 2.0 * a32 + a42)
+        w3 += h6 * (a13 + 2.0 * a23 + 2.0 * a33 + a43)
     if not (math.isfinite(q2) and math.isfinite(q3) and math.isfinite(w2) and math.isfinite(w3)):
         return q2, q3, w2, w3, STATUS_NONFINITE
     return q2, q3, w2, w3, STATUS_OK
