@@ -5,6 +5,7 @@ closed-loop simulator) + optimiser (the paper's multi-population GA, then
 prediction-error refinement) -> :class:`IdentificationResult`.
 """
 from .api import DEFAULT_METHOD, METHODS, identify
+from .distributed import Job, JobResult, identify_many, seed_jobs
 from .filtering import apply_lowpass, lowpass_sos
 from .ga import GAResult, run_ga
 from .objective import IDENTIFICATION_SUBSTEPS, OutputError
@@ -13,6 +14,10 @@ from .result import IdentificationResult
 
 __all__ = [
     "identify",
+    "identify_many",
+    "Job",
+    "JobResult",
+    "seed_jobs",
     "METHODS",
     "DEFAULT_METHOD",
     "IdentificationResult",
