@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -18,22 +16,13 @@ __all__ = ["IdentificationResult", "write_json_atomic"]
 def write_json_atomic(path, data):
     """Write ``data`` as JSON to ``path`` atomically (temp file + ``os.replace``).
 
-    A failure leaves no partial file behind.
+    A failure (e.g. a value JSON cannot hold) leaves no partial file behind.
     """
+    from plant.log import _atomic_write
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=2, allow_nan=False)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    _atomic_write(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def _jsonable(x):

@@ -264,6 +264,13 @@ def integrate_sample(f, r, q2, q3, w2, w3, u2, u3, substeps):
 
 
 @_jit
+def _loop_constants(r):
+    """Counts per rad, joint torque per pulse of error (P k Kt) and start state."""
+    return (r[_R_SCALE], r[_R_SCALE + 1], r[_R_P] * r[_R_KKT], r[_R_P + 1] * r[_R_KKT + 1],
+            r[_R_Q0], r[_R_Q0 + 1], r[_R_QD0], r[_R_QD0 + 1])
+
+
+@_jit
 def _run(f, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, continuous_out,
          fast):
     """Simulate one candidate; return (output error, status, samples compared).
@@ -279,14 +286,7 @@ def _run(f, r, ref, e_log, k0, substeps, quantize, bound, err_out, write, contin
     """
     n_total = ref.shape[0]
     n = e_log.shape[0]
-    s2 = r[_R_SCALE]
-    s3 = r[_R_SCALE + 1]
-    p2 = r[_R_P] * r[_R_KKT]
-    p3 = r[_R_P + 1] * r[_R_KKT + 1]
-    q2 = r[_R_Q0]
-    q3 = r[_R_Q0 + 1]
-    w2 = r[_R_QD0]
-    w3 = r[_R_QD0 + 1]
+    s2, s3, p2, p3, q2, q3, w2, w3 = _loop_constants(r)
     sse = 0.0
     status = STATUS_OK
     compared = 0
@@ -587,14 +587,7 @@ def _count_interval_centre(a):
 @_jit
 def _replay_run(f, r, ref, e_log, k0, substeps, gain, bound, out, x0, use_x0):
     n_total = ref.shape[0]
-    s2 = r[_R_SCALE]
-    s3 = r[_R_SCALE + 1]
-    p2 = r[_R_P] * r[_R_KKT]
-    p3 = r[_R_P + 1] * r[_R_KKT + 1]
-    q2 = r[_R_Q0]
-    q3 = r[_R_Q0 + 1]
-    w2 = r[_R_QD0]
-    w3 = r[_R_QD0 + 1]
+    s2, s3, p2, p3, q2, q3, w2, w3 = _loop_constants(r)
     status = STATUS_OK
     done = 0
     k_start = 0
