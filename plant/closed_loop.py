@@ -276,7 +276,7 @@ class FlexibleJoints:
 
     stiffness_Nm_per_rad: tuple
     damping_Nms_per_rad: tuple
-    motor_inertia_kgm2: float | tuple = 200e-6
+    motor_inertia_kgm2: float | tuple
 
     def vector(self, rig) -> np.ndarray:
         """Joint-side constants (Ks2, Ks3, Ds2, Ds3, Jm2 k2^2, Jm3 k3^2), shape (6,)."""

@@ -167,7 +167,7 @@ def test_flexible_robot_reproduces_drill_log(drill_log, truth):
 
 def test_flexible_joints_validation(paper_log):
     with pytest.raises(ValueError, match="stiffness"):
-        FlexibleJoints((0.0, 1.0), (1.0, 1.0)).vector(paper_log.rig)
+        FlexibleJoints((0.0, 1.0), (1.0, 1.0), 200e-6).vector(paper_log.rig)
     fx = FlexibleJoints((3e4, 6e3), (4.0, 0.4), 200e-6)
     fl = fx.link_parameters(np.ones(9) * 5, paper_log.rig)
     assert fl[6] == pytest.approx(5 - 200e-6 * 107.8**2)
