@@ -54,7 +54,7 @@ class PredictionErrorProblem:
         :class:`identification.objective.OutputError`.
     """
 
-    def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=2,
+    def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=1,
                  lowpass_hz=None, workers=None):
         self.log = log
         self.to_state = to_state
