@@ -180,175 +180,155 @@ def identify(
     ropts.update(refine_options or {})
 
     if payload:
-        return _identify_payload(log, method, _prior_f(prior), payload_bounds, rng, seed,
-                                 ga_settings, ropts, callback, workers, progress, lowpass_hz,
-                                 substeps)
+        space = _payload_space(log, _prior_f(prior), payload_bounds)
+    else:
+        space = _Space(bounds)
+    return _search(log, space, method, rng, seed, ga_settings, ropts, callback, workers,
+                   progress, lowpass_hz, substeps)
 
-    compile_s = warm_up()
-    t0 = time.perf_counter()
-    objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers)
 
-    stopped = [False]
+class _Space:
+    """The searched vector x and its map to the base parameters.
 
-    def ga_callback(state):
+    ``f = offset + matrix @ x[:k]`` (identity for f1..f9 themselves); for a
+    window log in payload mode ``x[k:]`` is the state at the first sample,
+    estimated as a nuisance parameter by the refinement.
+    """
+
+    def __init__(self, bounds, offset=None, matrix=None, state=None, refine_starts=None,
+                 extras=None):
+        self.bounds = bounds  # (k, 2)
+        self.k = bounds.shape[0]
+        self.offset = offset
+        self.matrix = matrix
+        self.state = state  # None or (x0 (4,), bounds (4, 2))
+        # refinement starts without a GA (payload mode); None: from the GA
+        self.refine_starts = refine_starts
+        self.extras = extras or (lambda x: {})
+
+    def to_f(self, x):
+        x = np.asarray(x, dtype=float)[..., : self.k]
+        return x if self.matrix is None else self.offset + x @ self.matrix.T
+
+
+def _payload_space(log, f_prior, payload_bounds):
+    """Payload mode: x = [m, m xp, m yp, J] (+ the window's initial state)."""
+    from plant.payload import payload_delta_matrix, payload_from_vector
+    from plant.simulate import measured_counts
+
+    pb = _check_bounds(DEFAULT_PAYLOAD_BOUNDS if payload_bounds is None else payload_bounds,
+                       log, n=4)
+    # Initial-state guess: the centre of the first count interval and the
+    # reference velocity (no quantised simulation before a window, which would
+    # not be smooth in p; no differentiated encoder counts).
+    scale = log.rig.pulses_per_rad
+    _, qd_ref, _ = log.trajectory.evaluate(log.t[:1])
+    x_state = np.concatenate([measured_counts(log)[0] / scale, qd_ref[0]])
+    half = np.r_[2.0 / np.abs(scale), 0.2 * np.abs(qd_ref[0]) + 0.05]
+    lo, hi = pb[:, 0], pb[:, 1]
+    # a light payload near the frame origin, and a mid-range mass
+    starts = lo + (hi - lo) * np.array([[0.2, 0.5, 0.5, 0.1], [0.6, 0.5, 0.5, 0.3]])
+
+    def extras(x):
+        pl = payload_from_vector(x, clip_negative_inertia=True)
+        return dict(payload=dict(mass_kg=pl.mass_kg, com_m=list(pl.com_m),
+                                 izz_kgm2=pl.izz_kgm2, vector=[float(v) for v in x],
+                                 vector_names=["m_kg", "m_xp_kgm", "m_yp_kgm", "J_kgm2"]),
+                    prior_f=f_prior)
+
+    return _Space(pb, offset=f_prior, matrix=payload_delta_matrix(log.rig.a3_m),
+                  state=(x_state, np.column_stack([x_state - half, x_state + half])),
+                  refine_starts=starts, extras=extras)
+
+
+def _stage_callback(callback, stage, evaluations):
+    """Wrap the user's callback for one stage: ``fn(x, fun, **info) -> bool``."""
+    def fn(x, fun, **info):
         if callback is None:
             return False
-        r = OptimizeResult(x=state.best_x, fun=state.best_objective, stage="ga",
-                           generation=state.generation, evaluations=objective.evaluations)
-        stopped[0] = bool(callback(r))
-        return stopped[0]
-
-    ga = run_ga(objective, bounds, rng=rng, callback=ga_callback, progress=progress,
-                **ga_settings)
-    f = np.asarray(ga.x_best, dtype=float)
-    interrupted, message = ga.interrupted, ga.message
-    refinement = None
-
-    if method == "ga+pem" and not interrupted:
-        problem = PredictionErrorProblem(log, gain=ropts["gain"], substeps=substeps,
-                                         lowpass_hz=lowpass_hz, workers=workers)
-        order = np.argsort(ga.population_objective, kind="stable")
-        starts = [f]
-        for i in order:  # the best distinct individuals of the final population
-            x = ga.population[i]
-            if len(starts) >= int(ropts["n_starts"]):
-                break
-            if not any(np.array_equal(x, s) for s in starts):
-                starts.append(x)
-
-        def refine_callback(x, cost):
-            if callback is None:
-                return False
-            r = OptimizeResult(x=x, fun=cost, stage="refine",
-                               evaluations=objective.evaluations + problem.evaluations)
-            stopped[0] = bool(callback(r))
-            return stopped[0]
-
-        ref = refine(problem, np.array(starts), bounds, max_nfev=int(ropts["max_nfev"]),
-                     callback=refine_callback)
-        f = ref.x
-        interrupted = ref.interrupted
-        message = f"{ga.message}; {ref.message}"
-        refinement = dict(start_costs=ref.start_costs, costs=ref.costs, cost=ref.cost,
-                          evaluations=ref.evaluations, ga_f=ga.x_best, gain=ropts["gain"])
-        evaluations_refine = ref.evaluations
-    else:
-        evaluations_refine = 0
-
-    y = float(objective(f[None])[0])
-    wall = time.perf_counter() - t0
-    hist = {k: np.asarray(v) for k, v in ga.history.items()}
-    hist["generation"] = np.arange(len(hist["best"]))
-    return IdentificationResult(
-        f=f, x=f, objective=y, fun=y, method=method, seed=seed,
-        history=hist, refinement=refinement,
-        population=ga.population, population_objective=ga.population_objective,
-        evaluations=int(objective.evaluations + evaluations_refine),
-        wall_time_s=wall, compile_time_s=compile_s,
-        interrupted=bool(interrupted), success=not interrupted, message=message,
-        log_name=log.name, log=log, bounds=bounds,
-        settings=dict(ga=ga_settings, refine=ropts if method == "ga+pem" else None,
-                      substeps=int(substeps), lowpass_hz=lowpass_hz),
-    )
+        return bool(callback(OptimizeResult(x=x, fun=fun, stage=stage,
+                                            evaluations=evaluations(), **info)))
+    return fn
 
 
-def _identify_payload(log, method, f_prior, payload_bounds, rng, seed, ga_settings, ropts,
-                      callback, workers, progress, lowpass_hz, substeps):
-    """Payload mode of :func:`identify`: search p = [m, m xp, m yp, J] only."""
-    from plant.payload import payload_delta_matrix, payload_from_vector
-
-    pb = DEFAULT_PAYLOAD_BOUNDS if payload_bounds is None else payload_bounds
-    pb = _check_bounds(pb, log, n=4)
-    M = payload_delta_matrix(log.rig.a3_m)  # (9, 4): f = f_prior + M p
-
-    def to_f(p):
-        return f_prior + M @ np.asarray(p, dtype=float)
-
+def _search(log, space, method, rng, seed, ga_settings, ropts, callback, workers, progress,
+            lowpass_hz, substeps):
+    """GA on the output error and/or prediction-error refinement over ``space``."""
     compile_s = warm_up()
     t0 = time.perf_counter()
     objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers)
+    f_objective = objective if space.matrix is None else (lambda X: objective(space.to_f(X)))
+    refining = method == "ga+pem"
+    problem = None
+    if refining:
+        to_state = None if space.state is None else (lambda x: x[space.k:])
+        problem = PredictionErrorProblem(log, to_f=space.to_f, to_state=to_state,
+                                         gain=ropts["gain"], substeps=substeps,
+                                         lowpass_hz=lowpass_hz, workers=workers)
 
-    def objective_p(P):
-        return objective(np.atleast_2d(P) @ M.T + f_prior)
+    def evaluations():
+        return objective.evaluations + (problem.evaluations if problem else 0)
 
     ga = None
-    refinement = None
-    evaluations_refine = 0
-    if method == "paper":
-        def ga_callback(state):
-            if callback is None:
-                return False
-            return bool(callback(OptimizeResult(x=state.best_x, fun=state.best_objective,
-                                                stage="ga", generation=state.generation,
-                                                evaluations=objective.evaluations)))
-
-        ga = run_ga(objective_p, pb, rng=rng, callback=ga_callback, progress=progress,
+    interrupted, messages = False, []
+    if space.refine_starts is None or not refining:  # the global search
+        ga_cb = _stage_callback(callback, "ga", evaluations)
+        ga = run_ga(f_objective, space.bounds, rng=rng, progress=progress,
+                    callback=lambda st: ga_cb(st.best_x, st.best_objective,
+                                              generation=st.generation),
                     **ga_settings)
-        p, interrupted, message = np.asarray(ga.x_best), ga.interrupted, ga.message
-    else:
-        # Gauss-Newton on the prediction errors over x = [p (4), state at the first
-        # sample (4)]: the state is a nuisance parameter (no quantised simulation
-        # before a window, which would not be smooth in p).  Its initial guess: the
-        # centre of the first count interval and the reference velocity.
-        from plant.simulate import measured_counts
+        x = np.asarray(ga.x_best, dtype=float)
+        interrupted = ga.interrupted
+        messages.append(ga.message)
 
-        scale = log.rig.pulses_per_rad
-        q_first = measured_counts(log)[0] / scale
-        t_first = log.t[:1]
-        _, qd_ref, _ = log.trajectory.evaluate(t_first)
-        x_state = np.concatenate([q_first, qd_ref[0]])
-        dq = 2.0 / np.abs(scale)
-        dqd = 0.2 * np.abs(qd_ref[0]) + 0.05
-        state_bounds = np.column_stack([x_state - np.r_[dq, dqd], x_state + np.r_[dq, dqd]])
-        xb = np.vstack([pb, state_bounds])
-        problem = PredictionErrorProblem(log, to_f=lambda x: to_f(x[:4]),
-                                         to_state=lambda x: x[4:], gain=ropts["gain"],
-                                         substeps=substeps, lowpass_hz=lowpass_hz,
-                                         workers=workers)
-        lo, hi = pb[:, 0], pb[:, 1]
-        # start at a light payload near the frame origin and at mid-range mass
-        starts = np.array([lo + (hi - lo) * np.array([0.2, 0.5, 0.5, 0.1]),
-                           lo + (hi - lo) * np.array([0.6, 0.5, 0.5, 0.3])])
-        starts = starts[: max(1, int(ropts["n_starts"]))]
-        starts = np.hstack([starts, np.tile(x_state, (len(starts), 1))])
-
-        def refine_callback(x, cost):
-            if callback is None:
-                return False
-            return bool(callback(OptimizeResult(x=x, fun=cost, stage="refine",
-                                                evaluations=problem.evaluations)))
-
-        ref = refine(problem, starts, xb, max_nfev=int(ropts["max_nfev"]),
-                     callback=refine_callback)
-        p, interrupted = ref.x[:4], ref.interrupted
-        message = "payload: " + ref.message
+    refinement = None
+    if refining and not interrupted:
+        if ga is None:
+            starts = list(space.refine_starts[: max(1, int(ropts["n_starts"]))])
+        else:  # the GA's best and the best distinct individuals of its final population
+            starts = [x]
+            for i in np.argsort(ga.population_objective, kind="stable"):
+                if len(starts) >= int(ropts["n_starts"]):
+                    break
+                xi = ga.population[i]
+                if not any(np.array_equal(xi, s) for s in starts):
+                    starts.append(xi)
+        starts, xb = np.array(starts), space.bounds
+        if space.state is not None:
+            starts = np.hstack([starts, np.tile(space.state[0], (len(starts), 1))])
+            xb = np.vstack([xb, space.state[1]])
+        ref_cb = _stage_callback(callback, "refine", evaluations)
+        ref = refine(problem, starts, xb, max_nfev=int(ropts["max_nfev"]), callback=ref_cb)
+        x = ref.x
+        interrupted = ref.interrupted
+        messages.append(ref.message)
         refinement = dict(start_costs=ref.start_costs, costs=ref.costs, cost=ref.cost,
-                          evaluations=ref.evaluations, gain=ropts["gain"],
-                          initial_state=ref.x[4:])
-        evaluations_refine = ref.evaluations
+                          evaluations=ref.evaluations, gain=ropts["gain"])
+        if ga is not None:
+            refinement["ga_f"] = space.to_f(ga.x_best)
+        if space.state is not None:
+            refinement["initial_state"] = ref.x[space.k:]
 
-    f = to_f(p)
-    y = float(objective(f[None])[0])
+    f = space.to_f(x)
+    # the GA's best was evaluated already; a refined point is evaluated once here
+    y = float(ga.objective_best) if refinement is None else float(objective(f[None])[0])
     wall = time.perf_counter() - t0
-    pl = payload_from_vector(p, clip_negative_inertia=True)
-    payload_info = dict(mass_kg=pl.mass_kg, com_m=list(pl.com_m), izz_kgm2=pl.izz_kgm2,
-                        vector=list(map(float, p)),
-                        vector_names=["m_kg", "m_xp_kgm", "m_yp_kgm", "J_kgm2"])
     if ga is not None:
         hist = {k: np.asarray(v) for k, v in ga.history.items()}
         hist["generation"] = np.arange(len(hist["best"]))
     else:
         hist = {"generation": np.arange(1), "best": np.array([y]), "mean": np.array([y]),
-                "evaluations": np.array([objective.evaluations + evaluations_refine])}
+                "evaluations": np.array([evaluations()])}
     return IdentificationResult(
         f=f, x=f, objective=y, fun=y, method=method, seed=seed, history=hist,
-        refinement=refinement, population=None if ga is None else ga.population,
+        refinement=refinement,
+        population=None if ga is None else ga.population,
         population_objective=None if ga is None else ga.population_objective,
-        evaluations=int(objective.evaluations + evaluations_refine), wall_time_s=wall,
-        compile_time_s=compile_s, interrupted=bool(interrupted), success=not interrupted,
-        message=message, log_name=log.name, log=log, bounds=pb, payload=payload_info,
-        prior_f=f_prior,
-        settings=dict(payload=True, substeps=int(substeps), lowpass_hz=lowpass_hz,
-                      ga=ga_settings if method == "paper" else None,
-                      refine=ropts if method != "paper" else None),
+        evaluations=int(evaluations()), wall_time_s=wall, compile_time_s=compile_s,
+        interrupted=bool(interrupted), success=not interrupted, message="; ".join(messages),
+        log_name=log.name, log=log, bounds=space.bounds,
+        settings=dict(ga=ga_settings if ga is not None else None,
+                      refine=ropts if refining else None, substeps=int(substeps),
+                      lowpass_hz=lowpass_hz, payload=space.matrix is not None),
+        **space.extras(x[: space.k]),
     )

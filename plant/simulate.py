@@ -194,7 +194,10 @@ def integrate_sample_fast(f, r, q2, q3, w2, w3, u2, u3, substeps):
     The Runge-Kutta stages inside the sample take their sines and cosines by
     angle addition from the sample's start angle (:func:`_sincos_near`): the
     same integrator, with trigonometric values equal to rounding; the tests
-    check that it gives the same pulses as the reference path.
+    check that it gives the same pulses as the reference path.  The two are
+    kept as separate functions on purpose: the reference stays the plain
+    implementation the fast one is checked against, and a runtime switch
+    inside the stage function cost 3-9 % in this hottest loop (measured).
     """
     h = r[_R_TS] / substeps
     hh = 0.5 * h

@@ -316,13 +316,7 @@ class Trajectory:
         q : ndarray, shape (n, 2)
             Joint angles (q2, q3) in rad (n = 1 for a scalar t).
         """
-        t = self._as_times(t)
-        ang = t[:, None, None] * self.omega[None, :, :] + self.phase[None, :, :]
-        u = self.c[None, :] + np.sum(self.amplitude[None, :, :] * np.cos(ang), axis=2)
-        if self.t_ramp_s == 0.0:
-            return u
-        w = self._ramp(t)[0]
-        return w[:, None] * u
+        return self.evaluate(t)[0]
 
     __call__ = position
 

@@ -37,7 +37,10 @@ def data_dir() -> Path:
     """Directory of the development logs (``PUMA_DATA_DIR`` or ``../shared/data``)."""
     d = _data_dir()
     if not (d / f"{PAPER_RIGID}.csv").is_file():
-        pytest.skip(f"development logs not found in {d} (set PUMA_DATA_DIR)")
+        msg = f"development logs not found in {d} (set PUMA_DATA_DIR)"
+        if os.environ.get("CI"):  # CI has shared/ beside the clone: never skip silently
+            pytest.fail(msg)
+        pytest.skip(msg)
     return d
 
 
@@ -149,3 +152,25 @@ def tmp_log(tmp_path: Path, data_dir: Path):
         return csv_out
 
     return make
+
+
+@pytest.fixture
+def ctrl_c_at_objective_call(monkeypatch):
+    """``ctrl_c_at_objective_call(n)``: the n-th population evaluation of the
+    output error raises KeyboardInterrupt (a Ctrl-C during the GA)."""
+    from identification.objective import OutputError
+
+    real_call = OutputError.__call__
+
+    def arm(n):
+        calls = {"n": 0}
+
+        def interrupted(self, F):
+            calls["n"] += 1
+            if calls["n"] == n:
+                raise KeyboardInterrupt
+            return real_call(self, F)
+
+        monkeypatch.setattr(OutputError, "__call__", interrupted)
+
+    return arm

@@ -180,19 +180,8 @@ def test_payload_end_to_end(tmp_path, capsys, paper_log, truth):
 
 
 # ---------------------------------------------------------------------- Ctrl-C
-def test_keyboard_interrupt_still_writes_the_result(monkeypatch, tmp_path, capsys):
-    from identification.objective import OutputError
-
-    calls = {"n": 0}
-    real_call = OutputError.__call__
-
-    def flaky(self, F):
-        calls["n"] += 1
-        if calls["n"] == 3:  # initial population, generation 1, then Ctrl-C
-            raise KeyboardInterrupt
-        return real_call(self, F)
-
-    monkeypatch.setattr(OutputError, "__call__", flaky)
+def test_keyboard_interrupt_still_writes_the_result(ctrl_c_at_objective_call, tmp_path, capsys):
+    ctrl_c_at_objective_call(3)  # initial population, generation 1, then Ctrl-C
     out = tmp_path / "out.json"
     status, stdout, _ = run_main(["--example", "-o", out, "--quiet", "--generations", "20"],
                                  capsys)

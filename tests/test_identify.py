@@ -167,17 +167,9 @@ def test_keyboard_interrupt_in_callback_returns_best_so_far(example_log):
     assert res.objective == res.history["best_so_far"][-1] == min(res.history["best"])
 
 
-def test_keyboard_interrupt_in_objective_returns_best_so_far(example_log, monkeypatch):
-    calls = {"n": 0}
-    real_call = OutputError.__call__
-
-    def flaky(self, F):
-        calls["n"] += 1
-        if calls["n"] == 3:  # initial population, generation 1, then Ctrl-C
-            raise KeyboardInterrupt
-        return real_call(self, F)
-
-    monkeypatch.setattr(OutputError, "__call__", flaky)
+def test_keyboard_interrupt_in_objective_returns_best_so_far(example_log,
+                                                            ctrl_c_at_objective_call):
+    ctrl_c_at_objective_call(3)  # initial population, generation 1, then Ctrl-C
     res = _small(example_log, ga_options={"n_gen": 10, "n_ind": 6})
     assert res.interrupted and "KeyboardInterrupt" in res.message
     assert len(res.history["best"]) == 2  # initial population + generation 1
