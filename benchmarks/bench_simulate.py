@@ -8,7 +8,8 @@ Prints (asserts nothing):
    and within +-1 pulse for the true f, against the RK4 substeps (tests only
    check the default; this shows the convergence).
 3. One simulation of the paper log (5215 samples): ms per run, reference and
-   fast kernels, for the identification's substeps and the exact default.
+   lockstep kernels, for the identification's substeps and the exact default;
+   then the cost per candidate of lockstep batches of 1 to 160 candidates.
 4. Candidates per second of the batch form on 1 and 2 threads.
 5. Scaling: cost against log length (windows of the validation log),
    population size and threads; the per-sample cost in ns and the arithmetic
@@ -90,13 +91,28 @@ def main(argv=None):
                   f"({t / n * 1e9:6.0f} ns/sample, {t / n / (4 * S) * 1e9:5.1f} ns per "
                   f"derivative evaluation)")
 
-    print("\n== batch form: candidates per second (paper log, substeps 2) ==")
+    print("\n== lockstep batches: cost per candidate against lanes, 1 thread, substeps 1 ==")
     rng = np.random.default_rng(0)
-    F = f * (1 + 0.05 * rng.standard_normal((80, 9)))
-    for w in (1, 2):
-        simulate_batch(log, F[:2], substeps=2, errors=False, workers=w)
-        t = best_of(lambda: simulate_batch(log, F, substeps=2, errors=False, workers=w), rep)
-        print(f"{w} thread(s): {80 / t:8.0f} candidates/s ({t / 80 * 1e3:.3f} ms each)")
+    for m in (1, 8, 16, 40, 80, 160):
+        Fm = f * (1 + 0.05 * rng.standard_normal((m, 9)))
+        for fast in (False, True):
+            fn = lambda: simulate_batch(log, Fm, substeps=1, errors=False,  # noqa: E731
+                                        workers=1, fast=fast)
+            fn()
+            t = best_of(fn, rep) / m
+            print(f"{m:4d} candidates {'lockstep' if fast else 'reference':>9}: {t * 1e3:7.3f} ms "
+                  f"per candidate, {t / n * 1e9:5.0f} ns per candidate-sample, "
+                  f"{t / n / 4 * 1e9:5.1f} ns per derivative evaluation")
+
+    print("\n== batch form: candidates per second (paper log, 76 candidates = one GA generation) ==")
+    F = f * (1 + 0.05 * rng.standard_normal((76, 9)))
+    for S in (1, 2):
+        for w in (1, 2):
+            simulate_batch(log, F[:2], substeps=S, errors=False, workers=w)
+            t = best_of(lambda: simulate_batch(log, F, substeps=S, errors=False, workers=w),
+                        rep)
+            print(f"substeps {S}, {w} thread(s): {76 / t:8.0f} candidates/s "
+                  f"({t / 76 * 1e3:.3f} ms each)")
 
     print("\n== scaling ==")
     lengths, costs_len = [], []
@@ -119,11 +135,13 @@ def main(argv=None):
             costs_pop.append(t)
             print(f"population {m:4d}, {w} thread(s): {t * 1e3:8.1f} ms "
                   f"({m / t:7.0f} candidates/s)")
-    # Arithmetic per sample (substeps 2): 8 derivative evaluations, each
-    # ~60 flops (D, h, g, 2x2 solve, friction, RK4 update) plus the angle
-    # additions; 4 libm sin/cos per sample in the fast path.
-    print("model arithmetic: ~8 x 60 = 480 flops per sample at substeps 2 "
-          "(~0.15 us at 3 Gflop/s scalar)")
+    # Arithmetic per derivative evaluation: ~60 flops of the model (D, h, g,
+    # 2x2 solve with one division, friction with one division per joint) and
+    # ~30 for the two angle additions; RK4 adds ~20 per stage.  At substeps 2
+    # a sample needs 8 evaluations, ~900 flops: 0.09 us at 4 doubles per
+    # instruction and 2.5 GHz, if every instruction were an arithmetic one.
+    print("model arithmetic: ~8 x 110 = 900 flops per sample at substeps 2 "
+          "(~0.09 us at 4-wide SIMD, 2.5 GHz)")
 
     if args.plot:
         import matplotlib
@@ -150,13 +168,18 @@ def main(argv=None):
     print("\n== identification on the paper log (wall time excludes compilation) ==")
     import identification
 
+    print("(best and median of 3 runs: this machine's speed varies from minute to minute)")
     for method in ("paper", "ga+pem"):
         for w in (1, 2):
-            r = identification.identify(log, method=method, rng=0, progress=False, workers=w)
+            runs = [identification.identify(log, method=method, rng=0, progress=False,
+                                            workers=w) for _ in range(3)]
+            walls = sorted(r.wall_time_s for r in runs)
+            r = runs[0]
             err = np.abs(r.f - f) / np.abs(f) * 100
-            print(f"{method:>7}, {w} thread(s): wall {r.wall_time_s:6.2f} s, "
+            print(f"{method:>7}, {w} thread(s): wall {walls[0]:6.2f} s (median {walls[1]:.2f}), "
                   f"{r.evaluations} simulations, objective {r.objective:.0f} pulses^2, "
-                  f"max error of f1 f2 f4 f6 f7 f9 {err[[0, 1, 3, 5, 6, 8]].max():.3f} %")
+                  f"max error of f1 f2 f4 f6 f7 f9 {err[[0, 1, 3, 5, 6, 8]].max():.3f} %, "
+                  f"compile {r.compile_time_s:.2f} s")
     return 0
 
 

@@ -598,11 +598,19 @@ class GAResult:
     message: str = ""
 
 
-def _evaluate(evaluate, X: np.ndarray) -> np.ndarray:
-    y = np.asarray(evaluate(X), dtype=float)
+def _evaluate(evaluate, X: np.ndarray, cap=None) -> np.ndarray:
+    y = np.asarray(evaluate(X) if cap is None else evaluate(X, cap=cap), dtype=float)
     if y.size != X.shape[0]:
         raise ValueError(f"evaluate returned {y.size} values for {X.shape[0]} points")
     return _worst_key(y.reshape(X.shape[0]))
+
+
+def _cap(objv: np.ndarray, early_stop: Optional[float]) -> Optional[float]:
+    """Early-termination cap: a quantile of the population's finite objectives."""
+    if early_stop is None:
+        return None
+    finite = objv[np.isfinite(objv)]
+    return float(np.quantile(finite, float(early_stop))) if finite.size else None
 
 
 def _finite_mean(o: np.ndarray) -> float:
@@ -631,6 +639,7 @@ def run_ga(
     gray: bool = False,
     topology: str = "complete",
     immigrants: str = "uniform",
+    early_stop: Optional[float] = None,
 ) -> GAResult:
     """Minimise ``evaluate`` over a box with the paper's multi-population GA.
 
@@ -683,6 +692,17 @@ def run_ga(
         Gray-coded chromosomes (False).
     topology, immigrants : str
         See :func:`migrate` (``'complete'``, ``'uniform'``).
+    early_stop : float in [0, 1] or None
+        Early termination of hopeless offspring.  When given, ``evaluate``
+        is called as ``evaluate(X, cap=c)`` with ``c`` the ``early_stop``
+        quantile of the current population's finite objective values (1.0:
+        the worst individual).  ``evaluate`` may then stop computing a point
+        as soon as its value is known to exceed ``c`` and return any larger
+        value for it (the output error returns its running sum extrapolated
+        to the whole log).  Such offspring still enter the population, since
+        reinsertion replaces the worst parents unconditionally; only their
+        ranks among themselves are approximate.  None (default) evaluates
+        every point completely.
 
     Returns
     -------
@@ -713,6 +733,8 @@ def run_ga(
     if topology not in _TOPOLOGIES or immigrants not in ("uniform", "best"):
         raise ValueError(f"bad topology {topology!r} or immigrants {immigrants!r}")
     migration_interval = int(migration_interval)
+    if early_stop is not None and not (0.0 <= float(early_stop) <= 1.0):
+        raise ValueError(f"early_stop must be a quantile in [0, 1] or None, got {early_stop}")
 
     rng = _rng(rng)
     enc = BinaryEncoding(bounds, bits=bits, gray=gray)
@@ -753,7 +775,7 @@ def run_ga(
                     sel = crossover_single_point(sel, p_xover, rng)
                     off[s] = mutate(sel, p_mut, rng)
                 X_off = enc.decode(off.reshape(-1, L))
-                objv_off = _evaluate(evaluate, X_off)
+                objv_off = _evaluate(evaluate, X_off, _cap(objv, early_stop))
                 j = int(np.argmin(objv_off))
                 n_eval = best[2] + X_off.shape[0]
                 if objv_off[j] < best[0]:

@@ -62,12 +62,20 @@ class OutputError:
             self._sos = lowpass_sos(self.lowpass_hz, log.rig.sample_time_s)
             self._e_log_filtered = apply_lowpass(log.e_pulses, self._sos)
 
-    def __call__(self, F):
-        """Output errors of candidates ``F`` (m, 9) -> (m,) pulses^2."""
+    def __call__(self, F, cap=None):
+        """Output errors of candidates ``F`` (m, 9) -> (m,) pulses^2.
+
+        ``cap`` (pulses^2, optional) terminates candidates early once their
+        running output error passes it (see :func:`plant.simulate_batch`);
+        their value is then the running sum extrapolated to the whole log,
+        above ``cap``.  With a low-pass filter the errors are filtered over
+        the whole run, so the cap is not applied.
+        """
         F = np.atleast_2d(np.asarray(F, dtype=float))
         filtered = self.lowpass_hz is not None
         sim = plant.simulate_batch(
-            self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers
+            self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers,
+            cap=None if filtered else cap,
         )
         self.evaluations += F.shape[0]
         if not filtered:

@@ -47,7 +47,7 @@ __all__ = [
     "friction_torque",
 ]
 
-_jit = numba.njit(cache=True, nogil=True)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
 # ----------------------------------------------------------------------------

@@ -165,11 +165,11 @@ def ctrl_c_at_objective_call(monkeypatch):
     def arm(n):
         calls = {"n": 0}
 
-        def interrupted(self, F):
+        def interrupted(self, F, cap=None):
             calls["n"] += 1
             if calls["n"] == n:
                 raise KeyboardInterrupt
-            return real_call(self, F)
+            return real_call(self, F, cap=cap)
 
         monkeypatch.setattr(OutputError, "__call__", interrupted)
 

@@ -391,3 +391,24 @@ def test_general_settings_and_validation():
             run_ga(sphere, bounds, rng=0, n_gen=1, **kw)
     with pytest.raises(ValueError):
         run_ga(lambda X: np.zeros(3), bounds, rng=0)
+
+
+def test_early_stop_passes_the_population_quantile_as_cap():
+    """With early_stop the evaluator gets the cap; values above it still enter the population."""
+    caps = []
+
+    def evaluate(X, cap=None):
+        caps.append(cap)
+        y = np.sum(X**2, axis=1)
+        if cap is not None:  # an evaluator that stops: any value above the cap
+            y = np.where(y > cap, cap * 10.0, y)
+        return y
+
+    bounds = [[-1.0, 1.0]] * 3
+    res = run_ga(evaluate, bounds, n_gen=5, rng=0, early_stop=1.0)
+    assert caps[0] is None and all(c is not None and c > 0 for c in caps[1:])
+    assert len(caps) == 6
+    assert res.objective_best < 0.05
+    for q in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="early_stop"):
+            run_ga(evaluate, bounds, n_gen=1, rng=0, early_stop=q)

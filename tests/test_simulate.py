@@ -8,6 +8,7 @@ from plant.simulate import (
     STATUS_DIVERGED,
     STATUS_NOT_PD,
     STATUS_OK,
+    STATUS_STOPPED,
     default_bound,
     prediction_errors,
     simulate_batch,
@@ -164,18 +165,107 @@ def test_prediction_errors_smooth_in_f(paper_log, truth):
 
 @pytest.mark.parametrize("substeps", [1, 2])
 def test_fast_path_gives_the_reference_pulses(paper_log, validation_log, truth, substeps):
-    """The fast kernel (angle-addition trig in the RK4 stages) == the reference kernel."""
+    """The lockstep kernel (angle-addition trig, SIMD lanes) == the reference kernel."""
     for log in (paper_log, validation_log):
         f = _true_f(truth, log)
         rng = np.random.default_rng(3)
         lo, hi = log.rig.bounds.T
         F = np.vstack([f, f * (1 + 0.02 * rng.standard_normal((7, 9))),
                        lo + (hi - lo) * rng.random((8, 9))])
-        a = simulate_batch(log, F, substeps=substeps, fast=True)
+        a = simulate_batch(log, F, substeps=substeps, fast=True, workers=1)
         b = simulate_batch(log, F, substeps=substeps, fast=False)
         np.testing.assert_array_equal(a.e_pulses, b.e_pulses)
         np.testing.assert_array_equal(a.status, b.status)
         np.testing.assert_array_equal(a.objective, b.objective)
+
+
+def test_lockstep_lane_does_not_depend_on_its_neighbours(paper_log, truth):
+    """A candidate simulated alone or among failing and diverging neighbours: same result."""
+    f = _true_f(truth, paper_log)
+    rng = np.random.default_rng(5)
+    lo, hi = paper_log.rig.bounds.T
+    bad = f.copy()
+    bad[1] = 2.3  # not positive definite
+    light = f.copy()
+    light[0] = 0.05  # diverges
+    F = np.vstack([lo + (hi - lo) * rng.random((20, 9)), bad, light,
+                   f * (1 + 0.01 * rng.standard_normal((15, 9)))])
+    batch = simulate_batch(paper_log, F, substeps=1, workers=2, bound=200.0)
+    # other neighbours and lanes: reversed order, and a chunk of 8 copies with others
+    rev = simulate_batch(paper_log, F[::-1], substeps=1, workers=1, bound=200.0)
+    np.testing.assert_array_equal(rev.e_pulses[::-1], batch.e_pulses)
+    np.testing.assert_array_equal(rev.objective[::-1], batch.objective)
+    np.testing.assert_array_equal(rev.status[::-1], batch.status)
+    for i in (0, 20, 21, 36):
+        few = simulate_batch(paper_log, np.vstack([F[i], F[30:37]]), substeps=1, workers=1,
+                             bound=200.0)
+        np.testing.assert_array_equal(few.e_pulses[0], batch.e_pulses[i])
+        assert few.objective[0] == batch.objective[i]
+        assert few.status[0] == batch.status[i]
+    assert {STATUS_NOT_PD, STATUS_DIVERGED} <= set(batch.status.tolist())
+
+
+def test_fast_path_on_a_window_log(paper_log, truth):
+    w = paper_log.window(1.0, 1.2)
+    f = _true_f(truth, paper_log)
+    F = f * (1 + 0.05 * np.random.default_rng(1).standard_normal((20, 9)))
+    a = simulate_batch(w, F, substeps=2, fast=True)
+    b = simulate_batch(w, F, substeps=2, fast=False)
+    np.testing.assert_array_equal(a.e_pulses, b.e_pulses)
+    np.testing.assert_array_equal(a.objective, b.objective)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_cap_stops_only_candidates_above_it(paper_log, truth, fast):
+    """Early termination: below the cap nothing changes; above, the sum is extrapolated."""
+    f = _true_f(truth, paper_log)
+    F = f * (1 + 0.05 * np.random.default_rng(2).standard_normal((20, 9)))
+    full = simulate_batch(paper_log, F, substeps=1, errors=False, fast=fast)
+    assert np.all(full.status == STATUS_OK)
+    cap = float(np.median(full.objective))
+    capped = simulate_batch(paper_log, F, substeps=1, errors=False, cap=cap, fast=fast)
+    below = full.objective <= cap
+    np.testing.assert_array_equal(capped.objective[below], full.objective[below])
+    assert np.all(capped.status[below] == STATUS_OK)
+    assert np.all(capped.status[~below] == STATUS_STOPPED)
+    assert np.all(capped.objective[~below] > cap)
+    assert np.all(capped.n_compared[~below] < paper_log.n_samples)
+    n = paper_log.n_samples
+    # the running sum at the stop (> cap) extrapolated to the whole log
+    running = capped.objective[~below] * capped.n_compared[~below] / n
+    assert np.all(running > cap) and np.all(running <= full.objective[~below] + 1e-9)
+    with pytest.raises(ValueError, match="cap"):
+        simulate_batch(paper_log, F, cap=float("nan"))
+
+
+def test_cap_same_on_fast_and_reference_paths(paper_log, truth):
+    f = _true_f(truth, paper_log)
+    F = f * (1 + 0.05 * np.random.default_rng(4).standard_normal((20, 9)))
+    a = simulate_batch(paper_log, F, substeps=1, errors=False, cap=3000.0, fast=True)
+    b = simulate_batch(paper_log, F, substeps=1, errors=False, cap=3000.0, fast=False)
+    np.testing.assert_array_equal(a.objective, b.objective)
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_array_equal(a.n_compared, b.n_compared)
+
+
+@pytest.mark.parametrize("window", [False, True])
+def test_replay_fast_path_matches_reference(paper_log, truth, window):
+    log = paper_log.window(1.0, 1.2) if window else paper_log
+    f = _true_f(truth, paper_log)
+    rng = np.random.default_rng(6)
+    bad = f.copy()
+    bad[1] = 2.3
+    F = np.vstack([f * (1 + 0.02 * rng.standard_normal((19, 9))), bad])
+    a, sa = prediction_errors(log, F, substeps=1, fast=True)
+    b, sb = prediction_errors(log, F, substeps=1, fast=False)
+    np.testing.assert_array_equal(sa, sb)
+    assert sa[-1] == STATUS_NOT_PD
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-8)
+    if window:
+        x0 = np.tile([-0.1, 0.05, -0.2, 0.3], (len(F), 1))
+        a, _ = prediction_errors(log, F, substeps=1, initial_state=x0, fast=True)
+        b, _ = prediction_errors(log, F, substeps=1, initial_state=x0, fast=False)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-8)
 
 
 def test_ctrl_c_inside_the_kernel_is_a_keyboard_interrupt(paper_log, truth):
