@@ -486,6 +486,16 @@ def _retire(FT, X, U, A, E, idx, j, act):
 
 
 @_jit
+def _stop_lane(FT, X, U, A, E, idx, j, act, code, cmp, n, bound, obj, status, compared):
+    """Record lane ``j``'s result with status ``code`` and retire it (see :func:`_retire`)."""
+    c = idx[j]
+    obj[c] = _final_objective(E[0, j], code, cmp, n, bound)
+    status[c] = code
+    compared[c] = cmp
+    return _retire(FT, X, U, A, E, idx, j, act)
+
+
+@_jit
 def _padded(n):
     """Lanes a SIMD loop runs over for ``n`` active lanes.
 
@@ -544,11 +554,8 @@ def _lanes_run(mem, idx, n_act, r, ref, e_log, k0, substeps, quantize, bound, ca
         # Divergence (continuous error, before truncation), as in _run.
         for j in range(act - 1, -1, -1):
             if abs(r2 - X[0, j] * s2) > bound or abs(r3 - X[1, j] * s3) > bound:
-                c = idx[j]
-                obj[c] = _final_objective(E[0, j], STATUS_DIVERGED, cmp, n, bound)
-                status[c] = STATUS_DIVERGED
-                compared[c] = cmp
-                act = _retire(FT, X, U, A, E, idx, j, act)
+                act = _stop_lane(FT, X, U, A, E, idx, j, act, STATUS_DIVERGED, cmp, n, bound, obj, status,
+                                 compared)
         if act == 0:
             break
         t2 = float(math.trunc(r2))
@@ -584,11 +591,8 @@ def _lanes_run(mem, idx, n_act, r, ref, e_log, k0, substeps, quantize, bound, ca
                         err_out[idx[j], i, 1] = t3 - float(math.trunc(c3))
             for j in range(act - 1, -1, -1):
                 if E[0, j] > cap:
-                    c = idx[j]
-                    obj[c] = _final_objective(E[0, j], STATUS_STOPPED, cmp, n, bound)
-                    status[c] = STATUS_STOPPED
-                    compared[c] = cmp
-                    act = _retire(FT, X, U, A, E, idx, j, act)
+                    act = _stop_lane(FT, X, U, A, E, idx, j, act, STATUS_STOPPED, cmp, n, bound, obj, status,
+                                     compared)
             if act == 0:
                 break
         if k == n_total - 1:
@@ -597,11 +601,8 @@ def _lanes_run(mem, idx, n_act, r, ref, e_log, k0, substeps, quantize, bound, ca
         for j in range(act - 1, -1, -1):
             code = int(E[1, j])
             if code != STATUS_OK:
-                c = idx[j]
-                obj[c] = _final_objective(E[0, j], code, cmp, n, bound)
-                status[c] = code
-                compared[c] = cmp
-                act = _retire(FT, X, U, A, E, idx, j, act)
+                act = _stop_lane(FT, X, U, A, E, idx, j, act, code, cmp, n, bound, obj, status,
+                                 compared)
         if act == 0:
             break
     for j in range(act):
