@@ -90,8 +90,11 @@ def main(argv=None):
         print(f"  {'':<22s}" + " ".join(f"{'f' + str(i + 1):>9s}" for i in range(9)))
         if f_drill_true is not None:
             print_f("truth (rigid-equiv.)", f_drill_true)
-        for label, lp in (("unfiltered", None), (f"low-pass {cutoff:.1f} Hz", cutoff)):
-            res = identification.identify(drill, rng=args.seed, lowpass_hz=lp, progress=False)
+        for label, lp, cons in (("unfiltered", None, False),
+                                (f"low-pass {cutoff:.1f} Hz", cutoff, False),
+                                ("+ eq. 3 structure", cutoff, True)):
+            res = identification.identify(drill, rng=args.seed, lowpass_hz=lp, progress=False,
+                                          consistent=cons)
             print_f(label, res.f, f_drill_true)
             out[f"drill_f_{label}"] = res.f
 

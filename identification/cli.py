@@ -104,6 +104,10 @@ def build_parser():
                         "joint-flexibility oscillations); 'auto' takes the cutoff that "
                         "identification.diagnostics.suggest_lowpass finds in the error "
                         "spectrum (none for a log without such a mode)")
+    p.add_argument("--consistent", action="store_true",
+                   help="enforce f3 = a3 f5 and f4 = a3 f6 (eq. 3; a3 from the sidecar) and "
+                        "search the 7 other base parameters (recommended for flexible "
+                        "robots)")
     p.add_argument("--payload", action="store_true",
                    help="identify a payload at the flange on top of the robot's f from "
                         "--prior (on-line payload identification); needs --prior")
@@ -318,6 +322,8 @@ def _run(args, stdout, stderr) -> int:
         kwargs["ga_options"] = {"n_gen": args.generations}
     if args.payload:
         kwargs.update(payload=True, prior=prior)
+    elif args.consistent:
+        kwargs.update(consistent=True)
 
     ctrl_c = _GracefulInterrupt(stderr, quiet=args.quiet)
 

@@ -223,3 +223,15 @@ def test_identify_accepts_a_path_and_reports_bad_logs(tmp_log):
     with pytest.raises(plant.LogError) as exc:
         identify(tmp_log(csv_text=""), progress=False)
     assert "empty" in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_consistent_mode_enforces_eq3_structure(paper_log, truth):
+    """consistent=True: f3 = a3 f5 and f4 = a3 f6 exactly; the rigid log still identifies."""
+    res = identify(paper_log, rng=0, progress=False, consistent=True, ga_options=dict(n_gen=10))
+    a3 = paper_log.rig.a3_m
+    assert res.f[2] == pytest.approx(a3 * res.f[4], rel=1e-12)
+    assert res.f[3] == pytest.approx(a3 * res.f[5], rel=1e-12)
+    f_true = np.array(truth(paper_log.name)["f_vector"])
+    err = np.abs(res.f - f_true) / np.abs(f_true)
+    assert np.all(err[[0, 1, 3, 5, 6, 8]] < 0.01)
+    assert res.bounds.shape == (7, 2)

@@ -110,3 +110,35 @@ def test_payload_mode_needs_a_valid_prior(loaded_log, f_unloaded):
         identification.identify(w, payload=True, prior=f_unloaded[:8], progress=False)
     with pytest.raises(ValueError, match="prior"):
         identification.identify(w, payload=True, prior=np.full(9, np.nan), progress=False)
+
+
+# ------------------------------------------------ the issue's flexible-robot cases
+@pytest.fixture(scope="module")
+def rigid_prior(paper_log):
+    """The unloaded robot identified on puma560_paper_rigid (the issue's prior)."""
+    return identification.identify(paper_log, rng=0, progress=False)
+
+
+def test_payload_from_the_drill_flex_window_within_5_percent(drill_log, rigid_prior):
+    """[1.0, 1.2) s of the flexible drill run, prior from the rigid log: mass within 5 %."""
+    w = drill_log.window(1.0, 1.2)
+    w = w.replace(rig=dataclasses.replace(w.rig, payload_mass_kg=None))
+    res = identification.identify(w, payload=True, prior=rigid_prior, rng=0, progress=False)
+    d = res.to_dict()
+    assert d["payload_mass_kg"] == pytest.approx(DRILL_MASS_KG, rel=0.05)
+    # a physically consistent rigid body: inertia about its own COM within the box
+    jc = res.payload["izz_com_kgm2"]
+    assert 0.0 <= jc <= identification.api.DEFAULT_PAYLOAD_BOUNDS[3, 1]
+    p = res.payload["vector"]
+    assert p[3] == pytest.approx(jc + (p[1] ** 2 + p[2] ** 2) / p[0], rel=1e-9)
+
+
+def test_drill_flex_consistent_and_filtered_within_5_percent(drill_log, truth):
+    """Rigid-equivalent f of the flexible robot: eq.-3 structure + same-filter low-pass."""
+    from identification.diagnostics import suggest_lowpass
+
+    res = identification.identify(drill_log, rng=0, progress=False, consistent=True,
+                                  lowpass_hz=suggest_lowpass(drill_log))
+    f_true = np.array(truth(drill_log.name)["f_vector"])
+    err = np.abs(res.f - f_true) / np.abs(f_true)
+    assert np.all(err[[0, 1, 3, 5, 6, 8]] < 0.05), err
