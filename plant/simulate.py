@@ -33,6 +33,20 @@ Its output error (paper eq. 4) is then the **penalty**
 which is finite, larger than the output error of any candidate that stays
 within the bound for the whole run, and smaller the later the candidate fails,
 so that a rank-based optimiser can still order failed candidates.
+
+Early termination
+-----------------
+With a ``cap`` (:func:`simulate_batch`) a candidate whose running sum passes
+the cap is stopped (:data:`STATUS_STOPPED`); its output error is the running
+sum extrapolated to the whole log, ``Y n_samples / n_compared`` (> cap).
+
+Kernels
+-------
+The reference path simulates one candidate at a time with
+:func:`integrate_sample`.  The default lockstep path advances the candidates
+of a chunk together, one SIMD lane each (see the comments at ``_chunk`` and
+``_lanes_sample``); it performs the same operations per candidate with the
+stages' sin/cos by angle addition, and gives the same pulses (tested).
 """
 from __future__ import annotations
 
