@@ -289,7 +289,7 @@ def _payload_space(log, f_prior, payload_bounds):
         p = space.to_linear(np.asarray(x, dtype=float))
         pl = payload_from_vector(p, clip_negative_inertia=True)
         return dict(payload=dict(mass_kg=pl.mass_kg, com_m=list(pl.com_m),
-                                 izz_kgm2=pl.izz_kgm2, izz_com_kgm2=float(x[3]),
+                                 izz_kgm2=pl.izz_kgm2,
                                  vector=[float(v) for v in p],
                                  vector_names=["m_kg", "m_xp_kgm", "m_yp_kgm", "J_kgm2"]),
                     prior_f=f_prior)

@@ -523,6 +523,14 @@ def _padded(n):
 
 
 @_jit
+def _chunk_range(c, m, n_chunks):
+    """Candidates ``lo:hi`` of chunk ``c`` when ``m`` are split into ``n_chunks``."""
+    size = (m + n_chunks - 1) // n_chunks
+    lo = c * size
+    return lo, min(m, lo + size)
+
+
+@_jit
 def _chunk(F, lo, hi, r):
     """Lane arrays (see the layout comment) and candidate indices of one chunk.
 
@@ -634,10 +642,8 @@ def _batch(F, r, ref, e_log, k0, substeps, quantize, bound, cap, err_out, write,
     status = np.empty(m, dtype=np.int64)
     compared = np.empty(m, dtype=np.int64)
     if fast:
-        size = (m + n_chunks - 1) // n_chunks
         for c in prange(n_chunks):
-            lo = c * size
-            hi = min(m, lo + size)
+            lo, hi = _chunk_range(c, m, n_chunks)
             if lo < hi:
                 mem, idx = _chunk(F, lo, hi, r)
                 _lanes_run(mem, idx, hi - lo, r, ref, e_log, k0, substeps, quantize, bound, cap,
@@ -1030,10 +1036,8 @@ def _replay_batch(F, r, ref, e_log, k0, substeps, gain, bound, out, X0, use_x0, 
     m = F.shape[0]
     status = np.empty(m, dtype=np.int64)
     if fast:
-        size = (m + n_chunks - 1) // n_chunks
         for c in prange(n_chunks):
-            lo = c * size
-            hi = min(m, lo + size)
+            lo, hi = _chunk_range(c, m, n_chunks)
             if lo < hi:
                 mem, idx = _chunk(F, lo, hi, r)
                 _lanes_replay(mem, idx, hi - lo, r, ref, e_log, k0, substeps, gain, bound, out, X0,
