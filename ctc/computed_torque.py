@@ -14,7 +14,7 @@ Hutchinson & Vidyasagar, *Robot Modeling and Control*, sec. 8.3), per sample
   are called from this module's compiled step -- there is no second copy of
   the dynamics.
 * ``tau_f`` is the drive friction of the sidecar, :func:`plant.model.friction_torque`
-  with the joint-side constants of :func:`plant.simulate.rig_vector`; the
+  with the joint-side constants of :func:`plant.rig.rig_constants`; the
   feed-forward ``-tau_f`` cancels it.
 * ``q_d, qd_d, qdd_d`` come from the log's trajectory (analytic), tabulated at
   ``t_k = k Ts`` when the controller is built.
@@ -60,36 +60,58 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from typing import NamedTuple
+
+from plant.core import cell_centre
 from plant.model import (
     friction_torque,
     inverse_dynamics_terms,
     is_positive_definite,
 )
-from plant.simulate import rig_vector
+from plant.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, design_gains
 
-__all__ = ["ComputedTorqueController"]
+__all__ = ["ComputedTorqueController", "CTCParameters"]
 
-# Layout of the controller's parameter vector (joint-side quantities).
-_P_TS = 0
-_P_SCALE = 1  # 1, 2: pulses per joint rad (k N / 2 pi)
-_P_KKT = 3  # 3, 4: k Kt (N m / A)
-_P_VISC = 5  # 5, 6
-_P_CPOS = 7  # 7, 8
-_P_CNEG = 9  # 9, 10
-_P_VREG = 11  # 11, 12
-_P_G = 13
-_P_KP = 14  # 14, 15
-_P_KV = 16  # 16, 17
-_P_LQ = 18  # 18, 19 observer position gain
-_P_LW = 20  # 20, 21 observer velocity gain (1/s)
-_P_ALPHA = 22  # 22, 23 difference low-pass pole
-_P_EST = 24  # 0 observer, 1 difference
-_P_NLV = 25  # 0 reference velocity in h and friction, 1 estimate
-_P_FRIC = 26  # 1 friction feed-forward on, 0 off
-_P_MID = 27  # 1 centre-of-cell position, 0 raw truncated count
-_P_LEN = 28
+
+class CTCParameters(NamedTuple):
+    """Constants of the compiled CTC step, by name (a numba-typed value).
+
+    Attributes
+    ----------
+    rig : plant.rig.RigConstants
+        Joint-side drive constants of the rig (the core's rig layout).
+    kp, kv : tuple of 2 float
+        Outer-loop gains (s^-2, s^-1).
+    observer_q, observer_w : tuple of 2 float
+        Current-observer gains on the position residual (position: 1,
+        velocity: 1/s).
+    alpha : tuple of 2 float
+        Pole of the filtered backward difference (``estimator = 1``).
+    estimator : int
+        0 current observer, 1 filtered difference (index in
+        :data:`ctc.design.ESTIMATORS`).
+    estimate_in_nonlinear : bool
+        Use the velocity estimate (True) instead of the reference velocity in
+        h_hat and the friction feed-forward.
+    friction : bool
+        Friction feed-forward on.
+    cell_centre : bool
+        Take the quantised position at the centre of its pulse cell.
+    """
+
+    rig: RigConstants
+    kp: tuple
+    kv: tuple
+    observer_q: tuple
+    observer_w: tuple
+    alpha: tuple
+    estimator: int
+    estimate_in_nonlinear: bool
+    friction: bool
+    cell_centre: bool
+
 
 # Layout of the state vector.
 _S_INIT = 0
@@ -105,36 +127,29 @@ _NLV = {"reference": 0.0, "estimate": 1.0}
 @numba.njit(cache=True, nogil=True)
 def _joint_update(j, k, qm, p, ref, s):
     """Estimator and outer loop of joint ``j`` (0 or 1); returns (y, q_hat, qd_hat, a, v_nl)."""
-    ts = p[_P_TS]
-    sc = p[_P_SCALE + j]
-    if p[_P_MID] != 0.0:
-        # centre of the pulse cell: count c covers [c, c+1) (c > 0),
-        # (c-1, c] (c < 0) and (-1, 1) (c = 0) in units of q k N / 2 pi.
-        c = float(round(qm * sc))
-        if c > 0.0:
-            c += 0.5
-        elif c < 0.0:
-            c -= 0.5
-        y = c / sc
+    ts = p.rig.sample_time_s
+    sc = p.rig.pulses_per_rad[j]
+    if p.cell_centre:
+        y = cell_centre(float(round(qm * sc))) / sc
     else:
         y = qm
     if s[_S_INIT] == 0.0:
         qh = y
         wh = ref[k, 2 + j]
-    elif p[_P_EST] == 0.0:
+    elif p.estimator == 0:
         # current observer: predict with the previous command, correct with y
         qb = s[_S_Q + j] + ts * s[_S_W + j] + 0.5 * ts * ts * s[_S_A + j]
         wb = s[_S_W + j] + ts * s[_S_A + j]
         r = y - qb
-        qh = qb + p[_P_LQ + j] * r
-        wh = wb + p[_P_LW + j] * r
+        qh = qb + p.observer_q[j] * r
+        wh = wb + p.observer_w[j] * r
     else:
         # low-pass filtered backward difference
-        al = p[_P_ALPHA + j]
+        al = p.alpha[j]
         qh = y
         wh = al * s[_S_W + j] + (1.0 - al) * (y - s[_S_Y + j]) / ts
-    a = ref[k, 4 + j] + p[_P_KV + j] * (ref[k, 2 + j] - wh) + p[_P_KP + j] * (ref[k, j] - qh)
-    vn = ref[k, 2 + j] if p[_P_NLV] == 0.0 else wh
+    a = ref[k, 4 + j] + p.kv[j] * (ref[k, 2 + j] - wh) + p.kp[j] * (ref[k, j] - qh)
+    vn = wh if p.estimate_in_nonlinear else ref[k, 2 + j]
     return y, qh, wh, a, vn
 
 
@@ -145,12 +160,13 @@ def _ctc_step(k, q_meas, f, p, ref, s):
     ``ref`` (n, 6) holds q_d (2), qd_d (2), qdd_d (2) per sample; row ``k`` is
     used.  The only allocation is the returned array.
     """
+    c = p.rig
     y2, q2, w2, a2, v2 = _joint_update(0, k, q_meas[0], p, ref, s)
     y3, q3, w3, a3, v3 = _joint_update(1, k, q_meas[1], p, ref, s)
-    t2, t3 = inverse_dynamics_terms(f, q2, q3, v2, v3, a2, a3, p[_P_G])
-    if p[_P_FRIC] != 0.0:
-        t2 -= friction_torque(v2, p[_P_VISC], p[_P_CPOS], p[_P_CNEG], p[_P_VREG])
-        t3 -= friction_torque(v3, p[_P_VISC + 1], p[_P_CPOS + 1], p[_P_CNEG + 1], p[_P_VREG + 1])
+    t2, t3 = inverse_dynamics_terms(f, q2, q3, v2, v3, a2, a3, c.gravity)
+    if p.friction:
+        t2 -= friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
+        t3 -= friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
     s[_S_Q] = q2
     s[_S_Q + 1] = q3
     s[_S_W] = w2
@@ -161,9 +177,14 @@ def _ctc_step(k, q_meas, f, p, ref, s):
     s[_S_Y + 1] = y3
     s[_S_INIT] = 1.0
     out = np.empty(2)
-    out[0] = t2 / p[_P_KKT]
-    out[1] = t3 / p[_P_KKT + 1]
+    out[0] = t2 / c.torque_per_amp[0]
+    out[1] = t3 / c.torque_per_amp[1]
     return out
+
+
+def _pair(values):
+    a = np.broadcast_to(np.asarray(values, dtype=float), (2,))
+    return (float(a[0]), float(a[1]))
 
 
 def _reference_table(trajectory, t):
@@ -197,6 +218,15 @@ class ComputedTorqueController:
     cell_centre : bool
         Take the quantised position at the centre of its pulse cell (default)
         rather than at the truncated count.
+
+    Attributes
+    ----------
+    f : ndarray, shape (9,)
+        The model's base parameters.
+    parameters : CTCParameters
+        Rig layout, gains and options of the compiled step, by name.
+    reference_table : ndarray, shape (n_samples, 6)
+        q_d (2), qd_d (2), qdd_d (2) at t_k = k Ts (rad, rad/s, rad/s^2).
 
     Raises
     ------
@@ -240,29 +270,17 @@ class ComputedTorqueController:
         self.nonlinear_velocity = nonlinear_velocity
         self.friction = bool(friction)
         self.cell_centre = bool(cell_centre)
-        r = rig_vector(rig)
-        p = np.zeros(_P_LEN)
-        p[_P_TS] = rig.sample_time_s
-        p[_P_SCALE : _P_SCALE + 2] = r[1:3]
-        p[_P_KKT : _P_KKT + 2] = r[5:7]
-        p[_P_VISC : _P_VISC + 2] = r[7:9]
-        p[_P_CPOS : _P_CPOS + 2] = r[9:11]
-        p[_P_CNEG : _P_CNEG + 2] = r[11:13]
-        p[_P_VREG : _P_VREG + 2] = r[13:15]
-        p[_P_G] = r[15]
-        p[_P_KP : _P_KP + 2] = gains.Kp
-        p[_P_KV : _P_KV + 2] = gains.Kv
-        p[_P_LQ : _P_LQ + 2] = gains.observer_gain[:, 0]
-        p[_P_LW : _P_LW + 2] = gains.observer_gain[:, 1]
-        p[_P_ALPHA : _P_ALPHA + 2] = gains.alpha
-        p[_P_EST] = float(ESTIMATORS.index(gains.estimator))
-        p[_P_NLV] = _NLV[nonlinear_velocity]
-        p[_P_FRIC] = 1.0 if self.friction else 0.0
-        p[_P_MID] = 1.0 if self.cell_centre else 0.0
-        self._p = p
+        self.parameters = CTCParameters(
+            rig=rig_constants(rig),
+            kp=_pair(gains.Kp), kv=_pair(gains.Kv),
+            observer_q=_pair(gains.observer_gain[:, 0]), observer_w=_pair(gains.observer_gain[:, 1]),
+            alpha=_pair(gains.alpha), estimator=ESTIMATORS.index(gains.estimator),
+            estimate_in_nonlinear=nonlinear_velocity == "estimate",
+            friction=self.friction, cell_centre=self.cell_centre,
+        )
         self._ts = float(rig.sample_time_s)
-        self._ref = _reference_table(trajectory, np.arange(n) * self._ts)
-        if not np.all(np.isfinite(self._ref)):
+        self.reference_table = _reference_table(trajectory, np.arange(n) * self._ts)
+        if not np.all(np.isfinite(self.reference_table)):
             raise ValueError("the reference trajectory is not finite")
         self._n = n
         self._scratch = np.zeros((1, 6))
@@ -341,9 +359,9 @@ class ComputedTorqueController:
         if q_meas.shape != (2,):
             raise ValueError(f"q_meas must have shape (2,), got {q_meas.shape}")
         if 0 <= k < self._n:
-            return _ctc_step(k, q_meas, self.f, self._p, self._ref, self._state)
+            return _ctc_step(k, q_meas, self.f, self.parameters, self.reference_table, self._state)
         self._scratch[:] = _reference_table(self.trajectory, np.array([float(t)]))
-        return _ctc_step(0, q_meas, self.f, self._p, self._scratch, self._state)
+        return _ctc_step(0, q_meas, self.f, self.parameters, self._scratch, self._state)
 
     def torque(self, q, qd, qdd) -> np.ndarray:
         """Model torque ``D_hat(q) qdd + h_hat(q, qd) + g_hat(q)`` (N m), friction excluded.

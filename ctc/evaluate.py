@@ -10,8 +10,9 @@ casadi graph and evaluates it over a run:
   and of the reference counts, the pulse errors, the controller (centre of
   the pulse cell, current observer or filtered difference, outer loop,
   ``D_hat a + h_hat + g_hat - tau_f``, division by ``k Kt``), the clip at
-  the current full scale, and the ZOH torque integrated by the same fixed
-  step RK4 as :func:`plant.simulate.integrate_sample` (``substeps`` steps);
+  the current full scale, and the robot advanced over the sample by the
+  casadi twin of the core's sample step (:func:`plant.twin.sample_step_function`,
+  ``substeps`` RK4 steps);
 * the run is ``step.mapaccum(n)``, evaluated once on the tabulated
   reference.
 
@@ -24,7 +25,8 @@ currents (2), robot angles (2) at ``t_k``.
 The rigid-body model is the casadi model of :mod:`plant.symbolic`
 (``derive_base_model``), which the plant's tests prove equal to the numeric
 model of :mod:`plant.model` to 1e-12; the drive friction is the casadi form of
-:func:`plant.model.friction_torque` (:func:`friction_sx`, tested against it).
+:func:`plant.model.friction_torque` (:func:`plant.twin.friction_sx`, tested
+against it).
 
 Agreement with the numba simulator.  Both evaluate the same arithmetic up to
 rounding (1e-16); the quantised loop is chaotic at the pulse level, so after
@@ -40,50 +42,16 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from plant.simulate import rig_vector
+from plant.twin import cell_centre_sx, friction_sx, sample_step_function, trunc_sx
 from plant.symbolic import derive_base_model
 
-from .computed_torque import (
-    _P_ALPHA,
-    _P_CNEG,
-    _P_CPOS,
-    _P_EST,
-    _P_FRIC,
-    _P_G,
-    _P_KKT,
-    _P_KP,
-    _P_KV,
-    _P_LQ,
-    _P_LW,
-    _P_MID,
-    _P_NLV,
-    _P_SCALE,
-    _P_TS,
-    _P_VISC,
-    _P_VREG,
-    ComputedTorqueController,
-)
+from .computed_torque import ComputedTorqueController
 
-__all__ = ["CasadiEvaluation", "evaluate_ctc", "build_step_function", "friction_sx"]
+__all__ = ["CasadiEvaluation", "evaluate_ctc", "build_step_function"]
 
 _NX = 13
 _NU = 8
 _NY = 6
-
-
-def friction_sx(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
-    """casadi form of :func:`plant.model.friction_torque` (joint side, N m).
-
-    ``-(viscous qd + Tc clip(qd / ramp_speed, -1, 1))`` with ``Tc =
-    coulomb_pos`` for qd > 0 and ``coulomb_neg`` otherwise.
-    """
-    r = ca.fmin(ca.fmax(qd / ramp_speed, -1.0), 1.0)
-    tc = ca.if_else(qd > 0, coulomb_pos, coulomb_neg)
-    return -(viscous * qd + tc * r)
-
-
-def _trunc(x):
-    return ca.sign(x) * ca.floor(ca.fabs(x))
 
 
 def build_step_function(controller: ComputedTorqueController, f_robot, *, substeps=32,
@@ -107,14 +75,14 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
         ``step(x (13,), u (8,)) -> (x_next (13,), y (6,))`` (layout in the
         module docstring).
     """
-    p = controller._p
+    p = controller.parameters
+    c = p.rig
     fm = ca.DM(controller.f)
     fr = ca.DM(np.asarray(f_robot, dtype=float))
     rig = controller.rig
-    r = rig_vector(rig)
     model = derive_base_model()
-    grav = float(p[_P_G])
-    ts = float(p[_P_TS])
+    grav = c.gravity
+    ts = c.sample_time_s
     i_fs = rig.current_full_scale_A if current_full_scale_A is None else current_full_scale_A
 
     x = ca.SX.sym("x", _NX)
@@ -130,27 +98,24 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
     e_out = []
     y_list, qh_list, wh_list, a_list, vn_list = [], [], [], [], []
     for j in range(2):
-        sc = float(p[_P_SCALE + j])
-        cnt = _trunc(q[j] * sc)
-        e_out.append(_trunc(refc[j]) - cnt)
-        if p[_P_MID] != 0.0:
-            yj = (cnt + 0.5 * ca.sign(cnt)) / sc
-        else:
-            yj = cnt / sc
-        if p[_P_EST] == 0.0:
+        sc = c.pulses_per_rad[j]
+        cnt = trunc_sx(q[j] * sc)
+        e_out.append(trunc_sx(refc[j]) - cnt)
+        yj = (cell_centre_sx(cnt) if p.cell_centre else cnt) / sc
+        if p.estimator == 0:
             qb = x[5 + j] + ts * x[7 + j] + 0.5 * ts * ts * x[9 + j]
             wb = x[7 + j] + ts * x[9 + j]
             res = yj - qb
-            qh_run = qb + float(p[_P_LQ + j]) * res
-            wh_run = wb + float(p[_P_LW + j]) * res
+            qh_run = qb + p.observer_q[j] * res
+            wh_run = wb + p.observer_w[j] * res
         else:
-            al = float(p[_P_ALPHA + j])
+            al = p.alpha[j]
             qh_run = yj
             wh_run = al * x[7 + j] + (1.0 - al) * (yj - x[11 + j]) / ts
         qh = ca.if_else(init == 0, yj, qh_run)
         wh = ca.if_else(init == 0, wd_ref[j], wh_run)
-        a = ad_ref[j] + float(p[_P_KV + j]) * (wd_ref[j] - wh) + float(p[_P_KP + j]) * (qd_ref[j] - qh)
-        vn = wd_ref[j] if p[_P_NLV] == 0.0 else wh
+        a = ad_ref[j] + p.kv[j] * (wd_ref[j] - wh) + p.kp[j] * (qd_ref[j] - qh)
+        vn = wh if p.estimate_in_nonlinear else wd_ref[j]
         y_list.append(yj)
         qh_list.append(qh)
         wh_list.append(wh)
@@ -164,34 +129,17 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
     cur = []
     for j in range(2):
         tj = tau[j]
-        if p[_P_FRIC] != 0.0:
-            tj = tj - friction_sx(vn[j], p[_P_VISC + j], p[_P_CPOS + j], p[_P_CNEG + j], p[_P_VREG + j])
-        ij = tj / float(p[_P_KKT + j])
+        if p.friction:
+            tj = tj - friction_sx(vn[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
+                                  c.ramp_speed[j])
+        ij = tj / c.torque_per_amp[j]
         if i_fs is not None:
             ij = ca.fmin(ca.fmax(ij, -float(i_fs)), float(i_fs))
         cur.append(ij)
     cur = ca.vertcat(*cur)
-    u_tau = ca.vertcat(float(r[5]) * cur[0], float(r[6]) * cur[1])
-
-    def accel(qq, ww):
-        fric = ca.vertcat(
-            friction_sx(ww[0], r[7], r[9], r[11], r[13]),
-            friction_sx(ww[1], r[8], r[10], r[12], r[14]),
-        )
-        return model.forward(fr, qq, ww, u_tau + fric, grav)
-
-    h = ts / int(substeps)
-    qq, ww = q, w
-    for _ in range(int(substeps)):  # same stages as plant.simulate.integrate_sample
-        a1 = accel(qq, ww)
-        v1 = ww + 0.5 * h * a1
-        a2 = accel(qq + 0.5 * h * ww, v1)
-        v2 = ww + 0.5 * h * a2
-        a3 = accel(qq + 0.5 * h * v1, v2)
-        v3 = ww + h * a3
-        a4 = accel(qq + h * v2, v3)
-        qq = qq + h / 6.0 * (ww + 2.0 * v1 + 2.0 * v2 + v3)
-        ww = ww + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    # the robot: the casadi twin of the core's sample step (plant.twin)
+    x_robot = sample_step_function(c, substeps)(ca.vertcat(q, w), cur, fr)
+    qq, ww = x_robot[0:2], x_robot[2:4]
     x_next = ca.vertcat(qq, ww, 1.0, qh, ca.vertcat(*wh_list), a, ca.vertcat(*y_list))
     y = ca.vertcat(ca.vertcat(*e_out), cur, q)
     return ca.Function("ctc_step", [x, u], [x_next, y], ["x", "u"], ["x_next", "y"])
@@ -280,7 +228,7 @@ def evaluate_ctc(controller: ComputedTorqueController, f_robot, *, n_samples=Non
     f_robot = np.asarray(f_robot, dtype=float)
     if f_robot.shape != (9,) or not np.all(np.isfinite(f_robot)):
         raise ValueError(f"f_robot must be 9 finite numbers, got shape {f_robot.shape}")
-    n_max = controller._ref.shape[0]
+    n_max = controller.reference_table.shape[0]
     n = n_max if n_samples is None else int(n_samples)
     if not 1 <= n <= n_max:
         raise ValueError(f"n_samples must be in 1..{n_max} (the controller's reference table), got {n_samples}")
@@ -291,7 +239,7 @@ def evaluate_ctc(controller: ComputedTorqueController, f_robot, *, n_samples=Non
     run = step.mapaccum("ctc_run", n)
     t = np.arange(n) * rig.sample_time_s
     refc = controller.trajectory.position(t) * rig.pulses_per_rad
-    U = np.hstack([controller._ref[:n], refc]).T
+    U = np.hstack([controller.reference_table[:n], refc]).T
     x0 = np.zeros(_NX)
     x0[0:2] = rig.q0_rad if q0 is None else np.asarray(q0, float)
     x0[2:4] = rig.qd0_rad_per_s if qd0 is None else np.asarray(qd0, float)

@@ -9,7 +9,14 @@ from .distributed import Job, JobResult, identify_many, seed_jobs
 from .filtering import apply_lowpass, lowpass_sos
 from .ga import GAResult, run_ga
 from .objective import IDENTIFICATION_SUBSTEPS, OutputError
-from .refine import PredictionErrorProblem, refine
+from .parameters import (
+    DEFAULT_PAYLOAD_BOUNDS,
+    BaseParameters,
+    ConsistentBaseParameters,
+    Parameterisation,
+    PayloadParameters,
+)
+from .refine import PredictionErrorProblem, RefineResult, refine
 from .result import IdentificationResult
 
 __all__ = [
@@ -25,7 +32,13 @@ __all__ = [
     "IDENTIFICATION_SUBSTEPS",
     "run_ga",
     "GAResult",
+    "Parameterisation",
+    "BaseParameters",
+    "ConsistentBaseParameters",
+    "PayloadParameters",
+    "DEFAULT_PAYLOAD_BOUNDS",
     "PredictionErrorProblem",
+    "RefineResult",
     "refine",
     "lowpass_sos",
     "apply_lowpass",

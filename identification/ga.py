@@ -552,50 +552,70 @@ def migrate(chroms, objv, rate: float = 0.3, rng: RngLike = None,
 # --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class GAState:
-    """What :func:`run_ga` passes to ``callback`` after every generation."""
+    """What :func:`run_ga` passes to ``callback`` after every generation.
+
+    Attributes
+    ----------
+    generation : int
+        Generations completed.
+    x : ndarray, shape (n,)
+        Best point evaluated so far.
+    fun : float
+        Its objective.
+    mean : float
+        Mean of the finite objectives in the population.
+    nfev : int
+        Objective evaluations so far.
+    """
 
     generation: int
-    best_x: np.ndarray
-    best_objective: float
-    mean_objective: float
-    evaluations: int
+    x: np.ndarray
+    fun: float
+    mean: float
+    nfev: int
 
 
 @dataclass
 class GAResult:
-    """Outcome of :func:`run_ga`.
+    """Outcome of :func:`run_ga` (scipy ``OptimizeResult`` vocabulary).
 
     Attributes
     ----------
-    x_best : ndarray, shape (n,)
+    x : ndarray, shape (n,)
         Best point evaluated (decoded).
-    objective_best : float
-    history : dict of ndarray, each shape (generations + 1,)
+    fun : float
+        Its objective value.
+    nfev : int
+        Objective evaluations.
+    nit : int
+        Generations completed.
+    success : bool
+        False when stopped early (``interrupted``).
+    message : str
+    population : ndarray, shape (n_subpops * n_ind, n)
+        Final population, subpopulation after subpopulation.
+    population_energies : ndarray, shape (n_subpops * n_ind,)
+        Objective values of the final population (scipy's name).
+    history : dict of ndarray, each shape (nit + 1,)
         ``'best'``: best objective in the population after each generation
         (index 0: initial population); ``'best_so_far'``: best ever
         evaluated (equal to ``'best'`` with elitism, i.e. ggap < 1);
         ``'mean'``: mean of the finite objectives in the population;
-        ``'evaluations'``: cumulative evaluation count.
-    population : ndarray, shape (n_subpops * n_ind, n)
-        Final population, subpopulation after subpopulation.
-    population_objective : ndarray, shape (n_subpops * n_ind,)
-    evaluations : int
-    generations : int
-        Generations completed.
+        ``'nfev'``: cumulative evaluation count.
     interrupted : bool
         True when stopped early by ``callback`` or KeyboardInterrupt.
-    message : str
     """
 
-    x_best: np.ndarray
-    objective_best: float
-    history: dict = field(default_factory=dict)
-    population: Optional[np.ndarray] = None
-    population_objective: Optional[np.ndarray] = None
-    evaluations: int = 0
-    generations: int = 0
-    interrupted: bool = False
+    x: np.ndarray
+    fun: float
+    nfev: int = 0
+    nit: int = 0
+    success: bool = True
     message: str = ""
+    population: Optional[np.ndarray] = None
+    population_energies: Optional[np.ndarray] = None
+    history: dict = field(default_factory=dict)
+    interrupted: bool = False
 
 
 def _evaluate(evaluate, X: np.ndarray, cap=None) -> np.ndarray:
@@ -683,7 +703,8 @@ def run_ga(
     callback : callable, optional
         ``callback(GAState) -> bool`` after every generation; True stops.
     progress : bool
-        Show a tqdm bar per generation with the best objective.
+        Show a tqdm bar per generation with the best objective (only when
+        stderr is a terminal).
     initial : array_like, shape (k, n) or (n,), optional
         Points seeded (encoded to the nearest code, clipped to the box)
         into the initial population: point ``i`` replaces individual
@@ -763,7 +784,10 @@ def run_ga(
 
     interrupted = False
     message = f"completed {n_gen} generations"
-    bar = tqdm(total=n_gen, desc="GA", unit="gen", disable=not progress, leave=False)
+    # disable=None: tqdm switches itself off when stderr is not a terminal (no
+    # carriage-return flood in a log file)
+    bar = tqdm(total=n_gen, desc="GA", unit="gen", disable=None if progress else True,
+               leave=False)
     try:
         bar.set_postfix(best=f"{best[0]:.6g}")
         for gen in range(1, n_gen + 1):
@@ -796,8 +820,8 @@ def run_ga(
                 bar.update(1)
                 bar.set_postfix(best=f"{best[0]:.6g}")
                 if callback is not None and callback(GAState(
-                        generation=gen, best_x=best[1].copy(), best_objective=best[0],
-                        mean_objective=hist[-1][2], evaluations=n_eval)):
+                        generation=gen, x=best[1].copy(), fun=best[0], mean=hist[-1][2],
+                        nfev=n_eval)):
                     interrupted = True
                     message = f"stopped by callback after generation {gen}"
                     break
@@ -811,18 +835,19 @@ def run_ga(
     chrom, objv = pop
     h = np.asarray(hist, dtype=float).reshape(-1, 4)
     return GAResult(
-        x_best=np.asarray(best[1], dtype=float),
-        objective_best=best[0],
+        x=np.asarray(best[1], dtype=float),
+        fun=best[0],
+        nfev=int(best[2]),
+        nit=len(hist) - 1,
+        success=not interrupted,
+        message=message,
+        population=enc.decode(chrom.reshape(-1, L)),
+        population_energies=objv.reshape(-1).copy(),
         history={
             "best": h[:, 0].copy(),
             "best_so_far": h[:, 1].copy(),
             "mean": h[:, 2].copy(),
-            "evaluations": h[:, 3].astype(np.int64),
+            "nfev": h[:, 3].astype(np.int64),
         },
-        population=enc.decode(chrom.reshape(-1, L)),
-        population_objective=objv.reshape(-1).copy(),
-        evaluations=int(best[2]),
-        generations=len(hist) - 1,
         interrupted=interrupted,
-        message=message,
     )

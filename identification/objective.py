@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 import plant
-from plant.simulate import STATUS_OK
+from plant import STATUS_OK
 
 from .filtering import apply_lowpass, lowpass_sos
 
@@ -48,7 +48,7 @@ class OutputError:
     -----
     Candidates that fail (D(q) not positive definite, divergence) receive the
     finite penalty documented in :mod:`plant.simulate`, so a rank-based
-    optimiser can still order them.  ``evaluations`` counts simulated
+    optimiser can still order them.  ``nfev`` counts simulated
     candidates.
     """
 
@@ -57,7 +57,7 @@ class OutputError:
         self.substeps = int(substeps)
         self.workers = workers
         self.lowpass_hz = None if lowpass_hz is None else float(lowpass_hz)
-        self.evaluations = 0
+        self.nfev = 0
         if self.lowpass_hz is not None:
             self._sos = lowpass_sos(self.lowpass_hz, log.rig.sample_time_s)
             self._e_log_filtered = apply_lowpass(log.e_pulses, self._sos)
@@ -77,7 +77,7 @@ class OutputError:
             self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers,
             cap=None if filtered else cap,
         )
-        self.evaluations += F.shape[0]
+        self.nfev += F.shape[0]
         if not filtered:
             return sim.objective
         d = apply_lowpass(sim.e_pulses, self._sos) - self._e_log_filtered[None]
@@ -88,5 +88,5 @@ class OutputError:
 
     def errors(self, f):
         """Simulated tracking errors (n_samples, 2) of one candidate (int64 pulses)."""
-        self.evaluations += 1
+        self.nfev += 1
         return plant.simulate_experiment(self.log, f, substeps=self.substeps)

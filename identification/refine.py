@@ -12,168 +12,302 @@ The P controller's current is known exactly from the logged integer error
 injection, :func:`plant.prediction_errors`) removes the quantised feedback
 from the simulation: the model's continuous encoder count then depends
 smoothly on f, and the prediction errors against the log's count intervals
-are a smooth least-squares problem.  A bounded trust-region Gauss-Newton
-(``scipy.optimize.least_squares``, method ``'trf'``) with a finite-difference
-Jacobian evaluated as one parallel batch of 10 simulations solves it in a few
-iterations from the GA's best individuals.  Measured on the development logs
-(docs, ``identification``): well-excited parameters within 0.1 % of the
-truth, against ~1-10 % for the GA alone.
+are a smooth least-squares problem.
+
+The solver is a bounded Levenberg-Marquardt (Marquardt's diagonal scaling;
+J. J. More, "The Levenberg-Marquardt algorithm: implementation and theory",
+1978) run on all starts *at once*: every iteration evaluates, for every
+active start, its trial point and the k forward-difference columns of the
+Jacobian there, as one batch of ``n_starts (k + 1)`` candidates in the SIMD
+lanes of the simulation core.  A trial point that lowers the cost is
+accepted together with its Jacobian (no re-evaluation); a rejected one
+raises the damping.  Starts that converge to the same point are merged (the
+costlier is dropped), so the usual case -- the GA's best individuals all in
+one basin -- costs little more than one start.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 import plant
-from plant.simulate import STATUS_OK
+from plant import STATUS_OK
 
 from .filtering import apply_lowpass, lowpass_sos
 
-__all__ = ["PredictionErrorProblem", "RefineResult", "refine"]
+__all__ = ["PredictionErrorProblem", "RefineResult", "refine", "DEFAULT_GAIN"]
 
 #: Output-injection gain of the replay, as a fraction of the P gain.
 DEFAULT_GAIN = 0.02
 
+#: Relative forward-difference step of the Jacobian (of the box width).
+FD_STEP = 1e-6
+#: Two starts closer than this (per parameter, relative to the box width) are merged.
+MERGE_TOL = 1e-5
+
 
 class PredictionErrorProblem:
-    """Least-squares residuals r(x) = prediction errors of the replay.
+    """Least-squares residuals r(x) = prediction errors of the replay, in batches.
 
     Parameters
     ----------
     log : plant.ExperimentLog
+        The logged experiment.
     to_f : callable, optional
-        Maps the searched vector x (k,) to f (9,) (identity by default; the
-        payload identification searches 4 payload parameters).
+        Maps searched vectors x (m, k) to f (m, 9) (identity by default).
     to_state : callable, optional
-        Maps x to the state (q2, q3, qd2, qd3) at the log's first sample when
-        the initial state is estimated with the parameters (window logs).
-    gain, substeps, lowpass_hz, workers
-        See :func:`plant.prediction_errors` and
-        :class:`identification.objective.OutputError`.
+        Maps x (m, k + 4) to the state (q2, q3, qd2, qd3) (m, 4) at the log's
+        first sample when the initial state is estimated with the parameters
+        (window logs).
+    gain : float
+        Output-injection gain (:func:`plant.prediction_errors`).
+    substeps : int
+        RK4 steps per sample.
+    lowpass_hz : float, optional
+        Low-pass both sides (as :class:`identification.objective.OutputError`).
+    workers : int, optional
+        Threads of the simulation.
+
+    Attributes
+    ----------
+    nfev : int
+        Simulations run so far by this problem (a counter, nothing else is
+        kept between calls).
     """
 
     def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=1,
                  lowpass_hz=None, workers=None):
         self.log = log
         self.to_state = to_state
-        self.to_f = to_f if to_f is not None else (lambda x: np.asarray(x, dtype=float))
+        self.to_f = to_f if to_f is not None else (lambda X: np.asarray(X, dtype=float))
         self.gain = float(gain)
         self.substeps = int(substeps)
         self.workers = workers
-        self.evaluations = 0
+        self.nfev = 0
         self._sos = None if lowpass_hz is None else lowpass_sos(lowpass_hz, log.rig.sample_time_s)
-        self._last = (None, None)
-        self.best = (np.inf, None)
 
-    def _batch(self, X):
-        F = np.array([self.to_f(x) for x in X])
-        X0 = None if self.to_state is None else np.array([self.to_state(x) for x in X])
+    def residuals(self, X) -> np.ndarray:
+        """Residual vectors of a batch of points.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, k) or (k,)
+
+        Returns
+        -------
+        ndarray, shape (m, 2 n_samples) or (2 n_samples,)
+            Prediction errors (pulses), failed candidates filled with the
+            divergence bound.
+        """
+        X = np.asarray(X, dtype=float)
+        single = X.ndim == 1
+        X = np.atleast_2d(X)
+        F = np.asarray(self.to_f(X), dtype=float).reshape(X.shape[0], 9)
+        X0 = None if self.to_state is None else np.asarray(self.to_state(X), dtype=float)
         eps, status = plant.prediction_errors(
             self.log, F, gain=self.gain, substeps=self.substeps, workers=self.workers,
-            initial_state=X0,
-        )
-        self.evaluations += F.shape[0]
+            initial_state=X0)
+        self.nfev += F.shape[0]
         if self._sos is not None:
             ok = status == STATUS_OK
             if np.any(ok):
                 eps[ok] = apply_lowpass(eps[ok], self._sos)
-        return eps.reshape(F.shape[0], -1)
-
-    def residuals(self, x):
-        """Residual vector (2 n_samples,) in pulses at x."""
-        x = np.asarray(x, dtype=float)
-        if self._last[0] is not None and np.array_equal(self._last[0], x):
-            return self._last[1]
-        r = self._batch(x[None])[0]
-        self._last = (x.copy(), r)
-        cost = float(r @ r)
-        if cost < self.best[0]:
-            self.best = (cost, x.copy())
-        return r
-
-    def jacobian(self, x, lo, hi):
-        """Forward-difference Jacobian (2 n_samples, k): the k steps in one parallel batch."""
-        x = np.asarray(x, dtype=float)
-        h = 1e-6 * (hi - lo)
-        h = np.where(x + h > hi, -h, h)  # step inward at the upper bound
-        r0 = self.residuals(x)  # least_squares has just evaluated x: cached
-        R = self._batch(x + np.diag(h))
-        return ((R - r0) / h[:, None]).T
+        R = eps.reshape(F.shape[0], -1)
+        return R[0] if single else R
 
 
 @dataclass
 class RefineResult:
-    """Outcome of :func:`refine`.
+    """Outcome of :func:`refine` (scipy ``OptimizeResult`` vocabulary).
 
     Attributes
     ----------
     x : ndarray, shape (k,)
-        Refined parameters.
-    cost : float
+        Refined parameters (the best start's).
+    fun : float
         Sum of squared prediction errors at x (pulses^2).
-    start_costs, costs : ndarray, shape (n_starts,)
-        Cost at each start point and after refining it.
-    evaluations : int
-        Simulations run (residuals and Jacobians).
-    interrupted : bool
+    nfev : int
+        Simulations run (residuals and Jacobian columns).
+    nit : int
+        Iterations (batches) run.
+    success : bool
+        False when interrupted.
     message : str
+    start_costs, costs : ndarray, shape (n_starts,)
+        Cost at each start point and at its end (a merged start ends at the
+        cost of the start it merged into).
+    merged : list of (int, int)
+        ``(dropped, kept)`` start indices (0-based) of merged starts.
+    interrupted : bool
     """
 
     x: np.ndarray
-    cost: float
+    fun: float
+    nfev: int = 0
+    nit: int = 0
+    success: bool = True
+    message: str = ""
     start_costs: np.ndarray = field(default_factory=lambda: np.empty(0))
     costs: np.ndarray = field(default_factory=lambda: np.empty(0))
-    evaluations: int = 0
+    merged: list = field(default_factory=list)
     interrupted: bool = False
-    message: str = ""
 
 
-def refine(problem, starts, bounds, *, max_nfev=40, callback=None):
-    """Refine each start with bounded Gauss-Newton and return the best.
+def _fd_points(x, lo, hi):
+    """x and the k forward-difference points (inward at the upper bound); steps h (k,)."""
+    h = FD_STEP * (hi - lo)
+    h = np.where(x + h > hi, -h, h)
+    return np.vstack([x, x + np.diag(h)]), h
+
+
+def _lm_step(J, r, lam, x, lo, hi):
+    """Bounded Levenberg-Marquardt step with Marquardt scaling; free variables only."""
+    g = J.T @ r
+    A = J.T @ J
+    d = np.maximum(np.diag(A), 1e-30)
+    # variables at a bound whose descent direction points out of the box stay fixed
+    free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+    step = np.zeros_like(x)
+    if np.any(free):
+        Af = A[np.ix_(free, free)] + lam * np.diag(d[free])
+        try:
+            step[free] = np.linalg.solve(Af, -g[free])
+        except np.linalg.LinAlgError:
+            step[free] = -g[free] / (d[free] * (1.0 + lam))
+    return np.clip(x + step, lo, hi)
+
+
+def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, callback=None):
+    """Refine all starts together by bounded Levenberg-Marquardt; return the best.
 
     Parameters
     ----------
     problem : PredictionErrorProblem
+        The residuals.
     starts : array_like, shape (n_starts, k)
-        Start points (e.g. the GA's best individuals), inside ``bounds``.
+        Start points (e.g. the GA's best individuals), clipped into ``bounds``.
     bounds : array_like, shape (k, 2)
-    max_nfev : int
-        Residual evaluations per start (``least_squares``).
+        Box of x.
+    max_iter : int
+        Batches at most (each: one trial point and its k Jacobian columns per
+        active start).
+    ftol : float
+        A start converges when an accepted step lowers its cost by less than
+        ``ftol`` relative.
+    xtol : float
+        ... or moves it by less than ``xtol`` of the box width.
     callback : callable, optional
-        ``callback(x, cost) -> bool`` after each start is refined; True stops.
+        ``callback(start, n_starts, x, cost) -> bool`` once per start when it
+        converges, is merged or runs out of iterations (``start`` 1-based);
+        True stops the refinement.
 
     Returns
     -------
     RefineResult
         A KeyboardInterrupt stops the refinement and returns the best point
         evaluated so far with ``interrupted=True``.
+
+    Raises
+    ------
+    ValueError
+        On malformed starts or bounds.
     """
     bounds = np.asarray(bounds, dtype=float)
     lo, hi = bounds[:, 0], bounds[:, 1]
     starts = np.clip(np.atleast_2d(np.asarray(starts, dtype=float)), lo, hi)
-    start_costs, costs = [], []
+    if starts.shape[1] != bounds.shape[0]:
+        raise ValueError(f"starts have {starts.shape[1]} parameters, bounds {bounds.shape[0]}")
+    ns, k = starts.shape
+    nfev0 = problem.nfev
+    width = hi - lo
+    x = starts.copy()
+    cost = np.full(ns, np.inf)
+    start_costs = np.full(ns, np.inf)
+    lam = np.full(ns, 1e-3)
+    J = [None] * ns
+    r = [None] * ns
+    active = list(range(ns))
+    done_reason = {}
+    merged = []
     interrupted = False
-    message = f"refined {len(starts)} start(s) by trust-region Gauss-Newton"
+    nit = 0
+    message = ""
+    reported = set()
+
+    def report(s):
+        if callback is None or s in reported:
+            return False
+        reported.add(s)
+        return bool(callback(s + 1, ns, x[s].copy(), float(cost[s])))
+
+    trial = x.copy()
     try:
-        for x0 in starts:
-            r0 = problem.residuals(x0)
-            start_costs.append(float(r0 @ r0))
-            sol = least_squares(
-                problem.residuals, x0, jac=lambda x: problem.jacobian(x, lo, hi),
-                bounds=(lo, hi), x_scale=hi - lo, method="trf", max_nfev=max_nfev,
-            )
-            costs.append(2.0 * float(sol.cost))
-            if callback is not None and callback(sol.x, 2.0 * float(sol.cost)):
+        while active and nit < max_iter + 1:
+            pts, hs = [], []
+            for s in active:
+                p, h = _fd_points(trial[s], lo, hi)
+                pts.append(p)
+                hs.append(h)
+            R = problem.residuals(np.vstack(pts))
+            nit += 1
+            stop = False
+            for a, s in enumerate(active):
+                Rs = R[a * (k + 1):(a + 1) * (k + 1)]
+                c_t = float(Rs[0] @ Rs[0])
+                if not np.isfinite(cost[s]):  # the start point itself
+                    start_costs[s] = c_t
+                if c_t < cost[s]:
+                    dc = cost[s] - c_t
+                    dx = np.max(np.abs(trial[s] - x[s]) / width) if np.isfinite(cost[s]) else np.inf
+                    x[s], cost[s], r[s] = trial[s].copy(), c_t, Rs[0]
+                    J[s] = ((Rs[1:] - Rs[0]) / hs[a][:, None]).T
+                    lam[s] = max(lam[s] / 3.0, 1e-12)
+                    if dc <= ftol * c_t or dx <= xtol:
+                        done_reason[s] = "converged"
+                else:
+                    lam[s] *= 4.0
+                    if lam[s] > 1e12:
+                        done_reason[s] = "converged (no further decrease)"
+            # merge starts that reached the same point
+            for a_i, s in enumerate(active):
+                if s in done_reason:
+                    continue
+                for t in active[:a_i]:
+                    if t not in done_reason or done_reason[t].startswith("converged"):
+                        if np.all(np.abs(x[s] - x[t]) <= MERGE_TOL * width):
+                            keep, drop = (t, s) if cost[t] <= cost[s] else (s, t)
+                            done_reason[drop] = f"merged into start {keep + 1}"
+                            merged.append((drop, keep))
+                            break
+            if nit >= max_iter + 1:
+                for s in active:
+                    done_reason.setdefault(s, "iteration limit")
+            for s in active:
+                if s in done_reason and report(s):
+                    stop = True
+            if stop:
                 interrupted = True
                 message = "stopped by callback during refinement"
                 break
+            active = [s for s in active if s not in done_reason]
+            for s in active:
+                trial[s] = _lm_step(J[s], r[s], lam[s], x[s], lo, hi)
     except KeyboardInterrupt:
         interrupted = True
         message = "interrupted (KeyboardInterrupt) during refinement"
-    cost, x = problem.best
-    if x is None:
-        x, cost = starts[0], np.inf
-    return RefineResult(np.asarray(x), float(cost), np.array(start_costs), np.array(costs),
-                        problem.evaluations, interrupted, message)
+    costs = cost.copy()
+    for drop, keep in merged:
+        costs[drop] = cost[keep]
+    best = int(np.argmin(cost))
+    if not np.isfinite(cost[best]):
+        best_x, best_cost = starts[0], np.inf
+    else:
+        best_x, best_cost = x[best], float(cost[best])
+    if not message:
+        message = (f"refined {ns} start(s) together by Levenberg-Marquardt in {nit} batches"
+                   + (f" ({len(merged)} merged)" if merged else ""))
+    return RefineResult(x=np.asarray(best_x, dtype=float), fun=best_cost,
+                        nfev=problem.nfev - nfev0, nit=nit, success=not interrupted,
+                        message=message, start_costs=start_costs, costs=costs, merged=merged,
+                        interrupted=interrupted)

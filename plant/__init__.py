@@ -2,10 +2,14 @@
 
 Pipeline position: log + rig (:mod:`plant.log`, :mod:`plant.rig`) ->
 model (:mod:`plant.model`, derived symbolically in :mod:`plant.symbolic`) ->
-closed-loop simulation (:mod:`plant.simulate`).
+closed-loop simulation: one core (:mod:`plant.core`) advancing a plant
+(:mod:`plant.plants`, rigid or flexible), driven by the P experiment
+(:mod:`plant.simulate`), the logged-input replay (:mod:`plant.replay`) and
+the any-controller loop (:mod:`plant.closed_loop`).
 """
 from ._errors import LogError, SimulationError
-from .closed_loop import ClosedLoopResponse, FlexibleJoints, simulate_closed_loop
+from .closed_loop import DEFAULT_CLOSED_LOOP_SUBSTEPS, simulate_closed_loop
+from .core import STATUS_MESSAGES, STATUS_OK
 from .log import ExperimentLog, example_log_path, load_example, load_log
 from .model import (
     coriolis_centrifugal,
@@ -16,16 +20,21 @@ from .model import (
     is_positive_definite,
     regressor,
 )
-from .plotting import plot_tracking_errors
+from .parallel import kernels_cached, warm_up
 from .payload import Payload, add_payload, payload_delta, recover_payload
-from .rig import F_NAMES, F_UNITS, Rig
+from .plants import RIGID, FlexibleJoints, Plant
+from .plotting import plot_tracking_errors
+from .replay import measured_counts, prediction_errors
+from .response import ClosedLoopResponse
+from .rig import F_NAMES, F_UNITS, Rig, RigConstants, rig_constants
 from .simulate import (
     DEFAULT_SUBSTEPS,
     ExperimentSimulation,
+    SimulationInputs,
     output_error,
-    prediction_errors,
     simulate_batch,
     simulate_experiment,
+    simulation_inputs,
 )
 from .trajectory import Trajectory
 
@@ -37,6 +46,8 @@ __all__ = [
     "load_example",
     "example_log_path",
     "Rig",
+    "RigConstants",
+    "rig_constants",
     "F_NAMES",
     "F_UNITS",
     "Trajectory",
@@ -51,14 +62,24 @@ __all__ = [
     "add_payload",
     "payload_delta",
     "recover_payload",
+    "Plant",
+    "RIGID",
+    "FlexibleJoints",
+    "STATUS_OK",
+    "STATUS_MESSAGES",
     "DEFAULT_SUBSTEPS",
+    "DEFAULT_CLOSED_LOOP_SUBSTEPS",
     "ExperimentSimulation",
+    "SimulationInputs",
+    "simulation_inputs",
     "simulate_experiment",
     "simulate_batch",
     "output_error",
     "prediction_errors",
+    "measured_counts",
     "plot_tracking_errors",
     "simulate_closed_loop",
     "ClosedLoopResponse",
-    "FlexibleJoints",
+    "warm_up",
+    "kernels_cached",
 ]

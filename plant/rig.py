@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -80,3 +81,99 @@ class Rig:
     def bounds(self) -> np.ndarray:
         """Search ranges of f1..f9 as an array of shape (9, 2): columns (low, high)."""
         return np.array(self.f_bounds, dtype=float).reshape(9, 2)
+
+
+class RigConstants(NamedTuple):
+    """The rig layout of the compiled closed-loop core: joint-side drive constants.
+
+    The one layout every simulation and controller kernel reads (by field
+    name, never by position).  Built from a :class:`Rig` by
+    :func:`rig_constants`; a ``NamedTuple`` of floats and pairs of floats, so
+    numba types it as a value (no arrays, no reference counting).  Pairs are
+    ordered (joint 2, joint 3).
+
+    Attributes
+    ----------
+    sample_time_s : float
+        Controller sample time Ts (s).
+    pulses_per_rad : tuple of 2 float
+        Encoder pulses per joint radian, k N / (2 pi) (negative for k < 0).
+    torque_per_amp : tuple of 2 float
+        Joint torque per motor current, k Kt (N m / A).
+    p_gain : tuple of 2 float
+        P gain of the logged experiment (A / pulse).
+    viscous : tuple of 2 float
+        Joint-side viscous friction k^2 B (N m s / rad).
+    coulomb_pos, coulomb_neg : tuple of 2 float
+        Joint-side Coulomb friction abs(k) Tc for positive / negative joint
+        velocity (N m).
+    ramp_speed : tuple of 2 float
+        Joint-side speed below which the Coulomb friction ramps linearly to
+        zero, v_ramp / abs(k) (rad/s).
+    gravity : float
+        Gravitational acceleration g (m/s^2).
+    q0, qd0 : tuple of 2 float
+        Start angles (rad) and rates (rad/s) of the run.
+    """
+
+    sample_time_s: float
+    pulses_per_rad: tuple
+    torque_per_amp: tuple
+    p_gain: tuple
+    viscous: tuple
+    coulomb_pos: tuple
+    coulomb_neg: tuple
+    ramp_speed: tuple
+    gravity: float
+    q0: tuple
+    qd0: tuple
+
+
+def _pair(values) -> tuple:
+    a = np.broadcast_to(np.asarray(values, dtype=float), (2,))
+    return (float(a[0]), float(a[1]))
+
+
+def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
+    """The joint-side constants of a rig in the core's layout.
+
+    Parameters
+    ----------
+    rig : Rig
+        Sidecar constants (motor side where the sidecar gives them so).
+    q0, qd0 : array_like, shape (2,), optional
+        Start angles (rad) and rates (rad/s); default the rig's start state.
+
+    Returns
+    -------
+    RigConstants
+        Joint side: viscous ``k^2 B``, Coulomb ``abs(k) Tc``, ramp speed
+        ``v / abs(k)``, torque per amp ``k Kt``, pulses per rad ``k N / 2 pi``.
+
+    Raises
+    ------
+    ValueError
+        If ``q0`` or ``qd0`` is not two finite numbers.
+    """
+    k = np.asarray(rig.gear_ratio, dtype=float)
+    n = np.asarray(rig.encoder_ppr, dtype=float)
+    tc = np.asarray(rig.coulomb_friction_Nm, dtype=float).reshape(2, 2)
+    start = []
+    for name, given, default in (("q0", q0, rig.q0_rad), ("qd0", qd0, rig.qd0_rad_per_s)):
+        v = np.asarray(default if given is None else given, dtype=float)
+        if v.shape != (2,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"{name} must be 2 finite numbers, got {given!r}")
+        start.append(_pair(v))
+    return RigConstants(
+        sample_time_s=float(rig.sample_time_s),
+        pulses_per_rad=_pair(k * n / (2.0 * math.pi)),
+        torque_per_amp=_pair(k * np.asarray(rig.torque_constant_Nm_per_A, dtype=float)),
+        p_gain=_pair(rig.p_gain_A_per_pulse),
+        viscous=_pair(k * k * np.asarray(rig.viscous_friction_Nms_per_rad, dtype=float)),
+        coulomb_pos=_pair(np.abs(k) * tc[:, 0]),
+        coulomb_neg=_pair(np.abs(k) * tc[:, 1]),
+        ramp_speed=_pair(rig.coulomb_ramp_speed_rad_per_s / np.abs(k)),
+        gravity=float(rig.gravity_m_s2),
+        q0=start[0],
+        qd0=start[1],
+    )

@@ -31,15 +31,12 @@ def ctc_response(paper_log, f_true, ctc_true):
 # --------------------------------------------------------------------------- model terms
 def _raw_step(ctl, q, qd, qdd, *, kp=0.0, kv=0.0, friction=False):
     """Run the compiled step once on one custom reference row, estimator state = (q, qd)."""
-    p = ctl._p.copy()
-    p[ctm._P_KP : ctm._P_KP + 2] = kp
-    p[ctm._P_KV : ctm._P_KV + 2] = kv
-    p[ctm._P_FRIC] = 1.0 if friction else 0.0
-    p[ctm._P_MID] = 0.0
+    p = ctl.parameters._replace(kp=(float(kp), float(kp)), kv=(float(kv), float(kv)),
+                                friction=friction, cell_centre=False)
     ref = np.array([[q[0], q[1], qd[0], qd[1], qdd[0], qdd[1]]])
     s = np.zeros(ctm._S_LEN)  # first sample: q_hat = q_meas, qd_hat = qd_d
     i = ctm._ctc_step(0, np.asarray(q, float), ctl.f, p, ref, s)
-    return i * p[ctm._P_KKT : ctm._P_KKT + 2]  # joint torque
+    return i * np.array(p.rig.torque_per_amp)  # joint torque
 
 
 def test_D_h_g_from_f_match_plant_model(ctc_true, f_true):
@@ -63,14 +60,14 @@ def test_friction_feedforward_and_current(ctc_true, f_true):
     r = ctc_true.rig
     q, qd, qdd = np.array([0.2, -0.4]), np.array([0.7, -0.003]), np.array([1.0, 2.0])
     tau = _raw_step(ctc_true, q, qd, qdd, friction=True)
-    vec = ctc_true._p
-    fr = [friction_torque(qd[j], vec[ctm._P_VISC + j], vec[ctm._P_CPOS + j], vec[ctm._P_CNEG + j],
-                          vec[ctm._P_VREG + j]) for j in range(2)]
+    c = ctc_true.parameters.rig
+    fr = [friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
+                          c.ramp_speed[j]) for j in range(2)]
     np.testing.assert_allclose(tau, inverse_dynamics(f_true, q, qd, qdd, r.gravity_m_s2) - fr, rtol=1e-12)
-    # joint-side constants of plant.simulate.rig_vector
+    # joint-side constants of plant.rig.rig_constants
     k = np.array(r.gear_ratio)
-    assert vec[ctm._P_VISC] == pytest.approx(k[0] ** 2 * r.viscous_friction_Nms_per_rad[0])
-    assert vec[ctm._P_CNEG + 1] == pytest.approx(abs(k[1]) * r.coulomb_friction_Nm[1][1])
+    assert c.viscous[0] == pytest.approx(k[0] ** 2 * r.viscous_friction_Nms_per_rad[0])
+    assert c.coulomb_neg[1] == pytest.approx(abs(k[1]) * r.coulomb_friction_Nm[1][1])
 
 
 def test_first_call_is_the_control_law(paper_log, ctc_true, f_true):
@@ -86,11 +83,11 @@ def test_first_call_is_the_control_law(paper_log, ctc_true, f_true):
     ctc_true.reset()
     i = ctc_true(k, t, q_meas, np.zeros(2, dtype=np.int64))
     a = a_d + ctc_true.gains.Kp * (q_d - y)
-    p = ctc_true._p
-    fr = [friction_torque(w_d[j], p[ctm._P_VISC + j], p[ctm._P_CPOS + j], p[ctm._P_CNEG + j],
-                          p[ctm._P_VREG + j]) for j in range(2)]
+    c = ctc_true.parameters.rig
+    fr = [friction_torque(w_d[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
+                          c.ramp_speed[j]) for j in range(2)]
     tau = inverse_dynamics(f_true, y, w_d, a, rig.gravity_m_s2) - fr
-    np.testing.assert_allclose(i * p[ctm._P_KKT : ctm._P_KKT + 2], tau, rtol=1e-11)
+    np.testing.assert_allclose(i * np.array(c.torque_per_amp), tau, rtol=1e-11)
     ctc_true.reset()
 
 
@@ -234,7 +231,7 @@ def test_ctc_bad_options(paper_log, f_true, ctc_true):
 def test_friction_sx_matches_model():
     import casadi as ca
 
-    from ctc.evaluate import friction_sx
+    from plant.twin import friction_sx
 
     x = ca.SX.sym("x")
     fn = ca.Function("fr", [x], [friction_sx(x, 0.8, 0.3, 0.5, 0.01)])

@@ -266,41 +266,41 @@ def test_migration_single_subpop_or_zero_rate_is_noop():
 def test_run_ga_reaches_near_minimum_and_beats_initial():
     res = run_ga(sphere, BOUNDS9, rng=0)
     assert isinstance(res, GAResult)
-    assert res.generations == 40 and not res.interrupted
-    assert res.objective_best < 0.05 * res.history["best"][0]
-    assert res.objective_best < 2.0
-    assert res.x_best.shape == (9,)
-    assert sphere(res.x_best[None])[0] == pytest.approx(res.objective_best)
-    for key in ("best", "best_so_far", "mean", "evaluations"):
+    assert res.nit == 40 and not res.interrupted
+    assert res.fun < 0.05 * res.history["best"][0]
+    assert res.fun < 2.0
+    assert res.x.shape == (9,)
+    assert sphere(res.x[None])[0] == pytest.approx(res.fun)
+    for key in ("best", "best_so_far", "mean", "nfev"):
         assert res.history[key].shape == (41,)
     assert np.all(np.diff(res.history["best"]) <= 0)  # elitism
-    assert res.history["evaluations"][-1] == res.evaluations == 80 + 40 * 76
-    assert res.population.shape == (80, 9) and res.population_objective.shape == (80,)
-    np.testing.assert_allclose(sphere(res.population), res.population_objective)
+    assert res.history["nfev"][-1] == res.nfev == 80 + 40 * 76
+    assert res.population.shape == (80, 9) and res.population_energies.shape == (80,)
+    np.testing.assert_allclose(sphere(res.population), res.population_energies)
     # longer run with Gray coding (no Hamming cliffs): close to the optimum at (1, ..., 1)
     res = run_ga(sphere, BOUNDS9, rng=1, n_gen=150, gray=True)
-    assert res.objective_best < 1e-3
-    np.testing.assert_allclose(res.x_best, 1.0, atol=0.03)
+    assert res.fun < 1e-3
+    np.testing.assert_allclose(res.x, 1.0, atol=0.03)
 
 
 def test_run_ga_rosenbrock_improves():
     def rosen(X):
         return np.sum(100 * (X[:, 1:] - X[:, :-1] ** 2) ** 2 + (1 - X[:, :-1]) ** 2, axis=1)
     res = run_ga(rosen, np.array([[-2.0, 2.0]] * 9), rng=0, n_gen=60)
-    assert res.objective_best < 0.1 * res.history["best"][0]
+    assert res.fun < 0.1 * res.history["best"][0]
 
 
 def test_run_ga_reproducible():
     a = run_ga(sphere, BOUNDS9, rng=7, n_gen=10)
     b = run_ga(sphere, BOUNDS9, rng=np.random.default_rng(7), n_gen=10)
     c = run_ga(sphere, BOUNDS9, rng=8, n_gen=10)
-    np.testing.assert_array_equal(a.x_best, b.x_best)
+    np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.population, b.population)
     for k in a.history:
         np.testing.assert_array_equal(a.history[k], b.history[k])
-    assert a.objective_best == b.objective_best
+    assert a.fun == b.fun
     assert not np.array_equal(a.population, c.population)
-    assert a.objective_best != c.objective_best
+    assert a.fun != c.fun
 
 
 def test_evaluate_called_once_per_generation_with_stacked_batches():
@@ -313,7 +313,7 @@ def test_evaluate_called_once_per_generation_with_stacked_batches():
     res = run_ga(f, BOUNDS9, rng=0)
     assert len(sizes) == 41
     assert sizes[0] == (80, 9) and all(s == (76, 9) for s in sizes[1:])
-    assert res.evaluations == sum(s[0] for s in sizes)
+    assert res.nfev == sum(s[0] for s in sizes)
 
 
 def test_callback_stops_early():
@@ -326,12 +326,12 @@ def test_callback_stops_early():
     res = run_ga(sphere, BOUNDS9, rng=0, callback=cb)
     assert [s.generation for s in states] == [1, 2, 3]
     assert isinstance(states[0], GAState)
-    assert res.interrupted and res.generations == 3
+    assert res.interrupted and res.nit == 3
     assert "callback" in res.message
     assert res.history["best"].shape == (4,)
-    assert states[-1].best_objective == res.objective_best
-    assert states[-1].evaluations == res.evaluations == 80 + 3 * 76
-    assert np.isfinite(states[-1].mean_objective)
+    assert states[-1].fun == res.fun
+    assert states[-1].nfev == res.nfev == 80 + 3 * 76
+    assert np.isfinite(states[-1].mean)
 
 
 def test_keyboard_interrupt_returns_best_so_far():
@@ -344,11 +344,11 @@ def test_keyboard_interrupt_returns_best_so_far():
         return sphere(X)
 
     res = run_ga(f, BOUNDS9, rng=0)
-    assert res.interrupted and res.generations == 4
+    assert res.interrupted and res.nit == 4
     assert "KeyboardInterrupt" in res.message
-    assert res.evaluations == 80 + 4 * 76
-    assert res.objective_best == res.history["best_so_far"][-1]
-    assert res.objective_best == pytest.approx(sphere(res.x_best[None])[0])
+    assert res.nfev == 80 + 4 * 76
+    assert res.fun == res.history["best_so_far"][-1]
+    assert res.fun == pytest.approx(sphere(res.x[None])[0])
     assert res.population.shape == (80, 9)
 
 
@@ -359,15 +359,15 @@ def test_nonfinite_objectives_are_worst():
         return y
 
     res = run_ga(f, BOUNDS9, rng=0, n_gen=15)
-    assert np.isfinite(res.objective_best) and res.x_best[0] <= 0
+    assert np.isfinite(res.fun) and res.x[0] <= 0
     assert np.isfinite(res.history["mean"]).all()
 
 
 def test_initial_points_are_seeded():
     x0 = np.full((1, 9), 1.0)  # the optimum
     res = run_ga(sphere, BOUNDS9, rng=0, n_gen=0, initial=x0)
-    assert res.objective_best < 9 * (10 / 2**20) ** 2
-    assert res.generations == 0 and res.history["best"].shape == (1,)
+    assert res.fun < 9 * (10 / 2**20) ** 2
+    assert res.nit == 0 and res.history["best"].shape == (1,)
     with pytest.raises(ValueError):
         run_ga(sphere, BOUNDS9, rng=0, n_gen=0, initial=np.zeros((81, 9)))
     with pytest.raises(ValueError):
@@ -408,7 +408,7 @@ def test_early_stop_passes_the_population_quantile_as_cap():
     res = run_ga(evaluate, bounds, n_gen=5, rng=0, early_stop=1.0)
     assert caps[0] is None and all(c is not None and c > 0 for c in caps[1:])
     assert len(caps) == 6
-    assert res.objective_best < 0.05
+    assert res.fun < 0.05
     for q in (-0.1, 1.5):
         with pytest.raises(ValueError, match="early_stop"):
             run_ga(evaluate, bounds, n_gen=1, rng=0, early_stop=q)

@@ -1,0 +1,179 @@
+"""Threads over candidate chunks, Ctrl-C inside kernels, and kernel warm-up.
+
+The batch drivers split their candidates into one chunk per worker thread;
+each chunk runs in a compiled kernel that releases the GIL (``nogil``), so
+Python threads run the chunks in parallel.  The number of threads is an
+argument of each call: nothing global is set (numba's own thread count is
+left alone), so nothing needs restoring afterwards.
+"""
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+__all__ = ["default_workers", "chunk_ranges", "run_chunks", "call_kernel", "warm_up",
+           "kernels_cached"]
+
+
+def default_workers() -> int:
+    """Threads used when ``workers`` is not given: the CPUs this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def check_workers(workers) -> int:
+    """``workers`` as an int >= 1 (None: :func:`default_workers`).
+
+    Raises
+    ------
+    ValueError
+        If ``workers`` is not a whole number >= 1.
+    """
+    if workers is None:
+        return default_workers()
+    try:
+        w = int(workers)
+    except (TypeError, ValueError):
+        raise ValueError(f"workers must be a whole number >= 1, got {workers!r}") from None
+    if w < 1 or w != workers:
+        raise ValueError(f"workers must be a whole number >= 1, got {workers!r}")
+    return w
+
+
+def chunk_ranges(m: int, workers: int) -> list:
+    """Split ``m`` candidates into at most ``workers`` contiguous chunks ``(lo, hi)``.
+
+    Parameters
+    ----------
+    m : int
+        Number of candidates.
+    workers : int
+        Threads.
+
+    Returns
+    -------
+    list of (int, int)
+        Non-empty half-open ranges covering ``0..m-1`` in order.
+    """
+    n = max(1, min(m, workers))
+    size = -(-m // n)
+    return [(lo, min(m, lo + size)) for lo in range(0, m, size)]
+
+
+def call_kernel(fn, *args):
+    """Call a compiled kernel; a Ctrl-C inside it surfaces as KeyboardInterrupt.
+
+    numba may report a signal that arrives while compiled code runs as
+    ``SystemError: ... returned a result with an exception set`` chained to
+    the KeyboardInterrupt; callers (the GA, the CLI) expect the interrupt.
+    """
+    try:
+        return fn(*args)
+    except SystemError as exc:
+        cause = exc
+        while cause is not None:
+            if isinstance(cause, KeyboardInterrupt):
+                raise KeyboardInterrupt() from None
+            cause = cause.__cause__ or cause.__context__
+        raise
+
+
+def run_chunks(chunk_fn, m: int, workers) -> None:
+    """Run ``chunk_fn(lo, hi)`` over the chunks of ``m`` candidates in threads.
+
+    Parameters
+    ----------
+    chunk_fn : callable
+        Called once per chunk with its range; runs a ``nogil`` kernel.
+    m : int
+        Number of candidates.
+    workers : int or None
+        Threads (None: :func:`default_workers`).
+    """
+    chunks = chunk_ranges(m, check_workers(workers))
+    if len(chunks) == 1:
+        call_kernel(chunk_fn, *chunks[0])
+        return
+    with ThreadPoolExecutor(max_workers=len(chunks)) as pool:
+        futures = [pool.submit(call_kernel, chunk_fn, lo, hi) for lo, hi in chunks]
+        for fut in futures:
+            fut.result()
+
+
+def kernels_cached() -> bool:
+    """Whether numba's on-disk cache already holds the simulation kernels.
+
+    Returns
+    -------
+    bool
+        True when the P-experiment kernel of the rigid plant loads from the
+        cache without compiling (then :func:`warm_up` takes about a second).
+    """
+    from numba import typeof
+
+    from .simulate import _experiment_chunk, _warm_arguments
+
+    try:
+        sig = tuple(typeof(a) for a in _warm_arguments())
+        return _experiment_chunk._cache.load_overload(sig, _experiment_chunk.targetctx) is not None
+    except Exception:  # noqa: BLE001 - any trouble with the cache means "not cached"
+        return False
+
+
+def warm_up(*, announce=None, replay=True, closed_loop=True) -> float:
+    """Compile (or load from numba's cache) the simulation kernels.
+
+    Runs each kernel once on a three-sample problem so that a timed run
+    afterwards excludes JIT compilation.
+
+    Parameters
+    ----------
+    announce : callable, optional
+        ``announce(message)`` is called once, before compiling, when the
+        kernels are not in numba's cache yet (a first run compiles them once,
+        which takes several seconds); not called when they load from the
+        cache.
+    replay, closed_loop : bool
+        Also warm the replay kernel of the refinement and the sample step of
+        the any-controller loop.
+
+    Returns
+    -------
+    float
+        Seconds it took.
+    """
+    from . import closed_loop as cl
+    from . import replay as rp
+    from . import simulate as sim
+
+    t0 = time.perf_counter()
+    if announce is not None and not kernels_cached():
+        announce("compiling the numerical kernels once (about 10 s on 2 cores); "
+                 "later runs load them from numba's cache")
+    sim._warm()
+    if replay:
+        rp._warm()
+    if closed_loop:
+        cl._warm()
+    return time.perf_counter() - t0
+
+
+def as_float_array(a, name: str, shape=None) -> np.ndarray:
+    """``a`` as a C-contiguous float64 array, checked finite (and of ``shape``).
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape or NaN/inf.
+    """
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if shape is not None and a.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains NaN or inf")
+    return a

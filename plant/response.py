@@ -1,0 +1,196 @@
+"""Time response of a sampled closed loop (:func:`plant.simulate_closed_loop`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["ClosedLoopResponse"]
+
+
+@dataclass(frozen=True)
+class ClosedLoopResponse:
+    """Time response of a sampled closed loop (one value per controller sample).
+
+    Modelled on :class:`control.TimeResponseData`: the raw arrays are stored
+    time-first, and the properties :attr:`time`, :attr:`outputs`,
+    :attr:`inputs`, :attr:`states` give them signal-first as python-control
+    does (``outputs`` are the pulse errors, ``inputs`` the currents, ``states``
+    the joint angles and rates).  :meth:`to_time_response` converts to a real
+    :class:`control.TimeResponseData`.
+
+    Attributes
+    ----------
+    t : ndarray, shape (n,)
+        Sample times t_k = k Ts (s).
+    q : ndarray, shape (n, 2)
+        True joint angles at t_k (rad) (link side for a flexible robot).
+    qd : ndarray, shape (n, 2)
+        True joint rates at t_k (rad/s).
+    q_ref : ndarray, shape (n, 2)
+        Reference angles at t_k (rad).
+    e_pulses : ndarray, shape (n, 2), int64
+        Pulse errors ``trunc(q_ref k N/2pi) - trunc(q_enc k N/2pi)`` at t_k,
+        where ``q_enc`` is the angle the encoder sees (the motor angle / k for
+        a flexible robot).
+    i_A : ndarray, shape (n, 2)
+        Motor currents applied over [t_k, t_k + Ts) (A), after clipping.
+    success : bool
+        False when the simulation stopped early (then the arrays hold only the
+        samples simulated before the failure).
+    message : str
+        "ok" or the reason of the failure.
+    label : str
+        Free-text label (controller name) used in plots.
+    n_clipped : int
+        Samples at which the controller's current was clipped to the
+        amplifiers' full scale.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    q_ref: np.ndarray
+    e_pulses: np.ndarray
+    i_A: np.ndarray
+    success: bool = True
+    message: str = "ok"
+    label: str = ""
+    n_clipped: int = field(default=0)
+
+    # python-control style accessors (signal-first)
+    @property
+    def time(self) -> np.ndarray:
+        """Sample times (n,), s."""
+        return self.t
+
+    @property
+    def outputs(self) -> np.ndarray:
+        """Pulse errors, shape (2, n) (python-control layout)."""
+        return self.e_pulses.T
+
+    @property
+    def inputs(self) -> np.ndarray:
+        """Motor currents, shape (2, n), A."""
+        return self.i_A.T
+
+    @property
+    def states(self) -> np.ndarray:
+        """Joint angles and rates (q2, q3, qd2, qd3), shape (4, n)."""
+        return np.vstack([self.q.T, self.qd.T])
+
+    def to_time_response(self):
+        """Return the response as a :class:`control.TimeResponseData`.
+
+        Returns
+        -------
+        control.TimeResponseData
+            outputs ``e2, e3`` (pulses), inputs ``i2, i3`` (A), states
+            ``q2, q3, qd2, qd3``.
+        """
+        import control
+
+        return control.TimeResponseData(
+            self.t, self.outputs.astype(float), self.states, self.inputs,
+            output_labels=["e2", "e3"], input_labels=["i2", "i3"],
+            state_labels=["q2", "q3", "qd2", "qd3"], title=self.label or None,
+            success=self.success, message=self.message,
+        )
+
+    # ------------------------------------------------------------- statistics
+    def _mask(self, after_s: float) -> np.ndarray:
+        after_s = float(after_s)
+        if not math.isfinite(after_s):
+            raise ValueError(f"after_s must be finite, got {after_s!r}")
+        m = self.t >= after_s - 1e-12
+        if not np.any(m):
+            raise ValueError(f"no sample at or after {after_s} s (run ends at {self.t[-1]:.4f} s)")
+        return m
+
+    def max_abs_error(self, after_s: float = 0.0) -> np.ndarray:
+        """Largest abs(e) per joint over the samples with t >= after_s.
+
+        Parameters
+        ----------
+        after_s : float
+            Start of the evaluated part of the run (s).
+
+        Returns
+        -------
+        ndarray, shape (2,), int64
+            max abs(e) (pulses) of joints 2 and 3.
+
+        Raises
+        ------
+        ValueError
+            If no sample lies at or after ``after_s``.
+        """
+        return np.max(np.abs(self.e_pulses[self._mask(after_s)]), axis=0)
+
+    def rms_error(self, after_s: float = 0.0) -> np.ndarray:
+        """Root-mean-square pulse error per joint over t >= after_s.
+
+        Returns
+        -------
+        ndarray, shape (2,), float (pulses)
+        """
+        e = self.e_pulses[self._mask(after_s)].astype(float)
+        return np.sqrt(np.mean(e * e, axis=0))
+
+    def within(self, pulses: int = 1, after_s: float = 0.0) -> bool:
+        """Whether abs(e) <= pulses on both joints for every sample with t >= after_s.
+
+        A run that failed (``success`` False) is never within.
+        """
+        return bool(self.success and np.all(self.max_abs_error(after_s) <= pulses))
+
+    # --------------------------------------------------------------- plotting
+    def plot(self, *, currents: bool = True, title: str | None = None, ax=None):
+        """Plot the pulse errors (and currents) per joint.
+
+        Parameters
+        ----------
+        currents : bool
+            Add a row with the motor currents.
+        title : str, optional
+            Figure title (default: the label).
+        ax : ndarray of matplotlib.axes.Axes, optional
+            Axes to draw into, shape (rows, 2) with rows = 2 if ``currents``
+            else 1; default: a new figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The figure holding the axes; never shown (no ``plt.show()``).
+
+        Raises
+        ------
+        ValueError
+            If ``ax`` does not hold rows x 2 axes.
+        """
+        rows = 2 if currents else 1
+        if ax is None:
+            from matplotlib.figure import Figure
+
+            fig = Figure(figsize=(10, 3.2 * rows), layout="constrained")
+            axes = fig.subplots(rows, 2, sharex=True, squeeze=False)
+        else:
+            axes = np.asarray(ax, dtype=object).reshape(-1, 2) if np.size(ax) == 2 * rows else None
+            if axes is None:
+                raise ValueError(f"ax must hold {rows} x 2 axes, got {np.size(ax)}")
+            fig = axes[0, 0].figure
+        for j, name in enumerate(("joint 2", "joint 3")):
+            a = axes[0, j]
+            a.step(self.t, self.e_pulses[:, j], where="post", lw=0.8)
+            a.set_ylabel("e (pulses)")
+            a.set_title(f"{name}: max |e| {self.max_abs_error()[j]} pulses")
+            a.grid(True, alpha=0.3)
+            if currents:
+                a = axes[1, j]
+                a.step(self.t, self.i_A[:, j], where="post", lw=0.8, color="C1")
+                a.set_ylabel("i (A)")
+                a.grid(True, alpha=0.3)
+            axes[-1, j].set_xlabel("t (s)")
+        fig.suptitle(title if title is not None else (self.label or "closed-loop response"))
+        return fig

@@ -1,0 +1,197 @@
+"""casadi twin of the closed-loop core: the same sample step as a symbolic graph.
+
+The twin mirrors :mod:`plant.core` with the casadi model of
+:mod:`plant.symbolic` (derived by Lagrange's equations): encoder read,
+cell centre, and the one-sample step -- the motor current held over the
+sample, joint torque ``k Kt i`` plus the drive friction, ``substeps``
+classical RK4 steps of the rigid right-hand side with the same stage
+arithmetic as :func:`plant.core.advance_sample`.  It serves two purposes:
+
+* an independent check of the compiled core: :func:`simulate_experiment_twin`
+  runs the logged P experiment through it, and the tests compare its pulses
+  with :func:`plant.simulate_experiment` sample for sample;
+* the plant side of :func:`ctc.evaluate_ctc`, the casadi closed-loop
+  evaluation of the computed-torque controller (design card).
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from .rig import RigConstants, rig_constants
+from .symbolic import derive_base_model
+
+__all__ = [
+    "friction_sx",
+    "trunc_sx",
+    "cell_centre_sx",
+    "rigid_rhs_sx",
+    "sample_step_function",
+    "simulate_experiment_twin",
+]
+
+
+def friction_sx(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
+    """casadi form of :func:`plant.model.friction_torque` (joint side, N m).
+
+    ``-(viscous qd + Tc clip(qd / ramp_speed, -1, 1))`` with ``Tc =
+    coulomb_pos`` for qd > 0 and ``coulomb_neg`` otherwise.
+
+    Parameters
+    ----------
+    qd : casadi.SX
+        Joint rate (rad/s).
+    viscous, coulomb_pos, coulomb_neg, ramp_speed : float
+        Joint-side constants (:class:`plant.rig.RigConstants`).
+
+    Returns
+    -------
+    casadi.SX
+    """
+    r = ca.fmin(ca.fmax(qd / ramp_speed, -1.0), 1.0)
+    tc = ca.if_else(qd > 0, coulomb_pos, coulomb_neg)
+    return -(viscous * qd + tc * r)
+
+
+def trunc_sx(x):
+    """Truncation toward zero, ``sign(x) floor(abs(x))`` (the encoder count).
+
+    Parameters
+    ----------
+    x : casadi.SX
+
+    Returns
+    -------
+    casadi.SX
+    """
+    return ca.sign(x) * ca.floor(ca.fabs(x))
+
+
+def cell_centre_sx(count):
+    """casadi form of :func:`plant.core.cell_centre`: ``count + 0.5 sign(count)``.
+
+    Parameters
+    ----------
+    count : casadi.SX
+        An integer count.
+
+    Returns
+    -------
+    casadi.SX
+    """
+    return count + 0.5 * ca.sign(count)
+
+
+def rigid_rhs_sx(f, c: RigConstants, x, i):
+    """Right-hand side of the rigid robot (twin of :func:`plant.plants.rigid_rhs`).
+
+    Parameters
+    ----------
+    f : casadi.SX or DM, shape (9,)
+        Base parameters.
+    c : plant.rig.RigConstants
+        Rig layout.
+    x : casadi.SX, shape (4,)
+        State (q2, q3, qd2, qd3).
+    i : casadi.SX, shape (2,)
+        Held motor currents (A).
+
+    Returns
+    -------
+    casadi.SX, shape (4,)
+        (qd2, qd3, qdd2, qdd3).
+    """
+    model = derive_base_model()
+    q, w = x[0:2], x[2:4]
+    tau = ca.vertcat(*[
+        c.torque_per_amp[j] * i[j]
+        + friction_sx(w[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j], c.ramp_speed[j])
+        for j in range(2)])
+    return ca.vertcat(w, model.forward(f, q, w, tau, c.gravity))
+
+
+def sample_step_function(c: RigConstants, substeps: int) -> ca.Function:
+    """One sample of the rigid plant under held currents, as a casadi Function.
+
+    The twin of :func:`plant.core.advance_sample` for the rigid plant: RK4
+    with ``substeps`` steps of ``Ts / substeps``, stages ``X + c K`` as in
+    the core.
+
+    Parameters
+    ----------
+    c : plant.rig.RigConstants
+        Rig layout (Ts, drive constants, gravity).
+    substeps : int
+        RK4 steps per sample (>= 1).
+
+    Returns
+    -------
+    casadi.Function
+        ``step(x (4,), i (2,), f (9,)) -> x_next (4,)``.
+
+    Raises
+    ------
+    ValueError
+        If ``substeps < 1``.
+    """
+    substeps = int(substeps)
+    if substeps < 1:
+        raise ValueError(f"substeps must be >= 1, got {substeps}")
+    x = ca.SX.sym("x", 4)
+    i = ca.SX.sym("i", 2)
+    f = ca.SX.sym("f", 9)
+    h = c.sample_time_s / substeps
+    hh = 0.5 * h
+    h6 = h * (1.0 / 6.0)
+    xk = x
+    for _ in range(substeps):
+        k1 = rigid_rhs_sx(f, c, xk, i)
+        k2 = rigid_rhs_sx(f, c, xk + hh * k1, i)
+        k3 = rigid_rhs_sx(f, c, xk + hh * k2, i)
+        k4 = rigid_rhs_sx(f, c, xk + h * k3, i)
+        xk = xk + h6 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return ca.Function("sample_step", [x, i, f], [xk], ["x", "i", "f"], ["x_next"])
+
+
+def simulate_experiment_twin(log, f, *, substeps: int = 48) -> np.ndarray:
+    """The logged P experiment simulated through the casadi twin.
+
+    The same loop as :func:`plant.simulate_experiment` (encoder read,
+    ``i = P e``, held over the sample, ``substeps`` RK4 steps), evaluated as
+    one casadi ``mapaccum`` over the run.
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+        The experiment (rig, trajectory, start state).
+    f : array_like, shape (9,)
+        Base parameters.
+    substeps : int
+        RK4 steps per sample.
+
+    Returns
+    -------
+    ndarray, shape (n_samples, 2), int64
+        Simulated tracking errors at the log's samples (pulses).
+
+    Raises
+    ------
+    ValueError
+        If ``f`` is not 9 finite numbers or ``substeps < 1``.
+    """
+    f = np.asarray(f, dtype=float)
+    if f.shape != (9,) or not np.all(np.isfinite(f)):
+        raise ValueError(f"f must be 9 finite numbers, got shape {f.shape}")
+    c = rig_constants(log.rig)
+    step = sample_step_function(c, substeps)
+    x = ca.SX.sym("x", 4)
+    refc = ca.SX.sym("ref", 2)
+    e = ca.vertcat(*[trunc_sx(refc[j]) - trunc_sx(x[j] * c.pulses_per_rad[j]) for j in range(2)])
+    cur = ca.vertcat(*[c.p_gain[j] * e[j] for j in range(2)])
+    loop = ca.Function("p_loop", [x, refc], [step(x, cur, ca.DM(f)), e])
+    n = log.n_total
+    t = np.arange(n) * c.sample_time_s
+    ref = log.trajectory.position(t) * log.rig.pulses_per_rad
+    _, E = loop.mapaccum("p_run", n)(np.r_[c.q0, c.qd0], ref.T)
+    e_all = np.rint(np.asarray(E).T).astype(np.int64)
+    return e_all[log.start_index:]
