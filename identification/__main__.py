@@ -1,7 +1,38 @@
-"""``python -m identification``: see :mod:`identification.cli`."""
+"""``python -m identification`` and the ``puma-identify`` script: see :mod:`identification.cli`.
+
+A Ctrl-C at any time, also while the command-line module and its
+dependencies are being imported, ends with one line on stderr and exit
+status 130, never a traceback.
+"""
 import sys
 
-from identification.cli import main
+#: Exit status of a run stopped by Ctrl-C (128 + SIGINT).
+EXIT_INTERRUPTED = 130
+
+
+def main(argv=None):
+    """Run the command line (see :func:`identification.cli.main`).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status (0, 1, 130; argparse usage errors exit with 2).
+    """
+    try:
+        from identification.cli import main as cli_main
+    except KeyboardInterrupt:
+        try:
+            print("error: interrupted (nothing written)", file=sys.stderr, flush=True)
+        except (KeyboardInterrupt, OSError, ValueError):
+            pass
+        return EXIT_INTERRUPTED
+    return cli_main(argv)
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -8,6 +8,34 @@ tracking-error plots as PNG::
     python -m identification LOG.csv --seed S --output OUT.json --plot DIR
     python -m identification --example            # the bundled paper log
 
+The output error printed, written to the JSON (``fun`` = ``objective_pulses2``)
+and shown in the titles of the plots is one number, at the identification's
+integration setting (``settings.substeps`` RK4 steps per sample, and its
+low-pass filter if any); the table and the titles say which setting.
+
+Output files
+------------
+All files are written atomically with the policy of :mod:`plant.fileio`, and
+every target is checked before the identification starts (a bad one fails at
+once, exit status 1, nothing written):
+
+* a target that exists and is not a regular file (``/dev/full``, a FIFO, a
+  directory, a socket) is refused;
+* a symlink is written through: its target is replaced, the link is kept;
+* an existing file keeps its permission bits; a new one gets
+  ``0o666 & ~umask``;
+* a missing directory (of ``--output`` or ``--plot``) is created, and the
+  CLI says so on stderr (``created directory ...``, unless ``--quiet``);
+* the input log's own files are never overwritten.
+
+Progress
+--------
+On a terminal, a tqdm bar shows the GA's generations.  When stderr is not a
+terminal (a log file, a pipe) there is no bar and no carriage return: a plain
+line per GA generation at most every :data:`STATUS_INTERVAL_S` seconds.  In
+both cases one line per refinement start gives its number and its
+prediction-error cost.  ``--quiet`` silences all of these.
+
 Exit status
 -----------
 0
@@ -18,12 +46,14 @@ Exit status
 2
     A command-line usage error (argparse's own message).
 130
-    Interrupted by Ctrl-C.  The first Ctrl-C stops the search after the
-    current GA generation (or refinement start); the best result so far is
-    then printed and written as usual (``"interrupted": true`` in the JSON,
-    and the plots).  A second Ctrl-C aborts at once; if no result exists yet
-    the single line ``error: interrupted ...`` is printed and nothing is
-    written.
+    Interrupted by Ctrl-C.  The first Ctrl-C during the search stops it after
+    the current GA generation (or refinement start); the best result so far
+    is then printed and written as usual (``"interrupted": true`` in the
+    JSON, and the plots).  A second Ctrl-C aborts at once.  A Ctrl-C at any
+    other time (while importing, compiling the numerical kernels, loading
+    the log or writing files), or when no result exists yet, ends with the
+    single line ``error: interrupted ...`` on stderr and no traceback;
+    files are then either complete or not written at all.
 """
 from __future__ import annotations
 
@@ -40,6 +70,15 @@ __all__ = ["main", "build_parser", "format_result_table"]
 
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT).
 EXIT_INTERRUPTED = 130
+
+#: The one line printed on stderr when Ctrl-C ends the run without a result.
+INTERRUPTED_LINE = "error: interrupted (nothing written)"
+
+#: Least seconds between two GA status lines when stderr is not a terminal.
+STATUS_INTERVAL_S = 10.0
+
+#: Names of the plot files written into --plot DIR.
+PLOT_FILES = ("convergence.png", "tracking_errors.png")
 
 
 class CLIError(Exception):
@@ -125,20 +164,66 @@ def _one_line(msg) -> str:
     return text or "unknown error"
 
 
-def _check_writable_target(path: Path, what: str, *, want_dir: bool) -> None:
-    """Fail early (before a long run) if ``path`` cannot be written later."""
-    if path.exists():
-        if want_dir and not path.is_dir():
-            raise CLIError(f"{what} {path} exists and is not a directory")
-        if not want_dir and path.is_dir():
-            raise CLIError(f"{what} {path} is a directory")
-    parent = path if (want_dir and path.is_dir()) else path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise CLIError(f"cannot create {what} {path}: {parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise CLIError(f"cannot write {what} {path}: {parent} is not writable")
+def _isatty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError, OSError):
+        return False
+
+
+# Accessors of result fields.  An ``identify()`` older than the result
+# vocabulary of issue 11 returned ``objective`` / ``evaluations`` instead of
+# ``fun`` / ``nfev`` (IdentificationResult renames them; these fallbacks cover
+# any other mapping and can go once every producer uses the new keys).
+def _result_fun(result) -> float:
+    v = result.get("fun")
+    return float(result.get("objective") if v is None else v)
+
+
+def _result_nfev(result):
+    v = result.get("nfev")
+    return result.get("evaluations") if v is None else v
+
+
+def _result_setting(result) -> str:
+    """The integration setting of ``fun`` as text (e.g. '1 RK4 step/sample (identification)')."""
+    if hasattr(result, "setting_text"):
+        return result.setting_text()
+    from .result import describe_setting
+
+    settings = result.get("settings") or {}
+    n = settings.get("substeps")
+    if n is None:
+        return "the identification's setting"
+    return describe_setting(n, settings.get("lowpass_hz"), identification_substeps=n)
+
+
+def _check_output_targets(out, plot_dir, inputs):
+    """Check every output file before the run (plant.fileio policy); write nothing.
+
+    Returns the list of :class:`plant.fileio.OutputTarget` (JSON first, then
+    the PNGs).  Raises CLIError / OutputFileError with one line.
+    """
+    from plant.fileio import check_output_path
+
+    targets = []
+    if out is not None:
+        targets.append(("--output", check_output_path(out, create_dirs=True)))
+    if plot_dir is not None:
+        if plot_dir.exists() and not plot_dir.is_dir():
+            raise CLIError(f"plot directory {plot_dir} exists and is not a directory")
+        for name in PLOT_FILES:
+            targets.append(("--plot", check_output_path(plot_dir / name, create_dirs=True)))
+    seen = {}
+    for opt, t in targets:
+        real = os.path.realpath(t.target)
+        for inp in inputs:
+            if inp is not None and os.path.realpath(inp) == real:
+                raise CLIError(f"{opt} {t.path} would overwrite the input file {inp}")
+        if real in seen:
+            raise CLIError(f"{opt} {t.path} and {seen[real]} are the same file")
+        seen[real] = t.path
+    return [t for _, t in targets]
 
 
 def _load_prior(path) -> np.ndarray:
@@ -196,28 +281,35 @@ def format_result_table(result, log=None) -> str:
     Returns
     -------
     str
-        Several lines, no trailing newline.
+        Several lines, no trailing newline.  The output error line gives
+        ``fun`` and its integration setting (RK4 steps per sample, low-pass
+        filter), e.g. ``output error Y (eq. 4): 1175 pulses^2 at 1 RK4
+        step/sample (identification)``.
     """
     from plant import F_NAMES, F_UNITS
 
     log = log if log is not None else result.get("log")
     n = f" ({log.n_samples} samples)" if log is not None else ""
     lines = [
-        f"log: {result.get('log_name')}{n}   method: {result.method}   "
+        f"log: {result.get('log_name')}{n}   method: {result.get('method')}   "
         f"seed: {result.get('seed')}",
         f"{'param':<6}{'value':>14}  unit",
     ]
-    for name, unit, v in zip(F_NAMES, F_UNITS, np.asarray(result.f, dtype=float)):
+    for name, unit, v in zip(F_NAMES, F_UNITS, np.asarray(result["f"], dtype=float)):
         lines.append(f"{name:<6}{v:>14.6g}  {unit}")
     payload = result.get("payload")
     if payload:
         for k, v in payload.items():
             val = f"{v:.6g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
             lines.append(f"payload {k}: {val}")
-    lines.append(f"output error Y (eq. 4): {result.objective:.6g} pulses^2")
-    lines.append(f"simulations: {result.evaluations}   wall time: {result.wall_time_s:.2f} s")
-    if result.interrupted:
-        lines.append(f"INTERRUPTED: {result.message} (best so far)")
+    lines.append(f"output error Y (eq. 4): {_result_fun(result):.6g} pulses^2 "
+                 f"at {_result_setting(result)}")
+    nit = result.get("nit")
+    nit = f"   iterations: {nit}" if nit is not None else ""
+    lines.append(f"simulations: {_result_nfev(result)}{nit}   "
+                 f"wall time: {float(result.get('wall_time_s') or 0.0):.2f} s")
+    if result.get("interrupted"):
+        lines.append(f"INTERRUPTED: {result.get('message')} (best so far)")
     return "\n".join(lines)
 
 
@@ -277,13 +369,71 @@ def _is_wrapped_interrupt(exc) -> bool:
     return False
 
 
-def _save_plots(result, directory: Path) -> list:
-    directory.mkdir(parents=True, exist_ok=True)
+class _Status:
+    """The CLI's status lines on stderr, and the callback of identify().
+
+    Never a carriage return: one line per refinement start and, when stderr
+    is not a terminal (no tqdm bar then), one line per GA generation at most
+    every :data:`STATUS_INTERVAL_S` seconds (and the first and last ones).
+    """
+
+    def __init__(self, stream, quiet, ctrl_c, n_gen=None):
+        self.stream = stream
+        self.quiet = quiet
+        self.ctrl_c = ctrl_c
+        self.n_gen = n_gen
+        self.tty = _isatty(stream)
+        self.refine_count = 0
+        self._last_ga = None
+
+    def say(self, text):
+        if not self.quiet:
+            print(text, file=self.stream, flush=True)
+
+    def __call__(self, r):
+        """identify()'s callback: print a status line, return True after a Ctrl-C."""
+        import time
+
+        stage = r.get("stage")
+        if stage == "refine":
+            self.refine_count += 1
+            start = r.get("start") or self.refine_count
+            n = r.get("n_starts")
+            of = f"/{n}" if n else ""
+            self.say(f"refinement start {start}{of}: prediction-error cost "
+                     f"{float(r.get('fun')):.6g} pulses^2")
+        elif stage == "ga" and not self.tty:
+            gen = r.get("generation")
+            now = time.monotonic()
+            last = gen is not None and self.n_gen is not None and gen >= self.n_gen
+            if self._last_ga is None or last or now - self._last_ga >= STATUS_INTERVAL_S:
+                self._last_ga = now
+                of = f"/{self.n_gen}" if self.n_gen else ""
+                g = "" if gen is None else f" {gen}{of}"
+                self.say(f"GA generation{g}: best output error {float(r.get('fun')):.6g} "
+                         "pulses^2")
+        return self.ctrl_c.requested
+
+
+def _wrote(status, info, what="wrote"):
+    for d in info.created_dirs:
+        status.say(f"created directory {d}")
+    via = f" (through the symlink, into {info.target})" if info.via_symlink else ""
+    status.say(f"{what} {info.path}{via}")
+
+
+def _save_plots(result, directory: Path, status) -> list:
+    """Write PLOT_FILES into ``directory`` atomically (plant.fileio policy)."""
+    from plant.fileio import atomic_output, check_output_path
+
     paths = []
-    for name, fig in (("convergence.png", result.plot()),
-                      ("tracking_errors.png", result.plot_tracking_errors())):
+    for name, make in zip(PLOT_FILES, (result.plot, result.plot_tracking_errors)):
+        fig = make()  # Figure objects render with Agg; nothing is shown
         path = directory / name
-        fig.savefig(path, dpi=120)  # Figure objects render with Agg; nothing is shown
+        info = check_output_path(path, create_dirs=True)  # what the write below does
+        with atomic_output(path, create_dirs=True) as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
+        _wrote(status, info)
         paths.append(path)
     return paths
 
@@ -291,11 +441,16 @@ def _save_plots(result, directory: Path) -> list:
 def _run(args, stdout, stderr) -> int:
     import plant
 
-    from .api import identify
+    from . import api
 
     _validate(args)
-    prior = _load_prior(args.prior) if args.prior else None
+    out = Path(args.output) if args.output else None
+    plot_dir = Path(args.plot) if args.plot else None
     log_path = plant.example_log_path() if args.example else Path(args.log)
+    inputs = [log_path, log_path.with_suffix(".json"), log_path.with_suffix(".csv"),
+              args.prior]
+    _check_output_targets(out, plot_dir, [p for p in inputs if p is not None])
+    prior = _load_prior(args.prior) if args.prior else None
     log = plant.load_log(log_path)
     if args.lowpass == "auto":
         from .diagnostics import suggest_lowpass
@@ -309,15 +464,10 @@ def _run(args, stdout, stderr) -> int:
         from .filtering import lowpass_sos
 
         lowpass_sos(args.lowpass, log.rig.sample_time_s)  # cutoff below Nyquist
-    out = Path(args.output) if args.output else None
-    plot_dir = Path(args.plot) if args.plot else None
-    if out is not None:
-        _check_writable_target(out, "output file", want_dir=False)
-    if plot_dir is not None:
-        _check_writable_target(plot_dir, "plot directory", want_dir=True)
 
+    # tqdm's bar only on a terminal (no carriage returns in a log file)
     kwargs = dict(method=args.method, rng=args.seed, workers=args.workers,
-                  progress=not args.quiet, lowpass_hz=args.lowpass)
+                  progress=not args.quiet and _isatty(stderr), lowpass_hz=args.lowpass)
     if args.generations is not None:
         kwargs["ga_options"] = {"n_gen": args.generations}
     if args.payload:
@@ -326,31 +476,47 @@ def _run(args, stdout, stderr) -> int:
         kwargs.update(consistent=True)
 
     ctrl_c = _GracefulInterrupt(stderr, quiet=args.quiet)
-
-    def status(r):
-        if not args.quiet and r.get("stage") == "refine":
-            print(f"refinement: start done, prediction-error cost {r.fun:.6g} pulses^2",
-                  file=stderr, flush=True)
-        return ctrl_c.requested
-
-    if not args.quiet:
-        print(f"identifying {log.name} ({log.n_samples} samples), method {args.method}, "
-              f"seed {args.seed}", file=stderr, flush=True)
+    n_gen = args.generations or getattr(api, "PAPER_GA", {}).get("n_gen")
+    status = _Status(stderr, args.quiet, ctrl_c, n_gen=n_gen)
+    status.say(f"identifying {log.name} ({log.n_samples} samples), method {args.method}, "
+               f"seed {args.seed}")
+    if hasattr(plant, "warm_up"):  # compile the numerical kernels once, saying so
+        plant.warm_up(announce=None if args.quiet else status.say)
     with ctrl_c:
-        result = identify(log, callback=status, **kwargs)
-    if ctrl_c.requested and result.interrupted:
-        result["message"] = result.message.replace("stopped by callback", "interrupted by Ctrl-C")
+        result = api.identify(log, callback=status, **kwargs)
+    if ctrl_c.requested and result.get("interrupted"):
+        result["message"] = str(result.get("message", "")).replace(
+            "stopped by callback", "interrupted by Ctrl-C")
 
     print(format_result_table(result, log), file=stdout, flush=True)
     if out is not None:
-        result.save_json(out)
-        if not args.quiet:
-            print(f"wrote {out}", file=stderr)
+        _wrote(status, result.save_json(out, create_dirs=True))
     if plot_dir is not None:
-        for path in _save_plots(result, plot_dir):
-            if not args.quiet:
-                print(f"wrote {path}", file=stderr)
-    return EXIT_INTERRUPTED if result.interrupted else 0
+        _save_plots(result, plot_dir, status)
+    return EXIT_INTERRUPTED if result.get("interrupted") else 0
+
+
+def _interrupted(stderr) -> int:
+    try:
+        print(INTERRUPTED_LINE, file=stderr, flush=True)
+    except (KeyboardInterrupt, OSError, ValueError):
+        pass
+    return EXIT_INTERRUPTED
+
+
+def _main(argv, stdout, stderr) -> int:
+    args = build_parser().parse_args(argv)
+    import plant
+    from plant.fileio import OutputFileError
+
+    try:
+        return _run(args, stdout, stderr)
+    except (CLIError, OutputFileError, plant.LogError, plant.SimulationError, ValueError,
+            OSError) as e:
+        if _is_wrapped_interrupt(e):
+            return _interrupted(stderr)
+        print(f"error: {_one_line(e)}", file=stderr)
+        return 1
 
 
 def main(argv=None) -> int:
@@ -364,26 +530,18 @@ def main(argv=None) -> int:
     Returns
     -------
     int
-        Exit status: 0 success, 1 bad log or option (one ``error:`` line on
-        stderr, no output file), 2 usage error (raised by argparse as
-        ``SystemExit``), 130 interrupted (the best result so far is written).
+        Exit status: 0 success, 1 bad log, option or output path (one
+        ``error:`` line on stderr, no output file), 2 usage error (raised by
+        argparse as ``SystemExit``), 130 interrupted (the best result so far
+        is written if there is one; otherwise the one line
+        :data:`INTERRUPTED_LINE`, never a traceback).
     """
-    import plant
-
-    args = build_parser().parse_args(argv)
     stdout, stderr = sys.stdout, sys.stderr
     try:
-        return _run(args, stdout, stderr)
+        return _main(argv, stdout, stderr)
     except KeyboardInterrupt:
-        print("error: interrupted before a result was available (nothing written)",
-              file=stderr)
-        return EXIT_INTERRUPTED
-    except (CLIError, plant.LogError, plant.SimulationError, ValueError, OSError) as e:
-        print(f"error: {_one_line(e)}", file=stderr)
-        return 1
-    except SystemError as e:
+        return _interrupted(stderr)
+    except Exception as e:  # e.g. numba's SystemError around a KeyboardInterrupt
         if not _is_wrapped_interrupt(e):
             raise
-        print("error: interrupted before a result was available (nothing written)",
-              file=stderr)
-        return EXIT_INTERRUPTED
+        return _interrupted(stderr)

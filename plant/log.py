@@ -21,7 +21,6 @@ import json
 import math
 import os
 import re
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ._errors import LogError
+from .fileio import write_text_atomic
 from .rig import F_NAMES, Rig
 from .trajectory import Trajectory
 
@@ -736,20 +736,8 @@ class ExperimentLog:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Write ``text`` atomically with the policy of :mod:`plant.fileio` (directory must exist)."""
+    write_text_atomic(path, text)
 
 
 # ------------------------------------------------------------------------ public API

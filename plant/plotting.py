@@ -7,7 +7,7 @@ __all__ = ["plot_tracking_errors"]
 
 
 def plot_tracking_errors(t, e_logged, e_model=None, *, labels=("logged", "model"), title=None,
-                         fig=None):
+                         fig=None, ax=None):
     """Overlay logged and simulated tracking errors, one panel per joint.
 
     Parameters
@@ -21,22 +21,26 @@ def plot_tracking_errors(t, e_logged, e_model=None, *, labels=("logged", "model"
     labels : tuple of 2 str
         Legend labels of the two curves.
     title : str, optional
-        Figure title.
+        Title: the figure's suptitle when drawing into a figure of its own
+        (``fig`` or a new one), the first Axes' title when ``ax`` is given.
     fig : matplotlib.figure.Figure, optional
-        Figure to draw into (default: a new one).
+        Figure to draw into (two new subplots; default: a new Figure).
+    ax : matplotlib.axes.Axes or sequence of 2 Axes, optional
+        Draw into these Axes instead: two Axes (joint 2, joint 3), or one
+        Axes holding both joints (labels prefixed ``e2``/``e3``).
 
     Returns
     -------
-    matplotlib.figure.Figure
+    Axes, sequence of Axes or matplotlib.figure.Figure
+        ``ax`` if given (the same object), else the figure drawn into.
         Never shown (no ``plt.show()``): save it or display it yourself.
 
     Raises
     ------
     ValueError
-        If the array shapes disagree.
+        If the array shapes disagree, ``ax`` is not one or two Axes, or
+        both ``ax`` and ``fig`` are given and differ.
     """
-    from matplotlib.figure import Figure
-
     t = np.asarray(t, dtype=float)
     e_logged = np.asarray(e_logged)
     if e_logged.shape != (t.size, 2):
@@ -45,17 +49,49 @@ def plot_tracking_errors(t, e_logged, e_model=None, *, labels=("logged", "model"
         e_model = np.asarray(e_model)
         if e_model.shape != e_logged.shape:
             raise ValueError(f"e_model must have shape {e_logged.shape}, got {e_model.shape}")
-    if fig is None:
-        fig = Figure(figsize=(9, 5.5), layout="constrained")
-    axes = fig.subplots(2, 1, sharex=True)
-    for j, ax in enumerate(axes):
-        ax.step(t, e_logged[:, j], where="post", lw=0.9, label=labels[0])
+    single = False
+    if ax is not None:
+        axes, single = _axes_pair(ax)
+        if fig is not None and any(a.figure is not fig for a in axes):
+            raise ValueError("ax belongs to another figure than fig")
+        out = ax
+    else:
+        if fig is None:
+            from matplotlib.figure import Figure
+
+            fig = Figure(figsize=(9, 5.5), layout="constrained")
+        axes = fig.subplots(2, 1, sharex=True)
+        out = fig
+    for j, a in enumerate(axes):
+        pre = f"e{j + 2} " if single else ""
+        a.step(t, e_logged[:, j], where="post", lw=0.9, label=pre + labels[0])
         if e_model is not None:
-            ax.step(t, e_model[:, j], where="post", lw=0.9, alpha=0.8, label=labels[1])
-        ax.set_ylabel(f"e{j + 2} (pulses)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize="small")
+            a.step(t, e_model[:, j], where="post", lw=0.9, alpha=0.8, label=pre + labels[1])
+        if not single:
+            a.set_ylabel(f"e{j + 2} (pulses)")
+        a.grid(True, alpha=0.3)
+        a.legend(loc="upper right", fontsize="small")
+    if single:
+        axes[0].set_ylabel("tracking error (pulses)")
     axes[-1].set_xlabel("t (s)")
     if title:
-        fig.suptitle(title)
-    return fig
+        if out is fig:
+            fig.suptitle(title)
+        else:
+            axes[0].set_title(title, fontsize="medium")
+    return out
+
+
+def _axes_pair(ax):
+    """(two Axes to draw joints 2 and 3 into, whether it is one Axes twice)."""
+    from matplotlib.axes import Axes
+
+    if isinstance(ax, Axes):
+        return [ax, ax], True
+    try:
+        axes = list(np.ravel(np.asarray(ax, dtype=object)))
+    except TypeError:
+        axes = []
+    if len(axes) != 2 or not all(isinstance(a, Axes) for a in axes):
+        raise ValueError("ax must be one matplotlib Axes or a pair of Axes (joint 2, joint 3)")
+    return axes, False

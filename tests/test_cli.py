@@ -1,4 +1,4 @@
-"""Tests of the command line ``python -m identification`` (contract of issue 4).
+"""Tests of the command line ``python -m identification`` (contract of issues 4 and 11).
 
 Each case runs both as a subprocess (``[sys.executable, '-m',
 'identification', ...]`` from the repository root, as a user would) and
@@ -8,8 +8,11 @@ accuracy is tested in ``test_identify.py``.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
+import re
+import stat
 import signal
 import subprocess
 import sys
@@ -54,11 +57,15 @@ def assert_one_error_line(status, stderr, stdout=""):
 
 def check_result_file(path, method="paper", seed=0):
     d = json.loads(Path(path).read_text())
-    for key in ("f", "objective_pulses2", "evaluations", "wall_time_s", "method", "seed"):
+    for key in ("f", "objective_pulses2", "fun", "nfev", "evaluations", "wall_time_s",
+                "method", "seed", "settings"):
         assert key in d, key
     assert len(d["f"]) == 9 and all(isinstance(v, float) for v in d["f"])
     assert np.isfinite(d["objective_pulses2"]) and d["objective_pulses2"] > 0
+    assert d["fun"] == d["objective_pulses2"]  # one number for one thing
     assert isinstance(d["evaluations"], int) and d["evaluations"] > 0
+    assert d["nfev"] == d["evaluations"]
+    assert isinstance(d["settings"]["substeps"], int) and d["settings"]["substeps"] >= 1
     assert d["wall_time_s"] > 0
     assert d["method"] == method and d["seed"] == seed
     return d
@@ -97,7 +104,8 @@ def test_in_process_example_is_reproducible(tmp_path, capsys):
     s2, out2, _ = run_main(["--example", "--output", b, "--quiet", *QUICK], capsys)
     assert s1 == s2 == 0
     check_table(out1)
-    assert "GA" in err1  # the tqdm progress bar (absent with --quiet)
+    assert "GA generation" in err1  # a status line (absent with --quiet)
+    assert "\r" not in err1  # stderr is not a terminal here: no tqdm bar
     da, db = check_result_file(a), check_result_file(b)
     assert da["f"] == db["f"] and da["objective_pulses2"] == db["objective_pulses2"]
     assert da["history"] == db["history"]
@@ -107,6 +115,13 @@ def test_in_process_example_is_reproducible(tmp_path, capsys):
 
 class _Stop(Exception):
     """Raised by the spies below instead of running an identification."""
+
+
+class _TTY(io.StringIO):
+    """A stderr that claims to be a terminal."""
+
+    def isatty(self):
+        return True
 
 
 def test_options_are_passed_to_identify(monkeypatch, capsys):
@@ -131,7 +146,13 @@ def test_options_are_passed_to_identify(monkeypatch, capsys):
     seen.clear()
     with pytest.raises(_Stop):
         main(["--example"])
-    assert seen["method"] == "ga+pem" and seen["rng"] == 0 and seen["progress"] is True
+    # the tqdm bar only on a terminal (stderr is captured here)
+    assert seen["method"] == "ga+pem" and seen["rng"] == 0 and seen["progress"] is False
+    seen.clear()
+    monkeypatch.setattr(sys, "stderr", _TTY())
+    with pytest.raises(_Stop):
+        main(["--example"])
+    assert seen["progress"] is True
     assert seen["lowpass_hz"] is None and "ga_options" not in seen
 
 
@@ -219,7 +240,7 @@ def test_sigint_to_the_subprocess_writes_the_interrupted_result(tmp_path):
     def read_stderr():
         for chunk in iter(lambda: proc.stderr.read(1), ""):
             err_chunks.append(chunk)
-            if "gen/s" in "".join(err_chunks[-200:]):  # tqdm: the GA is iterating
+            if "GA generation 1/1000" in "".join(err_chunks):  # the GA is iterating
                 started.set()
 
     reader = threading.Thread(target=read_stderr, daemon=True)
@@ -236,7 +257,7 @@ def test_sigint_to_the_subprocess_writes_the_interrupted_result(tmp_path):
     reader.join(5)
     stderr = "".join(err_chunks)
     assert status == 130, stderr
-    assert "Traceback" not in stderr
+    assert "Traceback" not in stderr and "\r" not in stderr
     assert "INTERRUPTED" in stdout
     assert "Ctrl-C" in stderr
     d = check_result_file(out)
@@ -366,3 +387,257 @@ def test_usage_errors_are_argparse_exit_2(capsys):
         main(["--example", "--seed", "zero"])
     assert exc.value.code == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+# --------------------------------------------------------- output files (issue 11)
+def _spy_identify(monkeypatch):
+    """Make identify() record that it ran (and stop): a target must fail before it."""
+    import identification.api
+
+    calls = []
+
+    def spy(log, **kw):
+        calls.append(log)
+        raise _Stop
+
+    monkeypatch.setattr(identification.api, "identify", spy)
+    return calls
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "device", "symlink to device"])
+def test_special_output_refused_before_running(kind, tmp_path, monkeypatch, capsys):
+    calls = _spy_identify(monkeypatch)
+    if kind == "fifo":
+        target = tmp_path / "out.json"
+        os.mkfifo(target)
+    elif kind == "directory":
+        target = tmp_path / "out.json"
+        target.mkdir()
+    elif kind == "device":
+        target = Path("/dev/null")
+    else:
+        target = tmp_path / "out.json"
+        target.symlink_to("/dev/null")
+    before = os.lstat(target)
+    status, stdout, err = run_main(["--example", "--output", target, *QUICK], capsys)
+    assert status == 1 and calls == []  # refused at once: identify() never ran
+    assert_one_error_line(status, err, stdout)
+    assert "not a regular file" in err and str(target) in err
+    after = os.lstat(target)
+    assert (after.st_mode, after.st_ino) == (before.st_mode, before.st_ino)  # untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ([] if kind == "device" else
+                                                          ["out.json"])
+
+
+def test_fifo_output_refused_subprocess(tmp_path):
+    fifo = tmp_path / "out.json"
+    os.mkfifo(fifo)
+    r = run_cli(["--example", "--output", fifo, *QUICK])
+    assert r.returncode == 1
+    assert_one_error_line(r.returncode, r.stderr, r.stdout)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_plot_target_fifo_refused(tmp_path, monkeypatch, capsys):
+    calls = _spy_identify(monkeypatch)
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    os.mkfifo(plots / "convergence.png")
+    status, stdout, err = run_main(["--example", "--plot", plots, *QUICK], capsys)
+    assert status == 1 and calls == []
+    assert_one_error_line(status, err, stdout)
+    assert "convergence.png" in err
+
+
+def test_input_log_never_overwritten(tmp_path, monkeypatch, capsys, paper_log):
+    calls = _spy_identify(monkeypatch)
+    csv = paper_log.window(1.0, 1.1).save(tmp_path / "run")
+    sidecar = csv.with_suffix(".json")
+    before = sidecar.read_bytes()
+    status, stdout, err = run_main([csv, "--output", sidecar, *QUICK], capsys)
+    assert status == 1 and calls == []
+    assert_one_error_line(status, err, stdout)
+    assert "input file" in err and sidecar.read_bytes() == before
+
+
+@pytest.fixture
+def small_log_path(paper_log, tmp_path):
+    """A short window of the paper log (fast end-to-end runs)."""
+    return paper_log.window(1.0, 1.2).save(tmp_path / "small")
+
+
+def test_symlink_output_written_through_mode_kept(small_log_path, tmp_path, capsys):
+    real_dir = tmp_path / "results"
+    real_dir.mkdir()
+    real = real_dir / "res.json"
+    real.write_text("old")
+    os.chmod(real, 0o600)
+    link = tmp_path / "latest.json"
+    link.symlink_to(real)
+    status, stdout, err = run_main([small_log_path, "--output", link, *QUICK], capsys)
+    assert status == 0, err
+    assert link.is_symlink() and os.readlink(link) == str(real)
+    d = check_result_file(real)
+    assert stat.S_IMODE(os.stat(real).st_mode) == 0o600
+    assert f"wrote {link} (through the symlink, into {real})" in err
+    assert sorted(p.name for p in real_dir.iterdir()) == ["res.json"]
+    assert f"{d['fun']:.6g} pulses^2" in stdout
+
+
+def test_missing_directories_created_and_reported(small_log_path, tmp_path, capsys):
+    out = tmp_path / "new" / "deeper" / "out.json"
+    plots = tmp_path / "newplots"
+    status, stdout, err = run_main([small_log_path, "--output", out, "--plot", plots, *QUICK],
+                                   capsys)
+    assert status == 0, err
+    check_result_file(out)
+    for d in (tmp_path / "new", tmp_path / "new" / "deeper", plots):
+        assert f"created directory {d}" in err
+    for name in ("convergence.png", "tracking_errors.png"):
+        assert (plots / name).read_bytes().startswith(PNG_MAGIC)
+    assert not [p for p in plots.iterdir() if p.name.startswith(".")]  # no temp files left
+    assert stat.S_IMODE(os.stat(out).st_mode) == 0o666 & ~_umask()
+
+
+def _umask():
+    old = os.umask(0)
+    os.umask(old)
+    return old
+
+
+def test_one_output_error_in_table_json_and_plot_title(small_log_path, tmp_path, monkeypatch,
+                                                       capsys):
+    """The printed, the written and the plotted output error are one number, one setting."""
+    real_plot = plant.plot_tracking_errors
+    titles = []
+
+    def spy(*a, title=None, **kw):
+        titles.append(title)
+        return real_plot(*a, title=title, **kw)
+
+    monkeypatch.setattr(plant, "plot_tracking_errors", spy)
+    out, plots = tmp_path / "o.json", tmp_path / "p"
+    status, stdout, err = run_main([small_log_path, "-o", out, "--plot", plots, *QUICK], capsys)
+    assert status == 0, err
+    d = check_result_file(out)
+    line = next(ln for ln in stdout.splitlines() if ln.startswith("output error"))
+    m = re.search(r": ([0-9.e+]+) pulses\^2 at (.+)$", line)
+    assert m, line
+    n = d["settings"]["substeps"]
+    step = f"{n} RK4 step{'s' if n != 1 else ''}/sample (identification"
+    assert float(m.group(1)) == pytest.approx(d["fun"], rel=1e-5) and step in m.group(2)
+    assert len(titles) == 1 and step in titles[0]
+    y = float(re.search(r"output error ([0-9.e+]+) pulses", titles[0]).group(1))
+    assert y == pytest.approx(d["fun"], rel=1e-5)
+
+
+# ------------------------------------------------------------ status lines, progress
+def test_refinement_start_status_lines_are_numbered(small_log_path, capsys):
+    status, stdout, err = run_main([small_log_path, "--method", "ga+pem", "--generations",
+                                    "1"], capsys)
+    assert status == 0, err
+    found = re.findall(r"^refinement start (\d+)(?:/(\d+))?: prediction-error cost "
+                       r"([0-9.e+]+) pulses\^2$", err, flags=re.M)
+    assert found, err
+    starts = [int(s) for s, _, _ in found]
+    assert starts == list(range(1, len(starts) + 1))
+    totals = {t for _, t, _ in found}
+    assert totals in ({""}, {str(len(starts))})
+    assert all(float(c) >= 0 for _, _, c in found)
+    assert "\r" not in err
+    assert "start done" not in err
+
+
+def test_no_carriage_returns_when_stderr_is_a_pipe(small_log_path):
+    r = run_cli([small_log_path, "--method", "paper", "--generations", "5"])
+    assert r.returncode == 0, r.stderr
+    assert "\r" not in r.stderr and "Traceback" not in r.stderr
+    ga = [ln for ln in r.stderr.splitlines() if ln.startswith("GA generation")]
+    assert ga and ga[0].startswith("GA generation 1/5") and ga[-1].startswith("GA generation 5/5")
+    assert len(ga) <= 5
+
+
+def test_warm_up_announced_once(monkeypatch, capsys):
+    """plant.warm_up(announce=) (when the plant provides it) is announced, before identify()."""
+    calls = _spy_identify(monkeypatch)
+    order = []
+
+    def warm_up(announce=None):
+        order.append("warm_up")
+        if announce is not None:
+            announce("compiling the numerical kernels once (about a minute)")
+        return 0.0
+
+    monkeypatch.setattr(plant, "warm_up", warm_up, raising=False)
+    with pytest.raises(_Stop):
+        main(["--example"])
+    err = capsys.readouterr().err
+    assert order == ["warm_up"] and err.count("compiling the numerical kernels") == 1
+    assert len(calls) == 1
+    with pytest.raises(_Stop):
+        main(["--example", "--quiet"])
+    assert capsys.readouterr().err == ""
+
+
+# -------------------------------------------------------------- Ctrl-C at any time
+def test_ctrl_c_while_compiling(monkeypatch, tmp_path, capsys):
+    def warm_up(announce=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plant, "warm_up", warm_up, raising=False)
+    out = tmp_path / "out.json"
+    status, stdout, err = run_main(["--example", "-o", out], capsys)
+    assert status == 130
+    assert err.strip().splitlines()[-1].startswith("error: interrupted")
+    assert err.count("error:") == 1 and "Traceback" not in err
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_wrapped_by_the_kernels(monkeypatch, tmp_path, capsys):
+    import identification.api
+
+    def wrapped(log, **kw):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise SystemError("<numba dispatcher> returned a result with an error set") from e
+
+    monkeypatch.setattr(identification.api, "identify", wrapped)
+    status, _, err = run_main(["--example", "-o", tmp_path / "o.json", "--quiet"], capsys)
+    assert status == 130
+    assert_one_error_line(status, err)
+
+
+def test_ctrl_c_while_writing_leaves_no_file(small_log_path, monkeypatch, tmp_path, capsys):
+    import plant.fileio
+
+    def replace(src, dst):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plant.fileio.os, "replace", replace)
+    out = tmp_path / "out" / "o.json"
+    status, stdout, err = run_main([small_log_path, "-o", out, "--quiet", *QUICK], capsys)
+    assert status == 130
+    assert_one_error_line(status, err)  # stdout has the table; stderr one line
+    assert not out.exists()
+    assert [p.name for p in out.parent.iterdir()] == []  # the temp file was removed
+
+
+def test_ctrl_c_while_importing_the_cli(monkeypatch, capsys):
+    import builtins
+
+    import identification.__main__ as entry
+
+    real_import = builtins.__import__
+
+    def importer(name, *a, **kw):
+        if name == "identification.cli":
+            raise KeyboardInterrupt
+        return real_import(name, *a, **kw)
+
+    monkeypatch.delitem(sys.modules, "identification.cli")
+    monkeypatch.setattr(builtins, "__import__", importer)
+    status = entry.main(["--example"])
+    err = capsys.readouterr().err
+    assert status == 130
+    assert_one_error_line(status, err)
