@@ -367,6 +367,15 @@ class ComputedTorqueController:
         """Model torque ``D_hat(q) qdd + h_hat(q, qd) + g_hat(q)`` (N m), friction excluded.
 
         Convenience for checks; calls :func:`plant.model.inverse_dynamics`.
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like, shape (2,) or (n, 2)
+            Joint angles (rad), rates (rad/s), accelerations (rad/s^2).
+
+        Returns
+        -------
+        ndarray, shape (2,) or (n, 2)
         """
         from plant.model import inverse_dynamics
 

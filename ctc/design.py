@@ -247,22 +247,62 @@ class GainDesign:
         return all(bool(np.all(np.abs(p) < 1.0)) for p in self.poles)
 
     def plant(self, joint: int = 0):
-        """Discrete plant ``P(z)`` (acceleration -> position, with the delay)."""
+        """Discrete plant ``P(z)`` (acceleration -> position, with the delay).
+
+        Parameters
+        ----------
+        joint : int
+            0 (joint 2) or 1 (joint 3).
+
+        Returns
+        -------
+        control.TransferFunction
+        """
         return double_integrator(self.ts, self.delay_samples)
 
     def compensator(self, joint: int = 0):
-        """Feedback compensator ``C(z)`` (position -> -acceleration) of a joint (0 or 1)."""
+        """Feedback compensator ``C(z)`` (position -> -acceleration) of a joint (0 or 1).
+
+        Parameters
+        ----------
+        joint : int
+            0 (joint 2) or 1 (joint 3).
+
+        Returns
+        -------
+        control.TransferFunction
+        """
         return _compensator(
             self.ts, self.Kp[joint], self.Kv[joint], self.estimator,
             self.observer_gain[joint], self.alpha[joint],
         )
 
     def loop(self, joint: int = 0):
-        """Loop transfer ``L(z) = C(z) P(z)`` broken at the plant input."""
+        """Loop transfer ``L(z) = C(z) P(z)`` broken at the plant input.
+
+        Parameters
+        ----------
+        joint : int
+            0 (joint 2) or 1 (joint 3).
+
+        Returns
+        -------
+        control.TransferFunction
+        """
         return control.series(self.plant(joint), self.compensator(joint))
 
     def closed_loop(self, joint: int = 0):
-        """Closed loop ``feedback(P, C)`` (disturbance acceleration -> position)."""
+        """Closed loop ``feedback(P, C)`` (disturbance acceleration -> position).
+
+        Parameters
+        ----------
+        joint : int
+            0 (joint 2) or 1 (joint 3).
+
+        Returns
+        -------
+        control.TransferFunction
+        """
         return control.feedback(self.plant(joint), self.compensator(joint))
 
     def report(self) -> str:

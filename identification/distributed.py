@@ -16,7 +16,7 @@ Five seeds of the paper log on the local cores::
 
     out = identify_many(seed_jobs("puma560_paper_rigid.csv", range(5), method="paper"))
     for r in out:
-        print(r.seed, r.result.objective if r.ok else r.error)
+        print(r.seed, r.result.fun if r.ok else r.error)
 
 The same on a Dask cluster (``pip install ".[distributed]"``)::
 
@@ -93,6 +93,16 @@ class Job:
     @classmethod
     def from_mapping(cls, spec: Mapping) -> "Job":
         """Build a job from ``{'log': ..., 'seed': ..., **identify_kwargs}``.
+
+        Parameters
+        ----------
+        spec : mapping
+            ``log`` (path or ExperimentLog), optional ``seed`` (int), and
+            keyword arguments of :func:`identification.identify`.
+
+        Returns
+        -------
+        Job
 
         Raises
         ------

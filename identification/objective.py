@@ -87,6 +87,16 @@ class OutputError:
         return y
 
     def errors(self, f):
-        """Simulated tracking errors (n_samples, 2) of one candidate (int64 pulses)."""
+        """Simulated tracking errors of one candidate.
+
+        Parameters
+        ----------
+        f : array_like, shape (9,)
+            Base parameters.
+
+        Returns
+        -------
+        ndarray, shape (n_samples, 2), int64 (pulses)
+        """
         self.nfev += 1
         return plant.simulate_experiment(self.log, f, substeps=self.substeps)

@@ -286,6 +286,7 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
             for s in active:
                 if s in done_reason and report(s):
                     stop = True
+                    break
             if stop:
                 interrupted = True
                 message = "stopped by callback during refinement"

@@ -198,6 +198,15 @@ def padded_lanes(n):
     A multiple of :data:`LANE_PAD` from ``LANE_PAD`` lanes on; fewer lanes
     are not padded (they run in the loops' scalar remainder instead of paying
     for a whole vector of copies).
+
+    Parameters
+    ----------
+    n : int
+        Active lanes.
+
+    Returns
+    -------
+    int
     """
     if n < LANE_PAD:
         return n
@@ -207,6 +216,13 @@ def padded_lanes(n):
 @_jit
 def new_workspace(nx, lanes):
     """Scratch arrays of :func:`advance_sample` for ``nx`` states and ``lanes`` lanes.
+
+    Parameters
+    ----------
+    nx : int
+        State components.
+    lanes : int
+        Lanes (columns).
 
     Returns
     -------

@@ -601,6 +601,15 @@ class ExperimentLog:
         Unless ``sidecar`` is among the changes, the copy's sidecar is updated
         with its rig, trajectory, ``n_samples`` and ``window_s`` (what
         :meth:`save` writes), so a saved and reloaded copy compares equal.
+
+        Parameters
+        ----------
+        **changes
+            New values of fields (e.g. ``e_pulses=...``, ``i_A=...``).
+
+        Returns
+        -------
+        ExperimentLog
         """
         new = dataclasses.replace(self, **changes)
         if "sidecar" not in changes:

@@ -82,6 +82,22 @@ def friction_torque(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
     ``Tc = coulomb_pos`` for qd > 0 and ``coulomb_neg`` otherwise; all arguments
     joint side (viscous = k^2 B, Coulomb = abs(k) Tc_motor, ramp_speed =
     motor ramp speed / abs(k)).
+
+    Parameters
+    ----------
+    qd : float
+        Joint rate (rad/s).
+    viscous : float
+        Joint-side viscous coefficient (N m s/rad).
+    coulomb_pos, coulomb_neg : float
+        Joint-side Coulomb torque for positive / non-positive rate (N m).
+    ramp_speed : float
+        Joint-side speed of the linear Coulomb ramp (rad/s).
+
+    Returns
+    -------
+    float
+        Friction torque (N m).
     """
     r = qd / ramp_speed
     if r > 1.0:
@@ -397,8 +413,18 @@ def regressor(q, qd, qdd, g=9.81):
 def min_inertia_eigenvalue(f, q3):
     """Smallest eigenvalue of D(q) (kg m^2) at the joint-3 angle(s) ``q3``.
 
-    D depends on q3 only.  Parameters ``f`` (9,), ``q3`` scalar or (n,) rad;
-    returns a float or an (n,) array.
+    D depends on q3 only.
+
+    Parameters
+    ----------
+    f : array_like, shape (9,)
+        Base parameters.
+    q3 : float or array_like, shape (n,)
+        Joint-3 angle(s) (rad).
+
+    Returns
+    -------
+    float or ndarray, shape (n,)
     """
     f = _as_f(f)
     q3 = np.asarray(q3, dtype=float)

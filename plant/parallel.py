@@ -71,6 +71,18 @@ def call_kernel(fn, *args):
     numba may report a signal that arrives while compiled code runs as
     ``SystemError: ... returned a result with an exception set`` chained to
     the KeyboardInterrupt; callers (the GA, the CLI) expect the interrupt.
+
+    Parameters
+    ----------
+    fn : callable
+        The kernel.
+    *args
+        Its arguments.
+
+    Returns
+    -------
+    object
+        What the kernel returns.
     """
     try:
         return fn(*args)

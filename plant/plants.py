@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from .core import A_C2, A_C3, A_Q2, A_Q3, A_S2, A_S3, SINCOS_RANGE, sincos_offset
-from .model import friction_torque, joint_acceleration, joint_acceleration_sc
+from .model import friction_torque, joint_acceleration_sc
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "flexible_rhs"]
 
@@ -108,7 +108,24 @@ def rigid_rhs(P, c, X, U, A, K, n):
 
     State ``X`` rows (q2, q3, qd2, qd3); parameters ``P`` rows f1..f9;
     ``K`` rows (qd2, qd3, qdd2, qdd3, det D) (det D replaced by -1 where
-    f1 <= 0).  See :mod:`plant.core` for the arguments.
+    f1 <= 0).  See :mod:`plant.core` for the protocol.
+
+    Parameters
+    ----------
+    P : ndarray, shape (n_par, lanes)
+        Per-lane parameters.
+    c : plant.rig.RigConstants
+        Rig layout.
+    X : ndarray, shape (n_x, lanes)
+        Stage state.
+    U : ndarray, shape (2, lanes)
+        Held motor currents (A).
+    A : ndarray, shape (6, lanes)
+        Trigonometric anchors (:mod:`plant.core`).
+    K : ndarray, shape (n_x + 1, lanes)
+        Output: state derivative and PD margin.
+    n : int
+        Lanes to evaluate.
     """
     far = 0
     for j in range(n):
@@ -163,6 +180,23 @@ def flexible_rhs(P, c, X, U, A, K, n):
     State rows (q2, q3, qd2, qd3, th2, th3, thd2, thd3); parameters rows
     link f1..f9, stiffness K (2), damping D (2), reflected motor inertia
     Jm k^2 (2); ``K`` rows: the derivative (8) and det D_link.
+
+    Parameters
+    ----------
+    P : ndarray, shape (n_par, lanes)
+        Per-lane parameters.
+    c : plant.rig.RigConstants
+        Rig layout.
+    X : ndarray, shape (n_x, lanes)
+        Stage state.
+    U : ndarray, shape (2, lanes)
+        Held motor currents (A).
+    A : ndarray, shape (6, lanes)
+        Trigonometric anchors (:mod:`plant.core`).
+    K : ndarray, shape (n_x + 1, lanes)
+        Output: state derivative and PD margin.
+    n : int
+        Lanes to evaluate.
     """
     far = 0
     for j in range(n):

@@ -131,6 +131,11 @@ class ClosedLoopResponse:
     def rms_error(self, after_s: float = 0.0) -> np.ndarray:
         """Root-mean-square pulse error per joint over t >= after_s.
 
+        Parameters
+        ----------
+        after_s : float
+            Start of the evaluated part of the run (s).
+
         Returns
         -------
         ndarray, shape (2,), float (pulses)
@@ -142,6 +147,17 @@ class ClosedLoopResponse:
         """Whether abs(e) <= pulses on both joints for every sample with t >= after_s.
 
         A run that failed (``success`` False) is never within.
+
+        Parameters
+        ----------
+        pulses : int
+            Tolerance (pulses).
+        after_s : float
+            Start of the evaluated part of the run (s).
+
+        Returns
+        -------
+        bool
         """
         return bool(self.success and np.all(self.max_abs_error(after_s) <= pulses))
 

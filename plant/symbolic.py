@@ -83,6 +83,12 @@ class PhysicalModel(NamedTuple):
     rad/s, qdd (2,) rad/s^2, p (14,) ordered as
     :data:`PHYSICAL_PARAMETER_NAMES` (inputs a Function does not need are
     accepted and ignored).
+
+    Attributes
+    ----------
+    D, h, g, tau : casadi.Function
+        Inertia matrix (2, 2), Coriolis/centrifugal vector (2,), gravity
+        vector (2,) and joint torque (2,).
     """
 
     D: ca.Function
@@ -102,6 +108,13 @@ class BaseModel(NamedTuple):
     base parameters f1..f9, q, qd, qdd (2,) and the scalar gravitational
     acceleration g (m/s^2) (inputs a Function does not need are accepted and
     ignored).  ``forward`` has the inputs ``(f, q, qd, tau, g)``.
+
+    Attributes
+    ----------
+    D, h, g, tau, Y, forward : casadi.Function
+        Inertia matrix (2, 2), Coriolis/centrifugal vector (2,), gravity
+        vector (2,), joint torque (2,), regressor (2, 9) and forward dynamics
+        qdd (2,).
     """
 
     D: ca.Function

@@ -15,7 +15,7 @@ from identification.distributed import Job, JobResult, identify_many, seed_jobs
 
 SMALL = dict(
     ga_options={"n_gen": 2, "n_ind": 6, "n_subpops": 2},
-    refine_options={"n_starts": 1, "max_nfev": 3},
+    refine_options={"n_starts": 1, "max_iter": 3},
 )
 
 

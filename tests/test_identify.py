@@ -18,7 +18,7 @@ from identification import IDENTIFICATION_SUBSTEPS, OutputError, identify
 
 #: A small budget for runs whose accuracy is not the point.
 SMALL_GA = {"n_gen": 3, "n_ind": 6}
-SMALL_REFINE = {"n_starts": 1, "max_nfev": 3}
+SMALL_REFINE = {"n_starts": 1, "max_iter": 3}
 
 #: The well-excited parameters (1-based) of the acceptance criterion.
 WELL_EXCITED = (1, 2, 4, 6, 7, 9)
@@ -53,7 +53,7 @@ def test_objective_is_zero_at_a_self_simulated_log(example_log):
     y = objective(np.vstack([f, f * 1.05]))
     assert y[0] == 0.0
     assert y[1] > 0.0
-    assert objective.evaluations == 2
+    assert objective.nfev == 2
     # the same with the low-pass filter applied to both sides
     assert OutputError(own, lowpass_hz=40.0)(f)[0] == pytest.approx(0.0, abs=1e-12)
 
@@ -65,8 +65,8 @@ def test_same_seed_bit_identical_different_seed_differs(example_log):
     c = _small(example_log, rng=8)
     assert a.seed == 7 and c.seed == 8
     assert np.array_equal(a.f, b.f)
-    assert a.objective == b.objective
-    assert a.evaluations == b.evaluations
+    assert a.fun == b.fun
+    assert a.nfev == b.nfev
     assert set(a.history) == set(b.history)
     for k in a.history:
         assert np.array_equal(a.history[k], b.history[k]), k
@@ -80,7 +80,7 @@ def test_same_seed_bit_identical_different_seed_differs(example_log):
 def test_generator_and_int_seed_agree(example_log):
     a = _small(example_log, rng=3, method="paper")
     b = _small(example_log, rng=np.random.default_rng(3), method="paper")
-    assert np.array_equal(a.f, b.f) and a.objective == b.objective
+    assert np.array_equal(a.f, b.f) and a.fun == b.fun
     assert b.seed is None  # only an int seed is recorded
 
 
@@ -102,9 +102,9 @@ def test_full_default_run_meets_the_acceptance(full_run, truth, validation_log):
     assert res.success and not res.interrupted
     assert len(res.history["best"]) == 41  # initial population + 40 generations
     assert np.all(np.diff(res.history["best"]) <= 0)  # elitism: never worse
-    assert res.evaluations > res.history["evaluations"][-1]  # refinement ran
+    assert res.nfev > res.history["nfev"][-1]  # refinement ran
     # the objective reported is the eq.-4 output error at f on the log
-    assert res.objective == OutputError(res.log)(res.f)[0]
+    assert res.fun == OutputError(res.log)(res.f)[0]
     # Cross-validation on a trajectory not used for identifying.  The exact
     # truth reproduces the validation log to 115 pulses^2, but the quantised
     # loop is chaotic: any f more than ~1e-7 (relative) off sits on a floor of
@@ -119,6 +119,9 @@ def test_full_default_run_meets_the_acceptance(full_run, truth, validation_log):
 @pytest.mark.slow
 def test_full_run_result_file(full_run, tmp_path):
     path = tmp_path / "sub" / "result.json"
+    with pytest.raises(plant.fileio.OutputFileError, match="does not exist"):
+        full_run.save_json(path)  # a missing directory is refused (plant.fileio policy)
+    path.parent.mkdir()
     full_run.save_json(path)
     d = json.loads(path.read_text())
     for key in ("f", "objective_pulses2", "evaluations", "wall_time_s", "method", "seed"):
@@ -143,15 +146,22 @@ def test_callback_returning_true_stops_the_ga(example_log):
     assert seen == [("ga", 1), ("ga", 2)]
     assert len(res.history["best"]) == 3
     assert res.refinement is None  # a stopped search is not refined
-    assert np.isfinite(res.objective) and res.f.shape == (9,)
+    assert np.isfinite(res.fun) and res.f.shape == (9,)
 
 
 def test_callback_returning_true_stops_the_refinement(example_log):
-    res = _small(example_log, callback=lambda r: r.stage == "refine",
-                 refine_options={"n_starts": 2, "max_nfev": 2})
+    seen = []
+
+    def cb(r):
+        if r.stage == "refine":
+            seen.append((r.start, r.n_starts))
+            return True
+        return False
+
+    res = _small(example_log, callback=cb, refine_options={"n_starts": 2, "max_iter": 2})
     assert res.interrupted
     assert "callback" in res.message and "refinement" in res.message
-    assert len(res.refinement["costs"]) == 1  # stopped after the first start
+    assert len(seen) == 1 and seen[0][1] == 2 and seen[0][0] in (1, 2)  # stopped at once
 
 
 def test_keyboard_interrupt_in_callback_returns_best_so_far(example_log):
@@ -164,7 +174,7 @@ def test_keyboard_interrupt_in_callback_returns_best_so_far(example_log):
     assert res.interrupted and "KeyboardInterrupt" in res.message
     assert len(res.history["best"]) == 3
     # the best so far, re-evaluated with the same (deterministic) objective
-    assert res.objective == res.history["best_so_far"][-1] == min(res.history["best"])
+    assert res.fun == res.history["best_so_far"][-1] == min(res.history["best"])
 
 
 def test_keyboard_interrupt_in_objective_returns_best_so_far(example_log,
@@ -174,7 +184,7 @@ def test_keyboard_interrupt_in_objective_returns_best_so_far(example_log,
     assert res.interrupted and "KeyboardInterrupt" in res.message
     assert len(res.history["best"]) == 2  # initial population + generation 1
     assert res.refinement is None
-    assert res.objective == res.history["best_so_far"][-1]
+    assert res.fun == res.history["best_so_far"][-1]
 
 
 def test_keyboard_interrupt_in_refinement_returns_best_so_far(example_log):
@@ -183,9 +193,9 @@ def test_keyboard_interrupt_in_refinement_returns_best_so_far(example_log):
             raise KeyboardInterrupt
         return False
 
-    res = _small(example_log, callback=cb, refine_options={"n_starts": 2, "max_nfev": 2})
+    res = _small(example_log, callback=cb, refine_options={"n_starts": 2, "max_iter": 2})
     assert res.interrupted and "KeyboardInterrupt" in res.message
-    assert np.all(np.isfinite(res.f)) and np.isfinite(res.objective)
+    assert np.all(np.isfinite(res.f)) and np.isfinite(res.fun)
 
 
 # ---------------------------------------------------------------- argument checks
