@@ -12,7 +12,6 @@ import re
 
 import numpy as np
 import pytest
-from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 import plant
