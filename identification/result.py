@@ -148,7 +148,7 @@ def _summary(a, n=9):
         return "None"
     a = np.asarray(a)
     if a.ndim == 1 and a.size <= n and a.dtype.kind in "fiu":
-        return np.array2string(a, precision=4, separator=", ", max_line_width=10_000)
+        return "[" + ", ".join(f"{v:.4g}" for v in a.tolist()) + "]"
     if a.size and a.dtype.kind in "fiu":
         return f"array{a.shape} in [{np.nanmin(a):.4g}, {np.nanmax(a):.4g}]"
     return f"array{a.shape}"
