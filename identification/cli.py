@@ -127,9 +127,12 @@ def build_parser():
                    help="seed of the random generator (default 0); the same seed "
                         "gives the same result bit for bit")
     p.add_argument("--output", "-o", metavar="OUT.json",
-                   help="write the result as JSON (atomically)")
+                   help="write the result as JSON (atomically; an existing file keeps its "
+                        "permissions, a symlink is written through, a device, FIFO or "
+                        "directory is refused, a missing directory is created)")
     p.add_argument("--plot", metavar="DIR",
-                   help="write convergence.png and tracking_errors.png into DIR")
+                   help="write convergence.png and tracking_errors.png into DIR (created "
+                        "if missing; same rules as --output)")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                    help=f"'{DEFAULT_METHOD}' (default): the GA, then prediction-error "
                         "refinement; 'paper': the paper's GA alone")
@@ -154,7 +157,8 @@ def build_parser():
                    help="result file of an earlier identification of the unloaded "
                         "robot (its \"f\" list); used with --payload")
     p.add_argument("--quiet", "-q", action="store_true",
-                   help="no progress bar or status lines")
+                   help="no progress bar or status lines (the progress bar is only shown "
+                        "when stderr is a terminal)")
     return p
 
 
@@ -337,7 +341,8 @@ class _GracefulInterrupt:
         self.requested = True
         signal.signal(signal.SIGINT, signal.default_int_handler)
         if not self.quiet:
-            print("\nCtrl-C: stopping after the current step and writing the best result "
+            nl = "\n" if _isatty(self.stream) else ""  # end a tqdm bar's line
+            print(f"{nl}Ctrl-C: stopping after the current step and writing the best result "
                   "so far (Ctrl-C again to abort)", file=self.stream, flush=True)
 
     def __enter__(self):

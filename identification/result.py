@@ -43,7 +43,7 @@ class ResultFileError(ValueError):
     """A result file that cannot be read back (one-line message naming the file)."""
 
 
-def write_json_atomic(path, data, *, create_dirs=False):
+def write_json_atomic(path, data, *, create_dirs=True):
     """Write ``data`` as JSON to ``path`` atomically (policy of :mod:`plant.fileio`).
 
     The text is produced first (``allow_nan=False``), so a value JSON cannot
@@ -57,13 +57,15 @@ def write_json_atomic(path, data, *, create_dirs=False):
     data : object
         JSON-serialisable data (finite floats only).
     create_dirs : bool
-        Create a missing parent directory (reported in the return value)
-        instead of refusing.
+        Create a missing parent directory (default, as this function always
+        did); the created directories are listed in the returned
+        ``created_dirs``.  False refuses a missing directory.
 
     Returns
     -------
     plant.fileio.OutputTarget
-        The file written and the directories created.
+        The file written (``target``) and the directories created
+        (``created_dirs``).
 
     Raises
     ------
@@ -146,7 +148,7 @@ def _summary(a, n=9):
         return "None"
     a = np.asarray(a)
     if a.ndim == 1 and a.size <= n and a.dtype.kind in "fiu":
-        return np.array2string(a, precision=4, separator=", ", max_line_width=10_000)
+        return "[" + ", ".join(f"{v:.4g}" for v in a.tolist()) + "]"
     if a.size and a.dtype.kind in "fiu":
         return f"array{a.shape} in [{np.nanmin(a):.4g}, {np.nanmax(a):.4g}]"
     return f"array{a.shape}"
@@ -393,7 +395,7 @@ class IdentificationResult(OptimizeResult):
                 d[f"payload_{k}"] = v
         return _jsonable(d)
 
-    def save_json(self, path, *, create_dirs=False):
+    def save_json(self, path, *, create_dirs=True):
         """Write :meth:`to_dict` as JSON to ``path`` atomically.
 
         Parameters
@@ -404,12 +406,14 @@ class IdentificationResult(OptimizeResult):
             existing file keeps its permission bits; no partial file on
             error).
         create_dirs : bool
-            Create a missing parent directory instead of refusing.
+            Create a missing parent directory (default, as before; listed
+            in the returned ``created_dirs``); False refuses it.
 
         Returns
         -------
         plant.fileio.OutputTarget
-            The file written and the directories created.
+            The file written (``target``, a symlink's target) and the
+            directories created (``created_dirs``).
 
         Raises
         ------

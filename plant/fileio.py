@@ -23,7 +23,10 @@ Symbolic links
     its target (whose directory must exist).  A symlink loop is refused.
 Permissions
     An existing file keeps its permission bits (and, where the process may
-    set them, its owner and group).  A new file gets the mode :func:`open`
+    set them, its owner and group).  A file the process may not write
+    (:func:`os.access`, e.g. mode ``0o444`` for its owner) is refused, as
+    :func:`open` would refuse it, although the directory would allow the
+    rename.  A new file gets the mode :func:`open`
     would give it, ``0o666 & ~umask`` (``0o644`` with the usual umask 022):
     the umask is respected.
 Missing directories
@@ -72,7 +75,7 @@ class OutputFileError(ValueError):
     """An output path the library refuses to write (one-line message).
 
     Raised for a target that is a directory, a device, a FIFO or a socket, a
-    missing directory (unless ``create_dirs=True``), a symlink loop, or an
+    read-only file, a missing directory (unless ``create_dirs=True``), a symlink loop, or an
     unwritable directory.  Subclass of :class:`ValueError`.
     """
 
@@ -143,10 +146,13 @@ def _plan(path, create_dirs: bool) -> Tuple[OutputTarget, Optional[os.stat_resul
             raise OutputFileError(f"{given} is a symlink that cannot be resolved (a loop?)")
     if st is not None:
         kind = _kind(st.st_mode)
+        via = f" (symlink to {target})" if target != given else ""
         if kind is not None:
-            via = f" (symlink to {target})" if target != given else ""
             raise OutputFileError(f"{given}{via} is {kind}, not a regular file: "
                                   "refusing to replace it")
+        if not os.access(target, os.W_OK):
+            raise OutputFileError(f"{given}{via} is read-only (mode "
+                                  f"{stat.S_IMODE(st.st_mode):04o}): refusing to replace it")
     # the directory of the final target
     parent = target.parent
     missing = []
@@ -198,8 +204,8 @@ def check_output_path(path, *, create_dirs: bool = False) -> OutputTarget:
     ------
     OutputFileError
         If the target is not a regular file (directory, device, FIFO,
-        socket), a symlink loop, or its directory is missing (and
-        ``create_dirs`` is False), not a directory or not writable.
+        socket) or is read-only, a symlink loop, or its directory is missing
+        (and ``create_dirs`` is False), not a directory or not writable.
     """
     return _plan(path, create_dirs)[0]
 
@@ -375,9 +381,9 @@ def write_text_atomic(path, text: str, *, encoding: str = "utf-8", newline: str 
     Raises
     ------
     OutputFileError
-        If the target is a directory, device, FIFO or socket, a symlink
-        loop, or its directory is missing (without ``create_dirs``) or not
-        writable; nothing is written.
+        If the target is a directory, device, FIFO or socket, read-only, a
+        symlink loop, or its directory is missing (without ``create_dirs``)
+        or not writable; nothing is written.
     OSError
         If writing fails (e.g. disk full); no partial file is left.
     """

@@ -64,12 +64,38 @@ def test_overwrite_keeps_mode_0600(tmp_path):
     assert listing(tmp_path) == ["secret.json"]
 
 
-def test_overwrite_read_only_file_keeps_its_mode(tmp_path):
+def test_read_only_file_replaced_only_if_writable(tmp_path):
+    """Mode 0444: root may write it (mode kept), anyone else is refused (file untouched)."""
     p = tmp_path / "ro.txt"
     p.write_text("old")
     os.chmod(p, 0o444)
-    write_text_atomic(p, "new")
-    assert p.read_text() == "new" and mode_of(p) == 0o444
+    if os.access(p, os.W_OK):  # root: open(p, "w") would succeed too
+        write_text_atomic(p, "new")
+        assert p.read_text() == "new" and mode_of(p) == 0o444
+    else:
+        with pytest.raises(OutputFileError, match="read-only"):
+            write_text_atomic(p, "new")
+        assert p.read_text() == "old"
+    assert listing(tmp_path) == ["ro.txt"]
+
+
+def test_read_only_file_refused_for_a_non_root_user(tmp_path, monkeypatch):
+    """The same check as a user who cannot write the file (os.access mocked)."""
+    p = tmp_path / "ro.txt"
+    p.write_text("old")
+    os.chmod(p, 0o444)
+    real_access = os.access
+
+    def access(path, mode, *a, **kw):
+        if Path(path) == p and mode & os.W_OK:
+            return False
+        return real_access(path, mode, *a, **kw)
+
+    monkeypatch.setattr(os, "access", access)
+    with pytest.raises(OutputFileError, match=r"read-only \(mode 0444\)"):
+        write_text_atomic(p, "new")
+    monkeypatch.undo()
+    assert p.read_text() == "old" and listing(tmp_path) == ["ro.txt"]
 
 
 # ------------------------------------------------------------------ special files

@@ -12,7 +12,6 @@ import re
 
 import numpy as np
 import pytest
-from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 import plant
@@ -269,3 +268,16 @@ def test_identify_fun_equals_plot_title(small_log):
     res.plot_tracking_errors(ax=ax)
     assert title_y(ax.get_title()) == pytest.approx(res.fun, rel=1e-9)
     assert f"{res.fun:.6g}" in repr(res)
+
+
+def test_save_json_missing_directory_created_and_reported(small_log, f_true, tmp_path):
+    from plant.fileio import OutputFileError
+
+    res = make_result(small_log, f_true)
+    path = tmp_path / "a" / "b" / "r.json"
+    with pytest.raises(OutputFileError, match="does not exist"):
+        res.save_json(path, create_dirs=False)
+    assert list(tmp_path.iterdir()) == []
+    info = res.save_json(path)
+    assert info.created_dirs == (tmp_path / "a", tmp_path / "a" / "b")
+    assert IdentificationResult.load_json(path).fun == res.fun
