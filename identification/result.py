@@ -189,12 +189,14 @@ class IdentificationResult(OptimizeResult):
     history : dict of ndarray
         Per GA generation (index 0: initial population): ``'generation'``,
         ``'best'`` (best output error in the population, pulses^2, at the
-        identification setting), ``'mean'``, ``'evaluations'``
+        identification setting), ``'best_so_far'``, ``'mean'``, ``'nfev'``
         (cumulative simulations).
     refinement : dict or None
         ``'start_costs'``, ``'costs'`` (prediction-error cost per start,
-        pulses^2), ``'cost'``, ``'evaluations'``, ``'ga_f'`` (the GA's best
-        f), ...; None for ``method='paper'``.
+        pulses^2), ``'fun'``, ``'nfev'``, ``'nit'``, ``'merged'`` (merged
+        start pairs), ``'gain'``, ``'ga_f'`` (the GA's best f),
+        ``'initial_state'`` (estimated state at the first sample, payload
+        mode); None for ``method='paper'``.
     wall_time_s : float
         Wall-clock time of the identification (s), JIT compilation excluded.
     compile_time_s : float
@@ -504,7 +506,7 @@ class IdentificationResult(OptimizeResult):
         history = {}
         for k, v in hist.items():
             a = num_array(f"history.{k}", v)
-            if k in ("generation", "evaluations") and np.all(np.isfinite(a)):
+            if k in ("generation", "nfev") and np.all(np.isfinite(a)):
                 a = a.astype(np.int64)
             history[k] = a
         refinement = d.get("refinement")
@@ -561,7 +563,7 @@ class IdentificationResult(OptimizeResult):
         """
         target_ax, out = _one_axes(ax, fig, figsize=(7, 4.2))
         h = self.get("history") or {}
-        evals = np.asarray(h.get("evaluations", []), dtype=float)
+        evals = np.asarray(h.get("nfev", []), dtype=float)
         target_ax.semilogy(evals, np.asarray(h.get("best", []), dtype=float), "-",
                            label="GA best")
         target_ax.semilogy(evals, np.asarray(h.get("mean", []), dtype=float), "-", alpha=0.6,

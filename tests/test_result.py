@@ -42,11 +42,11 @@ def make_result(log, f, *, substeps=1, lowpass_hz=None, payload=None, rng_seed=0
     fun = float(objective(f[None])[0])
     bounds = np.column_stack([f - np.abs(f), f + np.abs(f) + 0.1])
     keys = dict(
-        x=f.copy(), f=f.copy(), fun=fun, nfev=int(objective.evaluations), nit=3,
+        x=f.copy(), f=f.copy(), fun=fun, nfev=int(objective.nfev), nit=3,
         success=True, message="test result", population=pop, population_energies=energies,
         method="paper", seed=7,
         history={"generation": np.arange(4), "best": np.array([9e4, 5e3, 2e3, fun]),
-                 "mean": np.array([2e5, 8e4, 6e4, 5e4]), "evaluations": np.array([12, 24, 36, 48])},
+                 "mean": np.array([2e5, 8e4, 6e4, 5e4]), "nfev": np.array([12, 24, 36, 48])},
         refinement=None, wall_time_s=1.25, compile_time_s=0.5, interrupted=False,
         log_name=log.name, log=log, bounds=bounds, x_names=list(plant.F_NAMES),
         parameters="base",
@@ -112,7 +112,7 @@ def test_round_trip_payload_refinement_and_nonfinite(small_log, f_true, tmp_path
     payload = {"mass_kg": 1.5, "com_m": [0.1, -0.02], "izz_kgm2": 0.01,
                "vector": [1.5, 0.15, -0.03, 0.0266], "vector_names": ["m", "mx", "my", "J"]}
     refinement = {"start_costs": np.array([900.0, np.inf]), "costs": np.array([860.0, 870.0]),
-                  "cost": 860.0, "evaluations": 33, "ga_f": f_true}
+                  "fun": 860.0, "nfev": 33, "ga_f": f_true}
     res = make_result(small_log, f_true, payload=payload, refinement=refinement,
                       parameters="payload", x=np.array([1.5, 0.1, -0.02, 0.01]),
                       x_names=["m", "xp", "yp", "Jc"], bounds=np.array([[0, 5], [-1, 1],
@@ -127,7 +127,7 @@ def test_round_trip_payload_refinement_and_nonfinite(small_log, f_true, tmp_path
     np.testing.assert_array_equal(back.refinement["costs"], refinement["costs"])
     assert np.isnan(back.refinement["start_costs"][1])  # inf was written as null
     np.testing.assert_array_equal(back.refinement["ga_f"], f_true)
-    assert back.refinement["evaluations"] == 33
+    assert back.refinement["nfev"] == 33
 
 
 def test_older_result_file_loads(tmp_path):
