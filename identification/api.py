@@ -223,7 +223,7 @@ def _refine_starts(space, log, ga, n_starts):
 def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, workers, progress,
             lowpass_hz, substeps):
     """GA on the output error and/or prediction-error refinement over a parameterisation."""
-    compile_s = plant.warm_up()
+    compile_s = plant.warm_up(closed_loop=False)
     t0 = time.perf_counter()
     xb = space.bounds(log)
     k = xb.shape[0]

@@ -37,18 +37,12 @@ import math
 
 import numpy as np
 
-from .core import (
-    REANCHOR,
-    STATUS_MESSAGES,
-    STATUS_OK,
-    advance_sample,
-    encoder_read,
-    new_workspace,
-)
+from .anchors import REANCHOR
+from .core import STATUS_MESSAGES, STATUS_OK, advance_sample, encoder_read
 from .plants import RIGID, FlexibleJoints
 from .response import ClosedLoopResponse
 from .rig import rig_constants
-from .simulate import _dummy_problem, _jit, check_substeps
+from .simulate import _dummy_problem, _kernel, check_substeps, new_lanes
 from .model import is_positive_definite
 
 __all__ = [
@@ -63,7 +57,7 @@ __all__ = [
 DEFAULT_CLOSED_LOOP_SUBSTEPS = 32
 
 
-@_jit
+@_kernel
 def _read(X, enc, c, r2, r3):
     """Encoder counts and pulse errors of lane 0: (act2, act3, e2, e3)."""
     _, a2 = encoder_read(X[enc, 0], c.pulses_per_rad[0])
@@ -73,12 +67,13 @@ def _read(X, enc, c, r2, r3):
     return a2, a3, t2 - a2, t3 - a3
 
 
-@_jit
-def _step(rhs, P, c, X, U, A, S, W, substeps, k, i2, i3):
+@_kernel
+def _step(kind, lanes, c, substeps, k, i2, i3):
     """Hold the currents (i2, i3) and advance lane 0 over sample ``k``; returns the status."""
+    P, X, U, A, S, E, idx, W = lanes
     U[0, 0] = i2
     U[1, 0] = i3
-    advance_sample(rhs, P, c, X, U, A, S, W, 1, substeps, k % REANCHOR == 0)
+    advance_sample(kind, P, c, X, U, A, S, W, 1, substeps, k % REANCHOR == 0)
     return S[0]
 
 
@@ -182,12 +177,8 @@ def simulate_closed_loop(
     i_fs = rig.current_full_scale_A
     i_fs = math.inf if i_fs is None else float(i_fs)
 
-    P = plant.lane_parameters(f[None], rig)
-    X = np.ascontiguousarray(plant.initial_state(c)[:, None])
-    U = np.zeros((2, 1))
-    A = np.zeros((6, 1))
-    S = np.zeros(1, dtype=np.int64)
-    W = new_workspace(X.shape[0], 1)
+    lanes = new_lanes(plant.lane_parameters(f[None], rig), 0, 1, plant.initial_state(c))
+    X = lanes.X
     enc = plant.encoder_row
 
     Q = np.zeros((n, 2))
@@ -222,7 +213,7 @@ def simulate_closed_loop(
         I[k, 1] = i3
         if k == n - 1:
             break
-        st = _step(plant.rhs, P, c, X, U, A, S, W, substeps, k, i2, i3)
+        st = _step(plant.kind, lanes, c, substeps, k, i2, i3)
         if st != STATUS_OK:
             status = st
             n_done = k + 1
@@ -241,7 +232,6 @@ def simulate_closed_loop(
 
 def _warm():
     c, Pall, ref, _ = _dummy_problem()
-    X = np.ascontiguousarray(RIGID.initial_state(c)[:, None])
-    _read(X, 0, c, 0.0, 0.0)
-    _step(RIGID.rhs, Pall, c, X, np.zeros((2, 1)), np.zeros((6, 1)),
-          np.zeros(1, dtype=np.int64), new_workspace(4, 1), 1, 0, 0.0, 0.0)
+    lanes = new_lanes(Pall, 0, 1, RIGID.initial_state(c))
+    _read(lanes.X, 0, c, 0.0, 0.0)
+    _step(RIGID.kind, lanes, c, 1, 0, 0.0, 0.0)

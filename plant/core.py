@@ -21,20 +21,26 @@ functions of this module and nothing else::
   continuous counts an integer count allows.
 * :func:`advance_sample` advances lanes ``0..n-1`` of a state array ``X``
   (rows: state components, columns: lanes) over one sample with the held
-  motor currents ``U`` (2, lanes), by ``substeps`` classical RK4 steps of
-  ``rhs``, the plant's right-hand side (:mod:`plant.plants`: rigid or
-  flexible).  The right-hand side is a *parameter*, a compiled function
-  passed in (numba specialises the core for it), not a copy of the loop.
+  motor currents ``U`` (2, lanes), by ``substeps`` classical RK4 steps of the
+  plant's right-hand side.  The plant is a *parameter* (its ``kind``, a
+  type tag whose numba type is known at compile time): :func:`plant_rhs` is
+  the one place where a kind becomes its right-hand side (the registry
+  :data:`plant.plants.RIGHT_HAND_SIDES`: rigid or flexible), so every kernel
+  is compiled once per plant with only that plant's right-hand side, and is
+  not a copy of the loop.  (A kind rather than a compiled function passed as
+  an argument: numba cannot load kernels that take functions as arguments
+  from its on-disk cache in a new process, so they would compile at every
+  run.)
 
 A plant's right-hand side has the signature ``rhs(P, c, X, U, A, K, n)``:
 per-lane parameters ``P`` (n_par, lanes), the rig layout ``c``
 (:class:`plant.rig.RigConstants`), the stage state ``X`` (n_x, lanes), the
-held currents ``U`` (2, lanes), the trigonometric anchors ``A`` (6, lanes)
-and the output ``K`` (n_x + 1, lanes): rows ``0..n_x-1`` the state
-derivative, row ``n_x`` a positive-definiteness margin (det D(q); a stage
-with a margin <= 0 is rejected).  Rows 0 and 1 of every plant's state are
-the link angles q2, q3 (the only angles whose sine and cosine the dynamics
-need).
+held currents ``U`` (2, lanes), the trigonometric anchors ``A`` (6, lanes;
+:mod:`plant.anchors`) and the output ``K`` (n_x + 1, lanes): rows
+``0..n_x-1`` the state derivative, row ``n_x`` a positive-definiteness
+margin (det D(q); a stage with a margin <= 0 is rejected).  Rows 0 and 1 of
+every plant's state are the link angles q2, q3 (the only angles whose sine
+and cosine the dynamics need).
 
 Lanes
 -----
@@ -48,15 +54,11 @@ overlap checks few enough for it to vectorise.  Per lane the floating-point
 operations are the same whatever the number of lanes, so a lane's result
 does not depend on its neighbours (tested): one candidate is one lane.
 
-Trigonometry by angle addition
-------------------------------
+Trigonometry
+------------
 The stages take sin/cos of the link angles by angle addition from the
-sample's start angles (the *anchors* ``A``: q2, sin q2, cos q2, q3, sin q3,
-cos q3), with the Taylor series of the small offset (exact to rounding for
-offsets up to :data:`SINCOS_RANGE`).  The anchors' own sin/cos come from
-libm every :data:`REANCHOR` samples and by angle addition in between (libm
-took a quarter of the kernel's time).  A lane that moved further than
-:data:`SINCOS_RANGE` within a sample is recomputed with libm.
+sample's start angles (:mod:`plant.anchors`); a lane that moved further than
+:data:`~plant.anchors.SINCOS_RANGE` within a sample is recomputed with libm.
 
 Status codes
 ------------
@@ -72,6 +74,13 @@ import math
 import numba
 import numpy as np
 
+from numba import types
+from numba.core.errors import TypingError
+from numba.extending import overload
+
+from .anchors import update_anchors
+from .plants import RIGHT_HAND_SIDES
+
 __all__ = [
     "STATUS_OK",
     "STATUS_NOT_PD",
@@ -79,11 +88,9 @@ __all__ = [
     "STATUS_DIVERGED",
     "STATUS_STOPPED",
     "STATUS_MESSAGES",
-    "SINCOS_RANGE",
-    "REANCHOR",
     "encoder_read",
     "cell_centre",
-    "sincos_offset",
+    "plant_rhs",
     "advance_sample",
     "new_workspace",
     "padded_lanes",
@@ -103,21 +110,14 @@ STATUS_MESSAGES = {
     STATUS_STOPPED: "output error passed the early-termination cap",
 }
 
-#: Largest angle change (rad) from the anchor for which the stages take
-#: sin/cos by angle addition; beyond it (a lane moving > 50 rad/s) libm.
-SINCOS_RANGE = 0.05
-#: Samples between libm evaluations of the anchors' sin/cos.
-REANCHOR = 16
 #: Lane loops run over a multiple of this many lanes from this many on (AVX2:
 #: 4 doubles per vector, twice that for AVX-512), so that no lane falls into
 #: a scalar remainder loop; the extra columns are padding copies.
 LANE_PAD = 8
 
-# Rows of the anchor array A.
-A_Q2, A_S2, A_C2, A_Q3, A_S3, A_C3 = 0, 1, 2, 3, 4, 5
-N_ANCHOR_ROWS = 6
-
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+# Helpers compiled into the kernels that call them (whose cache holds their code):
+# not cached on their own, which saves a cache file and its write per helper.
+_jit = numba.njit(nogil=True, error_model="numpy")
 
 
 @_jit
@@ -167,31 +167,6 @@ def cell_centre(count):
 
 
 @_jit
-def sincos_offset(d, sb, cb):
-    """sin and cos of ``qb + d`` from ``sb = sin qb`` and ``cb = cos qb``.
-
-    Angle addition with the Taylor series of sin d and cos d (Horner forms,
-    multiplications only): exact to rounding for ``abs(d) <= SINCOS_RANGE``
-    (truncation < 1e-17).
-
-    Parameters
-    ----------
-    d, sb, cb : float
-        Offset (rad), sine and cosine of the anchor angle.
-
-    Returns
-    -------
-    (float, float)
-        sin(qb + d), cos(qb + d).
-    """
-    d2 = d * d
-    sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))))
-    cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0)
-                                                       * (1.0 - d2 * (1.0 / 56.0))))
-    return sb * cd + cb * sd, cb * cd - sb * sd
-
-
-@_jit
 def padded_lanes(n):
     """Lanes a SIMD loop runs over for ``n`` active lanes.
 
@@ -213,7 +188,6 @@ def padded_lanes(n):
     return (n + LANE_PAD - 1) // LANE_PAD * LANE_PAD
 
 
-@_jit
 def new_workspace(nx, lanes):
     """Scratch arrays of :func:`advance_sample` for ``nx`` states and ``lanes`` lanes.
 
@@ -230,32 +204,7 @@ def new_workspace(nx, lanes):
         ``(K1, K2, K3, K4, XS)``: the four stage derivatives (nx + 1, lanes)
         and the stage state (nx, lanes).
     """
-    return (np.zeros((nx + 1, lanes)), np.zeros((nx + 1, lanes)), np.zeros((nx + 1, lanes)),
-            np.zeros((nx + 1, lanes)), np.zeros((nx, lanes)))
-
-
-@_jit
-def _update_anchors(X, A, n, reanchor):
-    """Move the anchors to the sample's start angles (rows 0, 1 of X)."""
-    far = 0
-    if not reanchor:
-        for j in range(n):
-            dq2 = X[0, j] - A[A_Q2, j]
-            dq3 = X[1, j] - A[A_Q3, j]
-            far += not (abs(dq2) <= SINCOS_RANGE and abs(dq3) <= SINCOS_RANGE)
-            A[A_S2, j], A[A_C2, j] = sincos_offset(dq2, A[A_S2, j], A[A_C2, j])
-            A[A_S3, j], A[A_C3, j] = sincos_offset(dq3, A[A_S3, j], A[A_C3, j])
-    if reanchor or far:
-        for j in range(n):
-            if reanchor or not (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
-                                and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE):
-                A[A_S2, j] = math.sin(X[0, j])
-                A[A_C2, j] = math.cos(X[0, j])
-                A[A_S3, j] = math.sin(X[1, j])
-                A[A_C3, j] = math.cos(X[1, j])
-    for j in range(n):
-        A[A_Q2, j] = X[0, j]
-        A[A_Q3, j] = X[1, j]
+    return tuple(np.zeros((nx + 1, lanes)) for _ in range(4)) + (np.zeros((nx, lanes)),)
 
 
 @_jit
@@ -266,8 +215,43 @@ def _stage_state(X, K, c, XS, nx, n):
             XS[i, j] = X[i, j] + c * K[i, j]
 
 
+def plant_rhs(kind, P, c, X, U, A, K, n):
+    """The right-hand side of plant ``kind``: the one place a kind becomes its function.
+
+    Compiled code only: the *type* of ``kind`` selects the function at
+    compile time (:data:`plant.plants.RIGHT_HAND_SIDES` maps kind classes to
+    functions), so that a kernel compiles the right-hand side of its own
+    plant and no other.
+
+    Parameters
+    ----------
+    kind : plant.plants.RigidKind or plant.plants.FlexibleKind
+        A plant's :attr:`~plant.plants.Plant.kind`.
+    P, c, X, U, A, K, n
+        As the right-hand sides of :mod:`plant.plants`.
+
+    Raises
+    ------
+    numba.core.errors.TypingError
+        At compile time, for a kind that is not registered.
+    """
+    raise NotImplementedError("plant_rhs is called from compiled code only")
+
+
+@overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"))
+def _plant_rhs_overload(kind, P, c, X, U, A, K, n):
+    rhs = RIGHT_HAND_SIDES.get(getattr(kind, "instance_class", None))
+    if not isinstance(kind, types.BaseNamedTuple) or rhs is None:
+        raise TypingError(f"unknown plant kind {kind}; register it in plant.plants.RIGHT_HAND_SIDES")
+
+    def impl(kind, P, c, X, U, A, K, n):
+        rhs(P, c, X, U, A, K, n)
+
+    return impl
+
+
 @_jit
-def advance_sample(rhs, P, c, X, U, A, S, W, n, substeps, reanchor):
+def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     """Advance lanes ``0..n-1`` over one sample with the held currents ``U``.
 
     Classical 4th-order Runge-Kutta with ``substeps`` equal steps over
@@ -277,8 +261,9 @@ def advance_sample(rhs, P, c, X, U, A, S, W, n, substeps, reanchor):
 
     Parameters
     ----------
-    rhs : numba dispatcher
-        The plant's right-hand side (:data:`plant.plants.RIGID` ``.rhs`` ...).
+    kind : plant.plants.RigidKind or plant.plants.FlexibleKind
+        The plant (:attr:`plant.plants.Plant.kind`); its right-hand side is
+        chosen by :func:`plant_rhs`.
     P : ndarray, shape (n_par, lanes)
         Per-lane plant parameters (column j: lane j).
     c : plant.rig.RigConstants
@@ -307,15 +292,15 @@ def advance_sample(rhs, P, c, X, U, A, S, W, n, substeps, reanchor):
     h = c.sample_time_s / substeps
     hh = 0.5 * h
     h6 = h * (1.0 / 6.0)
-    _update_anchors(X, A, n, reanchor)
+    update_anchors(X, A, n, reanchor)
     for _ in range(substeps):
-        rhs(P, c, X, U, A, K1, n)
+        plant_rhs(kind, P, c, X, U, A, K1, n)
         _stage_state(X, K1, hh, XS, nx, n)
-        rhs(P, c, XS, U, A, K2, n)
+        plant_rhs(kind, P, c, XS, U, A, K2, n)
         _stage_state(X, K2, hh, XS, nx, n)
-        rhs(P, c, XS, U, A, K3, n)
+        plant_rhs(kind, P, c, XS, U, A, K3, n)
         _stage_state(X, K3, h, XS, nx, n)
-        rhs(P, c, XS, U, A, K4, n)
+        plant_rhs(kind, P, c, XS, U, A, K4, n)
         for i in range(nx):
             for j in range(n):
                 ok = K1[nx, j] > 0.0 and K2[nx, j] > 0.0 and K3[nx, j] > 0.0 and K4[nx, j] > 0.0

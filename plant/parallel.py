@@ -128,16 +128,16 @@ def kernels_cached() -> bool:
     """
     from numba import typeof
 
-    from .simulate import _experiment_chunk, _warm_arguments
+    from .simulate import _log_chunk, _warm_arguments
 
     try:
         sig = tuple(typeof(a) for a in _warm_arguments())
-        return _experiment_chunk._cache.load_overload(sig, _experiment_chunk.targetctx) is not None
+        return _log_chunk._cache.load_overload(sig, _log_chunk.targetctx) is not None
     except Exception:  # noqa: BLE001 - any trouble with the cache means "not cached"
         return False
 
 
-def warm_up(*, announce=None, replay=True, closed_loop=True) -> float:
+def warm_up(*, announce=None, closed_loop=True) -> float:
     """Compile (or load from numba's cache) the simulation kernels.
 
     Runs each kernel once on a three-sample problem so that a timed run
@@ -150,9 +150,8 @@ def warm_up(*, announce=None, replay=True, closed_loop=True) -> float:
         kernels are not in numba's cache yet (a first run compiles them once,
         which takes several seconds); not called when they load from the
         cache.
-    replay, closed_loop : bool
-        Also warm the replay kernel of the refinement and the sample step of
-        the any-controller loop.
+    closed_loop : bool
+        Also warm the sample step of the any-controller loop.
 
     Returns
     -------
@@ -160,16 +159,13 @@ def warm_up(*, announce=None, replay=True, closed_loop=True) -> float:
         Seconds it took.
     """
     from . import closed_loop as cl
-    from . import replay as rp
     from . import simulate as sim
 
     t0 = time.perf_counter()
     if announce is not None and not kernels_cached():
         announce("compiling the numerical kernels once (about 10 s on 2 cores); "
                  "later runs load them from numba's cache")
-    sim._warm()
-    if replay:
-        rp._warm()
+    sim._warm()  # the P experiment and the replay: one kernel
     if closed_loop:
         cl._warm()
     return time.perf_counter() - t0

@@ -1,9 +1,10 @@
 """Plants of the closed-loop core: the robot's right-hand side, rigid or flexible.
 
 A plant is a right-hand side ``rhs(P, c, X, U, A, K, n)`` of the core
-(:mod:`plant.core`, where the signature is described) together with its
-state layout: which rows the motor encoders read, how many per-lane
-parameters it takes and how its start state follows from the rig's.  Two
+(:mod:`plant.core`, where the signature is described), registered under a
+kind (a type tag) in :data:`RIGHT_HAND_SIDES`, together with its state
+layout (:class:`Plant`): which rows the motor encoders read, how many
+per-lane parameters it takes and how its start state follows from the rig's.  Two
 plants are defined here:
 
 * :data:`RIGID` -- the rigid model of :mod:`plant.model` (paper eq. 2),
@@ -16,23 +17,65 @@ Both add the joint-side drive friction of the rig (motor side: viscous and
 asymmetric Coulomb with a linear ramp; :func:`plant.model.friction_torque`)
 and turn the held motor current into joint torque ``k Kt i``.  To add a
 plant (another friction law, a third joint), write its right-hand side with
-the same signature and a :class:`Plant` describing it; every driver of the
-core then simulates it.
+the same signature, register it under a new kind in
+:data:`RIGHT_HAND_SIDES` and describe it by a :class:`Plant`; every driver
+of the core then simulates it.  The drive friction is the rig's
+(:class:`plant.rig.RigConstants`, shared by all lanes: per-lane friction
+rows in P cost the lane loops their vectorisation, measured 0.30 -> 0.84 ms
+per candidate); a plant that identifies friction would carry it in its own
+P rows.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
-from .core import A_C2, A_C3, A_Q2, A_Q3, A_S2, A_S3, SINCOS_RANGE, sincos_offset
+from .anchors import A_C2, A_C3, A_Q2, A_Q3, A_S2, A_S3, SINCOS_RANGE, sincos_offset
 from .model import friction_torque, joint_acceleration_sc
 
-__all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "flexible_rhs"]
+__all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "flexible_rhs", "RigidKind",
+           "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RIGHT_HAND_SIDES"]
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+class RigidKind(NamedTuple):
+    """Type tag of the rigid plant: its numba type selects the right-hand side.
+
+    Attributes
+    ----------
+    code : int
+        0 (informative only: the *type* is what the core dispatches on).
+    """
+
+    code: int = 0
+
+
+class FlexibleKind(NamedTuple):
+    """Type tag of the two-mass flexible plant (see :class:`RigidKind`).
+
+    Attributes
+    ----------
+    code : int
+        1.
+    """
+
+    code: int = 1
+
+
+#: Plant kinds: values whose numba *type* chooses a right-hand side at
+#: compile time (:func:`plant.core.plant_rhs`), so each kernel is compiled
+#: once per plant, with only that plant's right-hand side, and loads from
+#: numba's cache (a value would be a runtime branch over all plants; a
+#: compiled function as an argument cannot be cached).
+RIGID_KIND = RigidKind()
+FLEXIBLE_KIND = FlexibleKind()
+
+# Helpers compiled into the kernels that call them (whose cache holds their code):
+# not cached on their own, which saves a cache file and its write per helper.
+_jit = numba.njit(nogil=True, error_model="numpy")
 
 
 @dataclass(frozen=True)
@@ -43,8 +86,9 @@ class Plant:
     ----------
     name : str
         ``"rigid"`` or ``"flexible"``.
-    rhs : numba dispatcher
-        ``rhs(P, c, X, U, A, K, n)`` (see :mod:`plant.core`).
+    kind : RigidKind or FlexibleKind
+        :data:`RIGID_KIND` or :data:`FLEXIBLE_KIND`: how the core finds the
+        right-hand side (:func:`plant.core.plant_rhs`).
     n_states : int
         Rows of the state array; rows 0, 1 are the link angles q2, q3 and
         rows 2, 3 their rates.
@@ -56,13 +100,16 @@ class Plant:
     """
 
     name: str
-    rhs: object
+    kind: tuple
     n_states: int
     encoder_row: int
     n_parameters: int
 
     def lane_parameters(self, F, rig) -> np.ndarray:
         """Per-lane parameter array of candidates ``F`` (m, 9) (rigid-equivalent f).
+
+        Plants with parameters beyond f take them as keyword arrays (e.g.
+        :meth:`FlexibleJoints.lane_parameters`).
 
         Parameters
         ----------
@@ -147,9 +194,12 @@ def rigid_rhs(P, c, X, U, A, K, n):
                     math.cos(X[0, j]), math.sin(X[1, j]), math.cos(X[1, j]), U[0, j], U[1, j])
 
 
+#: Registry of the core: plant kind class -> right-hand side (:func:`plant.core.plant_rhs`).
+RIGHT_HAND_SIDES = {RigidKind: rigid_rhs}
+
 #: The rigid robot of :mod:`plant.model`: state (q2, q3, qd2, qd3), the
 #: encoders read q, parameters f1..f9.
-RIGID = Plant(name="rigid", rhs=rigid_rhs, n_states=4, encoder_row=0, n_parameters=9)
+RIGID = Plant(name="rigid", kind=RIGID_KIND, n_states=4, encoder_row=0, n_parameters=9)
 
 
 # ----------------------------------------------------------------------------
@@ -222,6 +272,9 @@ def flexible_rhs(P, c, X, U, A, K, n):
                     math.cos(X[1, j]), U[0, j], U[1, j])
 
 
+RIGHT_HAND_SIDES[FlexibleKind] = flexible_rhs
+
+
 @dataclass(frozen=True)
 class FlexibleJoints(Plant):
     """Spong two-mass joints: motor and link joined by a spring and damper.
@@ -269,7 +322,7 @@ class FlexibleJoints(Plant):
                 raise ValueError("FlexibleJoints: stiffness and motor inertia must be > 0, "
                                  f"damping >= 0 (got {name}={v!r})")
             pairs.append((float(a[0]), float(a[1])))
-        Plant.__init__(self, name="flexible", rhs=flexible_rhs, n_states=8, encoder_row=4,
+        Plant.__init__(self, name="flexible", kind=FLEXIBLE_KIND, n_states=8, encoder_row=4,
                        n_parameters=15)
         object.__setattr__(self, "stiffness_Nm_per_rad", pairs[0])
         object.__setattr__(self, "damping_Nms_per_rad", pairs[1])

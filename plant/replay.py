@@ -2,35 +2,26 @@
 
 The P controller's current is known exactly from the logged integer error
 (``i_k = P e_k``), so the model can be driven by the current the rig applied
-instead of by its own, quantised, feedback.  This module is the driver of the
-one closed-loop core (:mod:`plant.core`) that does so; the refinement of
-:mod:`identification.refine` least-squares its prediction errors.
+instead of by its own, quantised, feedback.  The replay is the second mode
+of the logged-run driver of the one closed-loop core
+(:func:`plant.simulate._log_chunk`; one compiled kernel for both modes); the
+refinement of :mod:`identification.refine` least-squares its prediction
+errors.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .core import (
-    REANCHOR,
-    STATUS_DIVERGED,
-    STATUS_OK,
-    advance_sample,
-    cell_centre,
-    encoder_read,
-    new_workspace,
-    padded_lanes,
-)
+from .core import cell_centre
 from .parallel import as_float_array, check_workers, run_chunks
 from .plants import RIGID
 from .simulate import (
     DEFAULT_SUBSTEPS,
-    _dummy_problem,
-    _jit,
+    _log_chunk,
     check_candidates,
     check_substeps,
     default_bound,
     new_lanes,
-    retire_lane,
     simulation_inputs,
 )
 
@@ -61,83 +52,9 @@ def measured_counts(log) -> np.ndarray:
     return np.vectorize(cell_centre, otypes=[float])(a)
 
 
-@_jit
-def _fill_failed(out, done, bound):
-    """Prediction errors of a failed candidate from sample ``done`` on: ``bound``."""
-    for i in range(done, out.shape[0]):
-        out[i, 0] = bound
-        out[i, 1] = bound
-
-
-@_jit
-def _replay_chunk(rhs, Pall, c, x0, enc, ref, e_log, k0, substeps, gain, bound, out, X0,
-                  use_x0, status, lo, hi):
-    """Replay candidates ``lo:hi`` in lockstep; prediction errors into ``out[i]``."""
-    P, X, U, A, S, E, idx = new_lanes(Pall, lo, hi, x0)
-    W = new_workspace(X.shape[0], X.shape[1])
-    n_total = ref.shape[0]
-    sc2, sc3 = c.pulses_per_rad
-    p2, p3 = c.p_gain
-    k_start = k0 if use_x0 else 0
-    if use_x0:  # given state at the first logged sample: no simulation before it
-        for j in range(X.shape[1]):
-            for r in range(X0.shape[1]):
-                X[r, j] = X0[idx[j], r]
-    act = hi - lo
-    for k in range(k_start, n_total):
-        r2 = ref[k, 0]
-        r3 = ref[k, 1]
-        i = k - k0
-        for j in range(act - 1, -1, -1):
-            if abs(r2 - X[enc, j] * sc2) > bound or abs(r3 - X[enc + 1, j] * sc3) > bound:
-                status[idx[j]] = STATUS_DIVERGED
-                _fill_failed(out[idx[j]], max(i, 0), bound)
-                act = retire_lane(P, X, U, A, S, E, idx, j, act)
-        if act == 0:
-            break
-        if i < 0:
-            # Before a window: the run's own P loop with continuous counts (the
-            # smooth closed loop), so that the state reached is smooth in f.
-            for j in range(padded_lanes(act)):
-                c2, _ = encoder_read(X[enc, j], sc2)
-                c3, _ = encoder_read(X[enc + 1, j], sc3)
-                U[0, j] = p2 * (r2 - c2)
-                U[1, j] = p3 * (r3 - c3)
-        else:
-            _, t2 = encoder_read(r2, 1.0)
-            _, t3 = encoder_read(r3, 1.0)
-            m2 = cell_centre(t2 - e_log[i, 0])
-            m3 = cell_centre(t3 - e_log[i, 1])
-            for j in range(padded_lanes(act)):
-                c2, _ = encoder_read(X[enc, j], sc2)
-                c3, _ = encoder_read(X[enc + 1, j], sc3)
-                # logged input (the current the rig applied) plus the predictor correction
-                U[0, j] = p2 * (e_log[i, 0] + gain * (m2 - c2))
-                U[1, j] = p3 * (e_log[i, 1] + gain * (m3 - c3))
-            for j in range(act):
-                c2, _ = encoder_read(X[enc, j], sc2)
-                c3, _ = encoder_read(X[enc + 1, j], sc3)
-                out[idx[j], i, 0] = m2 - c2
-                out[idx[j], i, 1] = m3 - c3
-        if k == n_total - 1:
-            break
-        advance_sample(rhs, P, c, X, U, A, S, W, padded_lanes(act), substeps,
-                       (k - k_start) % REANCHOR == 0)
-        for j in range(act - 1, -1, -1):
-            code = S[j]
-            if code != STATUS_OK:
-                status[idx[j]] = code
-                _fill_failed(out[idx[j]], max(i + 1, 0), bound)
-                act = retire_lane(P, X, U, A, S, E, idx, j, act)
-        if act == 0:
-            break
-    for j in range(act):
-        status[idx[j]] = STATUS_OK
-
-
 def prediction_errors(
     log, F, *, gain=DEFAULT_REPLAY_GAIN, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None,
-    initial_state=None, plant=None,
+    initial_state=None, plant=None, plant_parameters=None,
 ):
     """One-step prediction errors of the model replaying the logged input.
 
@@ -177,6 +94,9 @@ def prediction_errors(
         log's first sample, per candidate; the replay then starts there.
     plant : plant.plants.Plant, optional
         Default :data:`plant.plants.RIGID`.
+    plant_parameters : dict, optional
+        Per-candidate plant parameters beyond f (see
+        :func:`plant.simulate_batch`).
 
     Returns
     -------
@@ -211,24 +131,21 @@ def prediction_errors(
         use_x0 = True
     out = np.empty((m, inputs.e_log.shape[0], 2))
     status = np.empty(m, dtype=np.int64)
-    Pall = plant.lane_parameters(F2, log.rig)
+    cost = np.empty(m)
+    compared = np.empty(m, dtype=np.int64)
+    Pall = plant.lane_parameters(F2, log.rig, **(plant_parameters or {}))
     x0 = plant.initial_state(inputs.constants)
+    k0 = inputs.start_index
 
     def chunk(lo, hi):
-        _replay_chunk(plant.rhs, Pall, inputs.constants, x0, plant.encoder_row,
-                      inputs.ref_counts, inputs.e_log, inputs.start_index, substeps,
-                      float(gain), bound, out, X0, use_x0, status, lo, hi)
+        lanes = new_lanes(Pall, lo, hi, x0)
+        if use_x0:  # the given state at the first logged sample: no simulation before it
+            lanes.X[:] = X0[lanes.idx].T
+        _log_chunk(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts,
+                   inputs.e_log, k0, k0 if use_x0 else 0, substeps, True, False, float(gain),
+                   bound, np.inf, out, True, False, cost, status, compared, hi - lo)
 
     run_chunks(chunk, m, workers)
     if single:
         return out[0], int(status[0])
     return out, status
-
-
-def _warm():
-    c, Pall, ref, e_log = _dummy_problem()
-    out = np.zeros((1, 3, 2))
-    for use_x0 in (False, True):
-        _replay_chunk(RIGID.rhs, Pall, c, RIGID.initial_state(c), RIGID.encoder_row, ref,
-                      e_log, 0, 1, 0.02, 100.0, out, np.zeros((1, 4)), use_x0,
-                      np.empty(1, dtype=np.int64), 0, 1)

@@ -52,14 +52,14 @@ import numba
 import numpy as np
 
 from ._errors import SimulationError
+from .anchors import N_ANCHOR_ROWS, REANCHOR
 from .core import (
-    N_ANCHOR_ROWS,
-    REANCHOR,
     STATUS_DIVERGED,
     STATUS_MESSAGES,
     STATUS_OK,
     STATUS_STOPPED,
     advance_sample,
+    cell_centre,
     encoder_read,
     new_workspace,
     padded_lanes,
@@ -185,33 +185,74 @@ def default_bound(e_log) -> float:
 # ----------------------------------------------------------------------------
 # Lane bookkeeping shared by the batch drivers
 # ----------------------------------------------------------------------------
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+#: Kernels called from Python (cached on disk) and helpers compiled into them.
+_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = numba.njit(nogil=True, error_model="numpy")
 
 
-@_jit
-def new_lanes(Pall, lo, hi, x0):
-    """Lane arrays of candidates ``lo:hi``: one column per candidate.
+class Lanes(NamedTuple):
+    """The arrays of one chunk of lanes (one column per candidate).
 
-    Returns ``(P, X, U, A, S, E, idx)``: parameters, state (start state
-    ``x0`` in every column), held currents, anchors, status, running sum of
-    squares and candidate index per lane.  Columns beyond ``hi - lo`` are
-    padding (copies of the first candidate).
+    Allocated in Python (numpy), so that no allocation is compiled.
+
+    Attributes
+    ----------
+    P : ndarray, shape (n_par, lanes)
+        Plant parameters.
+    X : ndarray, shape (n_x, lanes)
+        State (the start state in every column).
+    U : ndarray, shape (2, lanes)
+        Held motor currents (A).
+    A : ndarray, shape (6, lanes)
+        Trigonometric anchors (:mod:`plant.anchors`).
+    S : ndarray, shape (lanes,), int64
+        Status per lane.
+    E : ndarray, shape (lanes,)
+        Running sum of squares per lane (pulses^2).
+    idx : ndarray, shape (lanes,), int64
+        Candidate index of each lane.
+    W : tuple of ndarray
+        Scratch of :func:`plant.core.advance_sample`: K1..K4 (n_x + 1,
+        lanes), XS (n_x, lanes).
     """
-    lanes = padded_lanes(hi - lo)
-    npar = Pall.shape[0]
+
+    P: np.ndarray
+    X: np.ndarray
+    U: np.ndarray
+    A: np.ndarray
+    S: np.ndarray
+    E: np.ndarray
+    idx: np.ndarray
+    W: tuple
+
+
+def new_lanes(Pall, lo, hi, x0) -> Lanes:
+    """Lane arrays of candidates ``lo:hi`` of ``Pall`` (n_par, m).
+
+    Columns beyond ``hi - lo`` (SIMD padding, :func:`plant.core.padded_lanes`)
+    are copies of the first candidate.
+
+    Parameters
+    ----------
+    Pall : ndarray, shape (n_par, m)
+        Plant parameters of all candidates.
+    lo, hi : int
+        The chunk's candidates.
+    x0 : ndarray, shape (n_x,)
+        Start state.
+
+    Returns
+    -------
+    Lanes
+    """
+    lanes = int(padded_lanes(hi - lo))
+    idx = np.arange(lo, lo + lanes, dtype=np.int64)
+    idx[hi - lo:] = lo
     nx = x0.shape[0]
-    P = np.empty((npar, lanes))
-    X = np.empty((nx, lanes))
-    idx = np.empty(lanes, dtype=np.int64)
-    for j in range(lanes):
-        cnd = lo + j if lo + j < hi else lo
-        idx[j] = cnd
-        for p in range(npar):
-            P[p, j] = Pall[p, cnd]
-        for i in range(nx):
-            X[i, j] = x0[i]
-    return (P, X, np.zeros((2, lanes)), np.zeros((N_ANCHOR_ROWS, lanes)),
-            np.zeros(lanes, dtype=np.int64), np.zeros(lanes), idx)
+    return Lanes(np.ascontiguousarray(Pall[:, idx]), np.ascontiguousarray(np.tile(x0[:, None], (1, lanes))),
+                 np.zeros((2, lanes)), np.zeros((N_ANCHOR_ROWS, lanes)),
+                 np.zeros(lanes, dtype=np.int64), np.zeros(lanes), idx,
+                 new_workspace(nx, lanes))
 
 
 @_jit
@@ -240,7 +281,7 @@ def retire_lane(P, X, U, A, S, E, idx, j, act):
     if j != last:
         _move_lane(P, X, U, A, S, E, idx, j, last)
     if last > 0:
-        _move_lane(P, X, U, A, S, E, idx, last, 0)
+        _move_lane(P, X, U, A, S, E, idx, last, np.int64(0))
     return last
 
 
@@ -258,95 +299,127 @@ def _final_objective(sse, status, compared, n, bound):
 # The P-control experiment driver
 # ----------------------------------------------------------------------------
 @_jit
-def _experiment_chunk(rhs, Pall, c, x0, enc, ref, e_log, k0, substeps, quantize, bound, cap,
-                      err_out, write, continuous_out, obj, status, compared, lo, hi):
-    """Simulate candidates ``lo:hi`` of the P experiment in lockstep (one lane each).
+def _finish(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, out, fill_from):
+    """Record lane ``j``'s result (status ``code``); a failed replay lane's errors := bound."""
+    c_ = idx[j]
+    obj[c_] = _final_objective(E[j], code, cmp, n, bound)
+    status[c_] = code
+    compared[c_] = cmp
+    if replay and code != STATUS_OK:
+        for i in range(max(fill_from, 0), out.shape[1]):
+            out[c_, i, 0] = bound
+            out[c_, i, 1] = bound
 
-    ``ref`` (n_total, 2) unquantised reference counts; ``e_log`` (n, 2) logged
-    errors compared from sample ``k0`` on.  With ``quantize`` the encoder and
-    reference counts are truncated as on the rig; without, the loop is the
-    smooth surrogate with continuous counts.  With ``continuous_out`` the
-    compared (and written) output is the unquantised error
-    ``ref - q k N / 2 pi``.  Results go to ``obj[i]``, ``status[i]``,
-    ``compared[i]`` and ``err_out[i]`` of candidate i; a lane that fails or
-    is stopped is retired at once (early termination pays).
+
+@_kernel
+def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
+               bound, cap, out, write, continuous_out, obj, status, compared, n_act):
+    """Simulate the candidates of one chunk of lanes against a log, in lockstep.
+
+    The driver of the logged run, in two modes (one compiled kernel):
+
+    * experiment (``replay`` False): the rig's P loop, ``i = P e`` with the
+      integer error ``e = trunc(ref) - trunc(c)`` (``quantize``; otherwise
+      the smooth surrogate ``ref - c``); ``obj`` the output error of eq. 4
+      against ``e_log``; with ``write`` the model errors go to ``out``
+      (unquantised ``ref - c`` with ``continuous_out``);
+    * replay (``replay`` True): the logged input ``i = P (e_log + gain (m -
+      c))`` with ``m`` the centre of the count cell the log allows; ``out``
+      the prediction errors ``m - c`` (a failed lane's remaining ones are
+      ``bound``); ``obj`` their sum of squares.  Before a window the run's
+      own P loop with continuous counts (``quantize`` False).
+
+    ``ref`` (n_total, 2) unquantised reference counts; ``e_log`` (n, 2)
+    logged errors from sample ``k0`` on; the simulation starts at sample
+    ``k_start`` from the lanes' state.  Results go to ``obj[i]``,
+    ``status[i]``, ``compared[i]`` and ``out[i]`` of candidate i; a lane that
+    fails, diverges or passes ``cap`` is retired at once (early termination
+    pays).
     """
-    P, X, U, A, S, E, idx = new_lanes(Pall, lo, hi, x0)
-    W = new_workspace(X.shape[0], X.shape[1])
+    P, X, U, A, S, E, idx, W = lanes
     n_total = ref.shape[0]
     n = e_log.shape[0]
     sc2, sc3 = c.pulses_per_rad
     p2, p3 = c.p_gain
-    act = hi - lo
+    act = n_act
     cmp = 0
-    for k in range(n_total):
+    for k in range(k_start, n_total):
         r2 = ref[k, 0]
         r3 = ref[k, 1]
+        i = k - k0
         # divergence on the continuous error first, so truncation never sees a huge value
         for j in range(act - 1, -1, -1):
             if abs(r2 - X[enc, j] * sc2) > bound or abs(r3 - X[enc + 1, j] * sc3) > bound:
-                c_ = idx[j]
-                obj[c_] = _final_objective(E[j], STATUS_DIVERGED, cmp, n, bound)
-                status[c_] = STATUS_DIVERGED
-                compared[c_] = cmp
+                _finish(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
+                        compared, replay, out, i)
                 act = retire_lane(P, X, U, A, S, E, idx, j, act)
         if act == 0:
             break
         _, t2 = encoder_read(r2, 1.0)
         _, t3 = encoder_read(r3, 1.0)
-        i = k - k0
         el2 = e_log[i, 0] if i >= 0 else 0.0
         el3 = e_log[i, 1] if i >= 0 else 0.0
-        for j in range(padded_lanes(act)):  # SIMD over the lanes
-            c2, a2 = encoder_read(X[enc, j], sc2)
-            c3, a3 = encoder_read(X[enc + 1, j], sc3)
-            e2 = t2 - a2 if quantize else r2 - c2
-            e3 = t3 - a3 if quantize else r3 - c3
-            if i >= 0:
-                d2 = el2 - (r2 - c2 if continuous_out else e2)
-                d3 = el3 - (r3 - c3 if continuous_out else e3)
+        if replay and i >= 0:
+            m2 = cell_centre(t2 - el2)
+            m3 = cell_centre(t3 - el3)
+            for j in range(padded_lanes(act)):  # SIMD over the lanes
+                c2, _ = encoder_read(X[enc, j], sc2)
+                c3, _ = encoder_read(X[enc + 1, j], sc3)
+                d2 = m2 - c2
+                d3 = m3 - c3
                 E[j] += d2 * d2 + d3 * d3
-            U[0, j] = p2 * e2
-            U[1, j] = p3 * e3
-        if i >= 0:
-            cmp = i + 1
-            if write:
+                # logged input (the current the rig applied) plus the predictor correction
+                U[0, j] = p2 * (el2 + gain * d2)
+                U[1, j] = p3 * (el3 + gain * d3)
+            for j in range(act):
+                c2, _ = encoder_read(X[enc, j], sc2)
+                c3, _ = encoder_read(X[enc + 1, j], sc3)
+                out[idx[j], i, 0] = m2 - c2
+                out[idx[j], i, 1] = m3 - c3
+        else:
+            for j in range(padded_lanes(act)):  # SIMD over the lanes
+                c2, a2 = encoder_read(X[enc, j], sc2)
+                c3, a3 = encoder_read(X[enc + 1, j], sc3)
+                e2 = t2 - a2 if quantize else r2 - c2
+                e3 = t3 - a3 if quantize else r3 - c3
+                if i >= 0:
+                    d2 = el2 - (r2 - c2 if continuous_out else e2)
+                    d3 = el3 - (r3 - c3 if continuous_out else e3)
+                    E[j] += d2 * d2 + d3 * d3
+                U[0, j] = p2 * e2
+                U[1, j] = p3 * e3
+            if write and i >= 0:
                 for j in range(act):
                     c2, a2 = encoder_read(X[enc, j], sc2)
                     c3, a3 = encoder_read(X[enc + 1, j], sc3)
                     if continuous_out or not quantize:
-                        err_out[idx[j], i, 0] = r2 - c2
-                        err_out[idx[j], i, 1] = r3 - c3
+                        out[idx[j], i, 0] = r2 - c2
+                        out[idx[j], i, 1] = r3 - c3
                     else:
-                        err_out[idx[j], i, 0] = t2 - a2
-                        err_out[idx[j], i, 1] = t3 - a3
+                        out[idx[j], i, 0] = t2 - a2
+                        out[idx[j], i, 1] = t3 - a3
+        if i >= 0:
+            cmp = i + 1
             for j in range(act - 1, -1, -1):
                 if E[j] > cap:
-                    c_ = idx[j]
-                    obj[c_] = _final_objective(E[j], STATUS_STOPPED, cmp, n, bound)
-                    status[c_] = STATUS_STOPPED
-                    compared[c_] = cmp
+                    _finish(idx, j, np.int64(STATUS_STOPPED), E, cmp, n, bound, obj, status,
+                            compared, replay, out, i + 1)
                     act = retire_lane(P, X, U, A, S, E, idx, j, act)
             if act == 0:
                 break
         if k == n_total - 1:
             break
-        advance_sample(rhs, P, c, X, U, A, S, W, padded_lanes(act), substeps, k % REANCHOR == 0)
+        advance_sample(kind, P, c, X, U, A, S, W, padded_lanes(act), substeps,
+                       (k - k_start) % REANCHOR == 0)
         for j in range(act - 1, -1, -1):
-            code = S[j]
-            if code != STATUS_OK:
-                c_ = idx[j]
-                obj[c_] = _final_objective(E[j], code, cmp, n, bound)
-                status[c_] = code
-                compared[c_] = cmp
+            if S[j] != STATUS_OK:
+                _finish(idx, j, S[j], E, cmp, n, bound, obj, status, compared, replay, out, i + 1)
                 act = retire_lane(P, X, U, A, S, E, idx, j, act)
         if act == 0:
             break
     for j in range(act):
-        c_ = idx[j]
-        obj[c_] = E[j]
-        status[c_] = STATUS_OK
-        compared[c_] = cmp
+        _finish(idx, j, np.int64(STATUS_OK), E, cmp, n, bound, obj, status, compared, replay,
+                out, n)
 
 
 # ----------------------------------------------------------------------------
@@ -418,6 +491,7 @@ def simulate_batch(
     continuous_output=False,
     cap=None,
     plant=None,
+    plant_parameters=None,
 ):
     """Simulate the logged closed-loop experiment for a population of candidates.
 
@@ -453,6 +527,10 @@ def simulate_batch(
     plant : plant.plants.Plant, optional
         The simulated plant (default :data:`plant.plants.RIGID`; e.g. a
         :class:`plant.plants.FlexibleJoints`).
+    plant_parameters : dict, optional
+        Per-candidate plant parameters beyond f, as keyword arguments of the
+        plant's ``lane_parameters`` (e.g. ``friction`` (m, 8), or ``joints``
+        (m, 6) of a flexible plant).
 
     Returns
     -------
@@ -481,14 +559,14 @@ def simulate_batch(
     obj = np.empty(m)
     status = np.empty(m, dtype=np.int64)
     compared = np.empty(m, dtype=np.int64)
-    Pall = plant.lane_parameters(F, log.rig)
+    Pall = plant.lane_parameters(F, log.rig, **(plant_parameters or {}))
     x0 = plant.initial_state(inputs.constants)
 
     def chunk(lo, hi):
-        _experiment_chunk(plant.rhs, Pall, inputs.constants, x0, plant.encoder_row,
-                          inputs.ref_counts, e_log, inputs.start_index, substeps,
-                          bool(quantize), bound, cap, err, bool(errors),
-                          bool(continuous_output), obj, status, compared, lo, hi)
+        _log_chunk(plant.kind, new_lanes(Pall, lo, hi, x0), inputs.constants, plant.encoder_row,
+                   inputs.ref_counts, e_log, inputs.start_index, 0, substeps, False,
+                   bool(quantize), 0.0, bound, cap, err, bool(errors), bool(continuous_output),
+                   obj, status, compared, hi - lo)
 
     run_chunks(chunk, m, workers)
     if errors and quantize and not continuous_output:
@@ -527,7 +605,7 @@ def output_error(log, F, *, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None)
 
 
 def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bound=None,
-                        plant=None):
+                        plant=None, plant_parameters=None):
     """Simulate the logged P-control experiment for one parameter vector.
 
     Parameters
@@ -545,6 +623,9 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
         Divergence bound on abs(e) in pulses (default :func:`default_bound`).
     plant : plant.plants.Plant, optional
         Default :data:`plant.plants.RIGID`.
+    plant_parameters : dict, optional
+        Plant parameters beyond f (see :func:`simulate_batch`), for this one
+        candidate.
 
     Returns
     -------
@@ -562,8 +643,9 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
     f = np.asarray(f, dtype=np.float64)
     if f.shape != (9,):
         raise ValueError(f"f must have shape (9,) (f1..f9), got {f.shape}")
+    extra = {k: np.asarray(v, dtype=float)[None] for k, v in (plant_parameters or {}).items()}
     sim = simulate_batch(log, f[None], substeps=substeps, quantize=quantize, bound=bound,
-                         workers=1, plant=plant)
+                         workers=1, plant=plant, plant_parameters=extra)
     st = int(sim.status[0])
     if st != STATUS_OK:
         k = int(log.start_index) + int(sim.n_compared[0])
@@ -578,17 +660,17 @@ def _dummy_problem():
     """A three-sample problem in the kernels' exact argument types (warm-up)."""
     c = RigConstants(1e-3, (1.0, 1.0), (1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0),
                      (0.0, 0.0), (1.0, 1.0), 9.81, (0.0, 0.0), (0.0, 0.0))
-    Pall = np.ones((9, 1))
+    Pall = np.ones((RIGID.n_parameters, 1))
     return c, Pall, np.zeros((3, 2)), np.zeros((3, 2))
 
 
 def _warm_arguments():
-    """Arguments of :func:`_experiment_chunk` on the three-sample dummy problem."""
+    """Arguments of :func:`_log_chunk` on the three-sample dummy problem."""
     c, Pall, ref, e_log = _dummy_problem()
-    return (RIGID.rhs, Pall, c, RIGID.initial_state(c), RIGID.encoder_row, ref, e_log, 0, 1,
-            True, 100.0, np.inf, np.zeros((1, 3, 2)), True, False, np.empty(1),
-            np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64), 0, 1)
+    return (RIGID.kind, new_lanes(Pall, 0, 1, RIGID.initial_state(c)), c, RIGID.encoder_row,
+            ref, e_log, 0, 0, 1, False, True, 0.0, 100.0, np.inf, np.zeros((1, 3, 2)), True,
+            False, np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64), 1)
 
 
 def _warm():
-    _experiment_chunk(*_warm_arguments())
+    _log_chunk(*_warm_arguments())

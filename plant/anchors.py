@@ -1,0 +1,97 @@
+"""Trigonometric anchors: sin/cos of the link angles by angle addition.
+
+The stages of the core (:mod:`plant.core`) take sin/cos of the link angles by
+angle addition from the sample's start angles (the *anchors*: q2, sin q2,
+cos q2, q3, sin q3, cos q3, rows of an array ``A`` of shape (6, lanes)), with
+the Taylor series of the small offset (exact to rounding for offsets up to
+:data:`SINCOS_RANGE`).  The anchors' own sin/cos come from libm every
+:data:`REANCHOR` samples and by angle addition in between (libm took a
+quarter of the kernel's time; the rounding drift of the recurrence over
+:data:`REANCHOR` samples stays at a few 1e-16).
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+
+__all__ = ["SINCOS_RANGE", "REANCHOR", "A_Q2", "A_S2", "A_C2", "A_Q3", "A_S3", "A_C3",
+           "N_ANCHOR_ROWS", "sincos_offset", "update_anchors"]
+
+#: Largest angle change (rad) from the anchor for which the stages take
+#: sin/cos by angle addition; beyond it (a lane moving > 50 rad/s) libm.
+SINCOS_RANGE = 0.05
+#: Samples between libm evaluations of the anchors' sin/cos.
+REANCHOR = 16
+
+# Rows of the anchor array A.
+A_Q2, A_S2, A_C2, A_Q3, A_S3, A_C3 = 0, 1, 2, 3, 4, 5
+N_ANCHOR_ROWS = 6
+
+# Helpers compiled into the kernels that call them (whose cache holds their code):
+# not cached on their own, which saves a cache file and its write per helper.
+_jit = numba.njit(nogil=True, error_model="numpy")
+#: Small helpers inlined in numba IR into their callers: they compile with
+#: the caller instead of as separate functions (each costs ~0.15 s to compile).
+_inline = numba.njit(nogil=True, error_model="numpy", inline="always")
+
+
+@_inline
+def sincos_offset(d, sb, cb):
+    """sin and cos of ``qb + d`` from ``sb = sin qb`` and ``cb = cos qb``.
+
+    Angle addition with the Taylor series of sin d and cos d (Horner forms,
+    multiplications only): exact to rounding for ``abs(d) <= SINCOS_RANGE``
+    (truncation < 1e-17).
+
+    Parameters
+    ----------
+    d, sb, cb : float
+        Offset (rad), sine and cosine of the anchor angle.
+
+    Returns
+    -------
+    (float, float)
+        sin(qb + d), cos(qb + d).
+    """
+    d2 = d * d
+    sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))))
+    cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0)
+                                                       * (1.0 - d2 * (1.0 / 56.0))))
+    return sb * cd + cb * sd, cb * cd - sb * sd
+
+
+@_jit
+def update_anchors(X, A, n, reanchor):
+    """Move the anchors of lanes ``0..n-1`` to the sample's start angles (rows 0, 1 of X).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n_x, lanes)
+        State at the sample's start (rows 0, 1: q2, q3).
+    A : ndarray, shape (6, lanes)
+        Anchors, updated in place.
+    n : int
+        Lanes.
+    reanchor : bool
+        Take sin/cos from libm (else by angle addition from the old anchors).
+    """
+    far = 0
+    if not reanchor:
+        for j in range(n):
+            dq2 = X[0, j] - A[A_Q2, j]
+            dq3 = X[1, j] - A[A_Q3, j]
+            far += not (abs(dq2) <= SINCOS_RANGE and abs(dq3) <= SINCOS_RANGE)
+            A[A_S2, j], A[A_C2, j] = sincos_offset(dq2, A[A_S2, j], A[A_C2, j])
+            A[A_S3, j], A[A_C3, j] = sincos_offset(dq3, A[A_S3, j], A[A_C3, j])
+    if reanchor or far:
+        for j in range(n):
+            if reanchor or not (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
+                                and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE):
+                A[A_S2, j] = math.sin(X[0, j])
+                A[A_C2, j] = math.cos(X[0, j])
+                A[A_S3, j] = math.sin(X[1, j])
+                A[A_C3, j] = math.cos(X[1, j])
+    for j in range(n):
+        A[A_Q2, j] = X[0, j]
+        A[A_Q3, j] = X[1, j]
