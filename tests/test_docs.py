@@ -143,3 +143,23 @@ def test_sphinx_nitpicky_build_has_no_warnings(tmp_path):
     assert proc.returncode == 0, proc.stderr[-5000:]
     assert "WARNING" not in proc.stderr, proc.stderr[-5000:]
     assert (out / "index.html").is_file() and (out / "api.html").is_file()
+
+
+def test_make_figures_script_is_idempotent(tmp_path):
+    """docs/make_figures.py (the source of the quoted figures) runs and can be rerun."""
+    import json
+
+    env = dict(__import__("os").environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg")
+    cmd = [sys.executable, str(DOCS / "make_figures.py"), "--quick", "--sections", "simulator",
+           "--out", str(tmp_path)]
+    for _ in range(2):
+        proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    data = json.loads((tmp_path / "figures.json").read_text())
+    assert data["run"]["sections"] == ["simulator"] and data["run"]["quick"] is True
+    sim = data["simulator"]["puma560_paper_rigid"]
+    assert 0 <= sim["identical_pct"] <= sim["within_1_pulse_pct"] <= 100
+    bad = subprocess.run([sys.executable, str(DOCS / "make_figures.py"), "--sections", "nope"],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "unknown section" in bad.stderr
