@@ -20,18 +20,23 @@ beside the paper's numbers.
 Run from the repository root (a few minutes on 2 cores)::
 
     python examples/alteration_study.py
-    python examples/alteration_study.py --seeds 10 --validate ../shared/data/puma560_validation_rigid.csv
+    python examples/alteration_study.py --truth tests/data/puma560_paper_rigid.truth.json \
+        --validate tests/data/puma560_validation_rigid.csv
+    python examples/alteration_study.py --quick      # a smoke run (seconds)
 
-The truth (``STEM.truth.json``, only present for the emulated development
-logs) is looked for next to the log, in ``$PUMA_DATA_DIR`` and in
-``../shared/data``; ``--truth PATH`` names it explicitly.  The library itself
-never reads truth files: only this study compares with them.
+Without a truth the study reports the spread alone.  The truth
+(``STEM.truth.json``, only present for the emulated development logs, which a
+clone of the repository has in ``tests/data``) is taken from ``--truth PATH``,
+else looked for next to the log and in ``$PUMA_DATA_DIR``.  The library itself
+never reads truth files: only this study compares with them.  A bad log,
+truth file or option ends with one line ``error: ...`` and exit status 1.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -40,9 +45,6 @@ import numpy as np
 import identification
 import plant
 from identification.result import write_json_atomic
-
-REPO = Path(__file__).resolve().parents[1]
-
 
 def parse_args(argv=None):
     """Command-line options of the study."""
@@ -57,9 +59,21 @@ def parse_args(argv=None):
     p.add_argument("--validate", type=Path, metavar="LOG2.csv",
                    help="also give each run's output error on this second log")
     p.add_argument("--workers", type=int, help="simulation threads (default: all cores)")
+    p.add_argument("--generations", type=int, metavar="N",
+                   help="GA generations per run (default: the paper's 40)")
+    p.add_argument("--quick", action="store_true",
+                   help="smoke run: 2 seeds, 2 GA generations, one refinement start")
     p.add_argument("--out", type=Path, default=Path("out") / "alteration",
                    help="directory of alteration.json")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.quick:
+        args.seeds = min(args.seeds, 2)
+        args.generations = args.generations or 2
+    if args.seeds < 1:
+        p.error(f"--seeds must be >= 1, got {args.seeds}")
+    if args.generations is not None and args.generations < 1:
+        p.error(f"--generations must be >= 1, got {args.generations}")
+    return args
 
 
 def find_truth(log_path, explicit=None):
@@ -67,9 +81,9 @@ def find_truth(log_path, explicit=None):
     if explicit is not None:
         return Path(explicit)
     stem = Path(log_path).name.rsplit(".", 1)[0]
-    dirs = [Path(log_path).parent, REPO.parent / "shared" / "data"]
+    dirs = [Path(log_path).parent]
     if os.environ.get("PUMA_DATA_DIR"):
-        dirs.insert(1, Path(os.environ["PUMA_DATA_DIR"]))
+        dirs.append(Path(os.environ["PUMA_DATA_DIR"]))
     for d in dirs:
         p = d / f"{stem}.truth.json"
         if p.is_file():
@@ -141,7 +155,15 @@ def main(argv=None):
     truth_path = find_truth(args.log, args.truth)
     f_true = None
     if truth_path is not None:
-        f_true = np.asarray(json.loads(truth_path.read_text())["f_vector"], dtype=float)
+        try:
+            f_true = np.asarray(json.loads(truth_path.read_text())["f_vector"], dtype=float)
+        except FileNotFoundError:
+            raise ValueError(f"{truth_path}: truth file not found") from None
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{truth_path}: not a truth file with an 'f_vector' "
+                             f"({type(exc).__name__}: {exc})") from None
+        if f_true.shape != (9,):
+            raise ValueError(f"{truth_path}: 'f_vector' must have 9 values")
         print(f"truth: {truth_path}")
     else:
         print("no truth file found: errors against the truth are left out")
@@ -162,12 +184,16 @@ def main(argv=None):
         report["objective_pulses2_at_truth"] = float(
             identification.OutputError(log)(f_true)[0])
 
+    ga_options = None if args.generations is None else {"n_gen": args.generations}
+    report["generations"] = args.generations or 40
     for method in args.methods:
         runs = []
+        refine_options = {"n_starts": 1} if args.quick and method != "paper" else None
         t0 = time.perf_counter()
         for seed in seeds:
             res = identification.identify(log, method=method, rng=seed, progress=False,
-                                          workers=args.workers)
+                                          workers=args.workers, ga_options=ga_options,
+                                          refine_options=refine_options)
             run = {"seed": seed, "f": [float(v) for v in res.f],
                    "objective_pulses2": float(res.objective),
                    "initial_best_pulses2": float(res.history["best"][0]),
@@ -190,5 +216,15 @@ def main(argv=None):
     return report
 
 
+def cli(argv=None):
+    """Run :func:`main`; a bad log, file or option ends with one line on stderr, exit 1."""
+    try:
+        main(argv)
+    except (plant.LogError, ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

@@ -2,27 +2,33 @@
 
 The tutorial script of ``docs/tutorial_identification.rst``.  It
 
-1. loads the bundled example log (the paper's experiment, rigid joints), or
-   the log given with ``--log``;
+1. loads the bundled example log (the paper's experiment, rigid joints,
+   ``plant.load_example()``), or the log given with ``--log``;
 2. identifies the base parameters f1..f9 with the default method (the paper's
    multi-population GA, then prediction-error refinement) and prints them;
 3. saves the convergence plot (``convergence.png``) and the logged vs
    simulated tracking errors of the identified model
    (``tracking_errors.png``, cf. the paper's figures 12-15);
 4. with ``--validate LOG2.csv``, cross-validates the identified f on a second
-   log that was not used for identifying (``tracking_errors_validation.png``).
+   log of the same robot that was not used for identifying
+   (``tracking_errors_validation.png``).  A clone of the repository has one:
+   ``tests/data/puma560_validation_rigid.csv`` (another trajectory of the
+   robot of the bundled log).
 
-Run from the repository root::
+It needs nothing but the installed library.  Run from the repository root::
 
     python examples/identify_paper_log.py
-    python examples/identify_paper_log.py --validate ../shared/data/puma560_validation_rigid.csv
+    python examples/identify_paper_log.py --validate tests/data/puma560_validation_rigid.csv
     python examples/identify_paper_log.py --method paper        # the paper's GA alone
+    python examples/identify_paper_log.py --quick               # a smoke run (seconds)
 
-Figures and ``result.json`` go to ``out/identify_paper_log/`` (``--out``).
+Figures and ``result.json`` go to ``out/identify_paper_log/`` (``--out``).  A
+bad log or option ends with one line ``error: ...`` and exit status 1.
 """
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -42,9 +48,16 @@ def parse_args(argv=None):
     p.add_argument("--method", choices=identification.METHODS,
                    default=identification.DEFAULT_METHOD)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--generations", type=int, metavar="N",
+                   help="GA generations (default: the paper's 40)")
+    p.add_argument("--quick", action="store_true",
+                   help="smoke run: 2 GA generations and one refinement start")
     p.add_argument("--out", type=Path, default=Path("out") / "identify_paper_log",
                    help="directory of the figures and result.json")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.generations is not None and args.generations < 1:
+        p.error(f"--generations must be >= 1, got {args.generations}")
+    return args
 
 
 def main(argv=None):
@@ -58,7 +71,11 @@ def main(argv=None):
           f"T = {log.t[-1]:.2f} s")
 
     # 2. identify (a tqdm bar shows the GA's generations)
-    res = identification.identify(log, method=args.method, rng=args.seed)
+    n_gen = 2 if args.quick and args.generations is None else args.generations
+    ga_options = None if n_gen is None else {"n_gen": n_gen}
+    refine_options = {"n_starts": 1} if args.quick and args.method != "paper" else None
+    res = identification.identify(log, method=args.method, rng=args.seed,
+                                  ga_options=ga_options, refine_options=refine_options)
     print(format_result_table(res, log))
     if res.refinement is not None:
         y_ga = identification.OutputError(log)(res.refinement["ga_f"])[0]
@@ -84,5 +101,15 @@ def main(argv=None):
     return res
 
 
+def cli(argv=None):
+    """Run :func:`main`; a bad log, file or option ends with one line on stderr, exit 1."""
+    try:
+        main(argv)
+    except (plant.LogError, ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

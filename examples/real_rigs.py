@@ -2,8 +2,9 @@
 
 The tutorial script of ``docs/tutorial_real_rigs.rst``.  It
 
-1. reads the error spectrum of the flexible drill log
-   (``puma560_paper_drill_flex``: 1.5 kg drill, compliant gearboxes, noisy
+1. reads the error spectrum of the flexible drill log, the package's second
+   bundled example (``plant.load_example("drill_flex")``,
+   ``puma560_paper_drill_flex``: 1.5 kg drill, compliant gearboxes, noisy
    currents), which shows the ~30 Hz mode and the lowered loop resonance, and
    takes the suggested low-pass cut-off (``spectrum.png``);
 2. identifies f1..f9 of that log unfiltered and with the suggested cut-off;
@@ -14,19 +15,29 @@ The tutorial script of ``docs/tutorial_real_rigs.rst``.  It
    the same for 0.4 and 0.8 s windows and the whole run, to show how the
    window length conditions the estimate.
 
-If the truth files are next to the logs (development data), the identified
-values are compared with them.  Run from the repository root::
+The identified mass is compared with the mass in the loaded run's sidecar
+(``payload.mass_kg``: 1.5 kg), which the window's sidecar hides.  The
+identified f of the drill log are compared with a truth only if one is given
+with ``--truth`` (a ``STEM.truth.json`` with ``f_vector``, e.g. the emulated
+log's ``tests/data/puma560_paper_drill_flex.truth.json`` in a clone of the
+repository); the example needs nothing but the installed library.  Run from
+the repository root::
 
-    python examples/real_rigs.py
-    python examples/real_rigs.py --data ../shared/data --skip-full   # payload part only
+    python examples/real_rigs.py                 # about 2 min on 2 cores
+    python examples/real_rigs.py --skip-full     # spectrum and payload part only
+    python examples/real_rigs.py --truth tests/data/puma560_paper_drill_flex.truth.json
+    python examples/real_rigs.py --quick         # a smoke run (seconds)
 
-Figures, the prior, the window log and the results go to ``out/real_rigs/``.
+Figures, the prior, the window log and ``results.json`` go to
+``out/real_rigs/``.  A bad log, truth file or option ends with one line
+``error: ...`` and exit status 1.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,29 +46,43 @@ import identification
 import plant
 from identification.diagnostics import error_spectrum
 
-DRILL = "puma560_paper_drill_flex"
 
 
 def parse_args(argv=None):
     """Command-line options of the example."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--data", type=Path,
-                   default=Path(__file__).resolve().parents[2] / "shared" / "data",
-                   help="directory of puma560_paper_drill_flex.csv (default ../shared/data)")
+    p.add_argument("--log", type=Path, default=plant.example_log_path("drill_flex"),
+                   help="the loaded, flexible run (default: the bundled drill/flex example)")
+    p.add_argument("--truth", type=Path,
+                   help="truth JSON (f_vector) of that run, to print the errors of f (optional)")
     p.add_argument("--prior-log", type=Path, default=plant.example_log_path(),
                    help="log of the unloaded robot (default: the bundled paper log)")
     p.add_argument("--window", type=float, nargs=2, default=(1.0, 1.2), metavar=("T0", "T1"))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--skip-full", action="store_true",
                    help="skip the two full identifications of the drill log (step 2)")
+    p.add_argument("--quick", action="store_true",
+                   help="smoke run: skip step 2, 2 GA generations for the prior, one window")
     p.add_argument("--out", type=Path, default=Path("out") / "real_rigs")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if not args.window[0] < args.window[1]:
+        p.error(f"--window needs T0 < T1, got {args.window[0]} {args.window[1]}")
+    return args
 
 
-def truth_f(log_path):
-    """True f from ``STEM.truth.json`` next to a log, or None (development data only)."""
-    p = Path(log_path).with_suffix("").with_suffix(".truth.json")
-    return np.asarray(json.loads(p.read_text())["f_vector"]) if p.is_file() else None
+def truth_f(path):
+    """``f_vector`` of a truth file (``STEM.truth.json``), or a one-line ValueError."""
+    path = Path(path)
+    try:
+        f = np.asarray(json.loads(path.read_text())["f_vector"], dtype=float)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: truth file not found") from None
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a truth file with an 'f_vector' "
+                         f"({type(exc).__name__}: {exc})") from None
+    if f.shape != (9,):
+        raise ValueError(f"{path}: 'f_vector' must have 9 values, got {f.size}")
+    return f
 
 
 def print_f(label, f, f_true=None):
@@ -72,10 +97,11 @@ def main(argv=None):
     """Run the tutorial; returns a dict of the results."""
     args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    drill_path = args.data / f"{DRILL}.csv"
-    drill = plant.load_log(drill_path)
-    f_drill_true = truth_f(drill_path)
-    out = {}
+    drill = plant.load_log(args.log)
+    f_drill_true = truth_f(args.truth) if args.truth is not None else None
+    mass_sidecar = drill.rig.payload_mass_kg
+    quick = dict(ga_options={"n_gen": 2}, refine_options={"n_starts": 1}) if args.quick else {}
+    out = {"log": drill.name, "truth": None if args.truth is None else str(args.truth)}
 
     # 1. the error spectrum: where is the unmodelled mode, where to cut
     spec = error_spectrum(drill)
@@ -85,7 +111,7 @@ def main(argv=None):
     out["cutoff_hz"] = cutoff
 
     # 2. identify the flexible log with and without the filter
-    if not args.skip_full:
+    if not (args.skip_full or args.quick):
         print(f"\nidentify {drill.name} (default method, seed {args.seed}):")
         print(f"  {'':<22s}" + " ".join(f"{'f' + str(i + 1):>9s}" for i in range(9)))
         if f_drill_true is not None:
@@ -96,11 +122,11 @@ def main(argv=None):
             res = identification.identify(drill, rng=args.seed, lowpass_hz=lp, progress=False,
                                           consistent=cons)
             print_f(label, res.f, f_drill_true)
-            out[f"drill_f_{label}"] = res.f
+            out[f"drill_f_{label}"] = [float(v) for v in res.f]
 
     # 3. the prior: the unloaded robot, identified on its own log
     prior_log = plant.load_log(args.prior_log)
-    prior = identification.identify(prior_log, rng=args.seed, progress=False)
+    prior = identification.identify(prior_log, rng=args.seed, progress=False, **quick)
     prior.save_json(args.out / "prior.json")
     print(f"\nprior: identified on {prior_log.name} in {prior.wall_time_s:.1f} s "
           f"-> {args.out / 'prior.json'}")
@@ -112,30 +138,49 @@ def main(argv=None):
     window = window.replace(rig=dataclasses.replace(window.rig, payload_mass_kg=None))
     csv_path = window.save(args.out / f"drill_window_{t0 * 1e3:.0f}_{t1 * 1e3:.0f}ms")
     window = plant.load_log(csv_path)
-    print(f"\nwindow {window.window_s} s of {DRILL}: {window.n_samples} samples, "
+    print(f"\nwindow {window.window_s} s of {drill.name}: {window.n_samples} samples, "
           f"sidecar payload mass {window.rig.payload_mass_kg}")
     res = identification.identify(window, payload=True, prior=prior, rng=args.seed,
                                   progress=False)
     res.save_json(args.out / "payload_result.json")
     d = res.to_dict()
-    print(f"  identified payload mass {d['payload_mass_kg']:.3f} kg (true 1.5 kg) "
+    print(f"  identified payload mass {d['payload_mass_kg']:.3f} kg (the run's sidecar: "
+          f"{mass_sidecar} kg) "
           f"in {res.wall_time_s:.2f} s (window length {t1 - t0:.1f} s)")
+    out["window_s"] = [t0, t1]
+    out["sidecar_mass_kg"] = mass_sidecar
     out["window_mass_kg"], out["window_wall_s"] = d["payload_mass_kg"], res.wall_time_s
 
     # conditioning: the same start with longer windows, and the whole run
-    print("  window length -> identified mass (kg) [wall s]:")
-    for length in (0.2, 0.4, 0.8):
-        w = drill.window(t0, t0 + length)
-        r = identification.identify(w, payload=True, prior=prior, rng=args.seed,
+    if not args.quick:
+        print("  window length -> identified mass (kg) [wall s]:")
+        out["mass_by_window_length_kg"] = {}
+        for length in (0.2, 0.4, 0.8):
+            w = drill.window(t0, t0 + length)
+            r = identification.identify(w, payload=True, prior=prior, rng=args.seed,
+                                        progress=False)
+            print(f"    {length:.1f} s: {r.payload['mass_kg']:.3f} [{r.wall_time_s:.2f}]")
+            out["mass_by_window_length_kg"][f"{length:.1f}"] = r.payload["mass_kg"]
+        r = identification.identify(drill, payload=True, prior=prior, rng=args.seed,
                                     progress=False)
-        print(f"    {length:.1f} s: {r.payload['mass_kg']:.3f} [{r.wall_time_s:.2f}]")
-    r = identification.identify(drill, payload=True, prior=prior, rng=args.seed, progress=False)
-    print(f"    whole run ({drill.t[-1]:.2f} s): {r.payload['mass_kg']:.3f} [{r.wall_time_s:.2f}]")
-    out["whole_run_mass_kg"] = r.payload["mass_kg"]
+        print(f"    whole run ({drill.t[-1]:.2f} s): {r.payload['mass_kg']:.3f} "
+              f"[{r.wall_time_s:.2f}]")
+        out["whole_run_mass_kg"] = r.payload["mass_kg"]
     res.plot_tracking_errors(window).savefig(args.out / "payload_window_errors.png", dpi=120)
+    (args.out / "results.json").write_text(json.dumps(out, indent=2))
     print(f"figures and results in {args.out}/")
     return out
 
 
+def cli(argv=None):
+    """Run :func:`main`; a bad log, file or option ends with one line on stderr, exit 1."""
+    try:
+        main(argv)
+    except (plant.LogError, ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

@@ -1,10 +1,10 @@
 """Shared pytest fixtures: the development logs and a factory for corrupted copies.
 
-The development logs live in ``../shared/data`` next to the repository
-(``Path(__file__).parents[1].parent / "shared" / "data"``). Set the
-environment variable ``PUMA_DATA_DIR`` to use another directory; it takes
-precedence over the default. Tests that need the logs are skipped when the
-directory does not exist.
+The development logs (CSV, JSON sidecar and truth file of each) are part of
+the repository, in ``tests/data`` next to this file, so the suite runs on a
+fresh clone with nothing beside it. Set the environment variable
+``PUMA_DATA_DIR`` to use another directory; it takes precedence over the
+default. A data directory without the logs is a test *failure*, never a skip.
 
 Only tests may read the ``*.truth.json`` files (fixture ``truth``); library
 code never does.
@@ -24,7 +24,7 @@ VALIDATION_RIGID = "puma560_validation_rigid"
 DRILL_FLEX = "puma560_paper_drill_flex"
 DEV_STEMS = (PAPER_RIGID, VALIDATION_RIGID, DRILL_FLEX)
 
-_DEFAULT_DATA_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+_DEFAULT_DATA_DIR = Path(__file__).resolve().parent / "data"
 
 
 def _data_dir() -> Path:
@@ -34,13 +34,13 @@ def _data_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
-    """Directory of the development logs (``PUMA_DATA_DIR`` or ``../shared/data``)."""
+    """Directory of the development logs (``PUMA_DATA_DIR`` or ``tests/data``)."""
     d = _data_dir()
-    if not (d / f"{PAPER_RIGID}.csv").is_file():
-        msg = f"development logs not found in {d} (set PUMA_DATA_DIR)"
-        if os.environ.get("CI"):  # CI has shared/ beside the clone: never skip silently
-            pytest.fail(msg)
-        pytest.skip(msg)
+    missing = [f"{stem}{ext}" for stem in DEV_STEMS
+               for ext in (".csv", ".json", ".truth.json") if not (d / f"{stem}{ext}").is_file()]
+    if missing:
+        pytest.fail(f"development logs missing in {d}: {', '.join(missing)}"
+                    f" (they ship in tests/data; PUMA_DATA_DIR overrides)", pytrace=False)
     return d
 
 

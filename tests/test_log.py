@@ -156,6 +156,33 @@ def test_example_log(paper_rigid_path):
     ex = load_example()
     assert ex == load_log(paper_rigid_path)
     assert ex.path == p
+    assert example_log_path("paper_rigid") == p and load_example("paper_rigid") == ex
+
+
+def test_example_drill_flex(drill_flex_path):
+    """The second bundled example is the drill/flex development log, without its truth."""
+    p = example_log_path("drill_flex")
+    assert p.is_file() and p.name == "puma560_paper_drill_flex.csv" and p.parent == example_log_path().parent
+    assert p.with_suffix(".json").is_file()
+    assert not p.with_name("puma560_paper_drill_flex.truth.json").exists()
+    assert p.read_bytes() == drill_flex_path.read_bytes()
+    ex = load_example("drill_flex")
+    assert ex == load_log(drill_flex_path) and ex.path == p
+    assert ex.rig.payload_mass_kg > 0
+
+
+@pytest.mark.parametrize("name", ["", "drill", "PAPER_RIGID", None, 3])
+def test_example_unknown_name(name):
+    with pytest.raises(ValueError, match="paper_rigid.*drill_flex") as exc:
+        example_log_path(name)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(ValueError, match="unknown example"):
+        load_example(name)
+
+
+def test_no_truth_files_in_package():
+    """The package data never ships a truth file (the library never reads one)."""
+    assert not list(example_log_path().parent.glob("*truth*"))
 
 
 def test_replace(paper_log):

@@ -6,9 +6,6 @@ terms that make up a value (absolute below magnitude 1).
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -28,16 +25,15 @@ F_RANGES = np.array(
         [-2.7, 11.25],
     ]
 )
-DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data"
 RTOL = 1e-12
 N_F = 64  # random parameter vectors
 N_S = 4  # random states per parameter vector (N_F * N_S = 256 states)
 
 
-def _truth_f():
-    path = DATA_DIR / "puma560_paper_rigid.truth.json"
-    assert path.is_file(), f"development data missing: {path}"
-    return np.asarray(json.loads(path.read_text())["f_vector"], dtype=float)
+@pytest.fixture(scope="module")
+def f_true(truth):
+    """True f1..f9 of ``puma560_paper_rigid`` (its truth file, conftest's ``truth``)."""
+    return np.asarray(truth("puma560_paper_rigid")["f_vector"], dtype=float)
 
 
 @pytest.fixture(scope="module")
@@ -127,8 +123,8 @@ def test_forward_dynamics_equals_casadi(base):
         n += 1
 
 
-def test_forward_dynamics_batch_matches_single():
-    f = _truth_f()
+def test_forward_dynamics_batch_matches_single(f_true):
+    f = f_true
     rng = np.random.default_rng(3)
     q, qd, tau = (rng.uniform(-3, 3, (50, 2)) for _ in range(3))
     batch = model.forward_dynamics(f, q, qd, tau)
@@ -153,8 +149,8 @@ def test_regressor_times_f_is_inverse_dynamics(samples):
         _close(Y @ f, model.inverse_dynamics(f, q, qd, qdd, grav), scale)
 
 
-def test_inertia_symmetric_positive_definite_for_true_f(base):
-    f = _truth_f()
+def test_inertia_symmetric_positive_definite_for_true_f(base, f_true):
+    f = f_true
     assert model.is_positive_definite(f)
     rng = np.random.default_rng(11)
     q = np.column_stack([rng.uniform(-np.pi, np.pi, 400), np.linspace(-np.pi, np.pi, 400)])
@@ -180,8 +176,8 @@ def test_christoffel_h_matches_numba(samples):
             _close(C @ qd[k], h[k], np.abs(f).max() * np.abs(qd[k]).max() ** 2)
 
 
-def test_non_pd_detected_and_forward_dynamics_raises():
-    f = _truth_f().copy()
+def test_non_pd_detected_and_forward_dynamics_raises(f_true):
+    f = f_true.copy()
     f[0], f[1], f[6] = 0.3, 2.3, 2.23  # f2 > f1: D12^2 > D11 D22
     assert not model.is_positive_definite(f)
     assert model.min_inertia_eigenvalue(f, 0.0) < 0
@@ -189,7 +185,7 @@ def test_non_pd_detected_and_forward_dynamics_raises():
         model.forward_dynamics(f, [0.1, 0.2], [0.0, 0.0], [1.0, 1.0])
     with pytest.raises(ValueError, match="positive definite"):
         model.forward_dynamics(f, np.zeros((3, 2)), np.zeros((3, 2)), np.ones((3, 2)))
-    g = _truth_f().copy()
+    g = f_true.copy()
     g[0] = -0.1  # f1 = D22 <= 0
     with pytest.raises(ValueError, match="positive definite"):
         model.forward_dynamics(g, [0.1, 0.2], [0.0, 0.0], [1.0, 1.0])
@@ -198,8 +194,8 @@ def test_non_pd_detected_and_forward_dynamics_raises():
 # ---------------------------------------------------------------------------
 # Shapes of the public wrappers
 # ---------------------------------------------------------------------------
-def test_single_and_batch_shapes():
-    f = _truth_f()
+def test_single_and_batch_shapes(f_true):
+    f = f_true
     rng = np.random.default_rng(5)
     q, qd, qdd = (rng.uniform(-2, 2, (7, 2)) for _ in range(3))
     assert model.inertia_matrix(f, q[0]).shape == (2, 2)
@@ -229,8 +225,8 @@ BAD_STATES = [np.zeros(3), np.zeros((4, 3)), np.zeros((2, 2, 2)), np.float64(0.0
 
 
 @pytest.mark.parametrize("bad", BAD_STATES, ids=lambda a: str(np.shape(a)))
-def test_bad_state_shapes_raise(bad):
-    f = _truth_f()
+def test_bad_state_shapes_raise(bad, f_true):
+    f = f_true
     ok = np.zeros(2)
     calls = [
         lambda: model.inertia_matrix(f, bad),
@@ -262,7 +258,7 @@ def test_bad_f_shape_raises(bad_f):
             call()
 
 
-def test_mismatched_batch_lengths_raise():
-    f = _truth_f()
+def test_mismatched_batch_lengths_raise(f_true):
+    f = f_true
     with pytest.raises(ValueError):
         model.inverse_dynamics(f, np.zeros((3, 2)), np.zeros((4, 2)), np.zeros((3, 2)))

@@ -1,0 +1,274 @@
+"""Regenerate the figures quoted in README.md and docs/*.rst from actual runs.
+
+One script for every number and image the README and the documentation
+quote.  It runs the library, the examples and the benchmarks on the bundled
+logs (and, for the comparisons with the true parameters, on the truth files
+of the emulated development logs in ``tests/data``) and writes
+
+* ``docs/figures.json``: every figure, per section, with the machine, the
+  commit and the date of the run (written atomically: a failed run leaves
+  the previous file);
+* ``docs/images/*.png``: the images the pages show
+  (``real_rigs_spectrum.png``, ``scaling.png``, ``optimisers_convergence.png``);
+* ``docs/figures/``: the raw outputs of the examples and benchmarks it ran
+  (JSON results, printed tables).
+
+Sections (``--sections``, default all; several minutes on 2 cores, most of
+it in ``optimisers``):
+
+``simulator``
+    How exactly the simulator reproduces the rigid development logs with
+    the true f (identical samples, within +-1 pulse) at the default substeps.
+``identification``
+    ``identify`` on the bundled log, default method and ``method="paper"``,
+    seed 0: f, errors against the truth, output error, simulations, wall
+    time, cross-validation on the validation log; the CLI's ``--example``
+    wall time.
+``alteration``
+    ``examples/alteration_study.py``: 10 seeds per method, with the truth
+    and the validation log.
+``ctc``
+    ``examples/ctc_vs_p.py`` with the true robots (``--truth``,
+    ``--drill-truth``): P vs CTC max |e|, robustness, flexible robot.
+``real_rigs``
+    ``examples/real_rigs.py`` with the truth: spectrum, cut-off, drill-log f
+    errors, on-line payload mass and wall time; the spectrum image.
+``speed``
+    ``benchmarks/bench_simulate.py``: cost per simulation, scaling, full
+    identification times; the scaling image.
+``optimisers``
+    ``benchmarks/bench_optimisers.py``: GA, GA + refinement, DE, CMA-ES on one
+    budget; the convergence image.
+
+Run from the repository root (kernels compiled once before; numba threads as
+for the quoted figures)::
+
+    NUMBA_NUM_THREADS=2 python docs/make_figures.py
+    python docs/make_figures.py --sections identification,ctc
+    python docs/make_figures.py --quick            # smoke run of the script itself
+
+``--quick`` runs every section with small settings (seconds to a minute);
+its figures are not the quoted ones, so it writes to ``--out`` (default
+``out/figures``) unless ``--out docs`` is given explicitly.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO / "tests" / "data"
+SECTIONS = ("simulator", "identification", "alteration", "ctc", "real_rigs", "speed",
+            "optimisers")
+WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
+
+
+def _truth(stem):
+    return np.asarray(json.loads((DATA / f"{stem}.truth.json").read_text())["f_vector"])
+
+
+def _rel_pct(f, f_true):
+    return [float(v) for v in 100.0 * (np.asarray(f) - f_true) / np.abs(f_true)]
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO)] + [p for p in
+                                         env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env["MPLBACKEND"] = "Agg"
+    env["PUMA_DATA_DIR"] = str(DATA)  # the benchmarks read the truth files from here
+    return env
+
+
+def _run(args, raw_dir, name, timeout=3600):
+    """Run a script of the repository; its stdout is kept as ``raw_dir/name.txt``."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, *map(str, args)], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=timeout)
+    (raw_dir / f"{name}.txt").write_text(proc.stdout)
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-1:] or ["(no message)"]
+        raise RuntimeError(f"{' '.join(map(str, args))} exited {proc.returncode}: {tail[0]}")
+    return proc.stdout, time.perf_counter() - t0
+
+
+# ---------------------------------------------------------------------------- sections
+def simulator(ctx):
+    import plant
+
+    out = {"substeps": plant.DEFAULT_SUBSTEPS}
+    for stem in ("puma560_paper_rigid", "puma560_validation_rigid"):
+        log = plant.load_log(DATA / f"{stem}.csv")
+        e = plant.simulate_experiment(log, _truth(stem))
+        d = np.abs(e - log.e_pulses)
+        out[stem] = {"identical_pct": float(100 * np.mean(np.all(d == 0, axis=1))),
+                     "within_1_pulse_pct": float(100 * np.mean(np.all(d <= 1, axis=1))),
+                     "max_abs_diff_pulses": int(d.max())}
+    return out
+
+
+def identification(ctx):
+    import identification as ident
+    import plant
+
+    log = plant.load_example()
+    f_true = _truth("puma560_paper_rigid")
+    val = plant.load_log(DATA / "puma560_validation_rigid.csv")
+    out = {"log": log.name}
+    for method in ident.METHODS:
+        res = ident.identify(log, method=method, rng=0, progress=False, **ctx["quick"])
+        err = _rel_pct(res.f, f_true)
+        e_val = plant.simulate_experiment(val, res.f)
+        out[method] = {
+            "f": [float(v) for v in res.f], "error_pct": err,
+            "max_abs_error_well_excited_pct": max(abs(err[i]) for i in WELL_EXCITED),
+            "objective_pulses2": float(res.objective), "evaluations": int(res.evaluations),
+            "wall_time_s": float(res.wall_time_s),
+            "ga_final_best_pulses2": float(res.history["best"][-1]),
+            "validation_output_error_pulses2": float(np.sum((val.e_pulses - e_val) ** 2)),
+            "validation_max_abs_diff_pulses": int(np.abs(val.e_pulses - e_val).max()),
+        }
+    if not ctx["quick"]:
+        args = ["-m", "identification", "--example", "--quiet",
+                "--output", ctx["raw"] / "cli_example.json"]
+        _, wall = _run(args, ctx["raw"], "cli_example")
+        out["cli_example_wall_s_incl_start"] = wall
+    return out
+
+
+def alteration(ctx):
+    q = ["--quick"] if ctx["quick"] else ["--seeds", "10"]
+    _run(["examples/alteration_study.py", *q, "--truth", DATA / "puma560_paper_rigid.truth.json",
+          "--validate", DATA / "puma560_validation_rigid.csv", "--out", ctx["raw"] / "alteration"],
+         ctx["raw"], "alteration_study")
+    rep = json.loads((ctx["raw"] / "alteration" / "alteration.json").read_text())
+    out = {"seeds": rep["seeds"], "validation_pulses2_at_truth": rep.get("validation_pulses2_at_truth")}
+    for method, m in rep["methods"].items():
+        s = m["statistics"]
+        runs = m["runs"]
+        out[method] = {
+            "alteration_pct": s["alteration_pct"], "error_of_mean_pct": s.get("error_of_mean_pct"),
+            "max_abs_error_pct": s.get("max_abs_error_pct"),
+            "objective_pulses2_range": [min(r["objective_pulses2"] for r in runs),
+                                        max(r["objective_pulses2"] for r in runs)],
+            "wall_time_s_mean": float(np.mean([r["wall_time_s"] for r in runs])),
+        }
+    return out
+
+
+def ctc(ctx):
+    q = ["--quick"] if ctx["quick"] else []
+    _run(["examples/ctc_vs_p.py", *q, "--truth", DATA / "puma560_paper_rigid.truth.json",
+          "--drill-truth", DATA / "puma560_paper_drill_flex.truth.json",
+          "--out", ctx["raw"] / "ctc_vs_p"], ctx["raw"], "ctc_vs_p")
+    res = json.loads((ctx["raw"] / "ctc_vs_p" / "results.json").read_text())
+    return {"rigid": {r["name"]: r for r in res["rigid"]}, "robustness": res["robustness"],
+            "flexible": {r["name"]: r for r in res["flexible"]["rows"]},
+            "substeps": res["substeps"], "gains": res["gains"]}
+
+
+def real_rigs(ctx):
+    q = ["--quick"] if ctx["quick"] else []
+    _run(["examples/real_rigs.py", *q, "--truth", DATA / "puma560_paper_drill_flex.truth.json",
+          "--out", ctx["raw"] / "real_rigs"], ctx["raw"], "real_rigs")
+    res = json.loads((ctx["raw"] / "real_rigs" / "results.json").read_text())
+    f_true = _truth("puma560_paper_drill_flex")
+    for key in [k for k in res if k.startswith("drill_f_")]:
+        res[key.replace("drill_f_", "drill_error_pct_")] = _rel_pct(res[key], f_true)
+    shutil.copyfile(ctx["raw"] / "real_rigs" / "spectrum.png", ctx["images"] / "real_rigs_spectrum.png")
+    return res
+
+
+def speed(ctx):
+    q = ["--quick"] if ctx["quick"] else []
+    text, wall = _run(["benchmarks/bench_simulate.py", *q, "--plot", ctx["images"] / "scaling.png"],
+                      ctx["raw"], "bench_simulate")
+    return {"printed": text.splitlines(), "wall_s": wall}
+
+
+def optimisers(ctx):
+    q = ["--seeds", "0", "--methods", "paper", "ga+pem"] if ctx["quick"] else []
+    _run(["benchmarks/bench_optimisers.py", *q, "--out", ctx["raw"] / "bench_optimisers.json",
+          "--plot", ctx["images"] / "optimisers_convergence.png"], ctx["raw"], "bench_optimisers")
+    return json.loads((ctx["raw"] / "bench_optimisers.json").read_text())
+
+
+# -------------------------------------------------------------------------------- main
+def _commit():
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def _write_json_atomic(path, data):
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(data, fh, indent=2, default=float)
+        fh.write("\n")
+    os.replace(tmp, path)
+
+
+def main(argv=None):
+    """Run the sections; returns the dict written to ``figures.json``."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sections", default=",".join(SECTIONS),
+                   help=f"comma-separated subset of {', '.join(SECTIONS)}")
+    p.add_argument("--quick", action="store_true", help="small settings (smoke run)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="directory of figures.json, images/ and figures/ (default: docs, "
+                        "or out/figures with --quick)")
+    args = p.parse_args(argv)
+    sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    unknown = [s for s in sections if s not in SECTIONS]
+    if unknown or not sections:
+        p.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    out = args.out or (REPO / "out" / "figures" if args.quick else REPO / "docs")
+    ctx = {"quick": dict(ga_options={"n_gen": 2}, refine_options={"n_starts": 1}) if args.quick else {},
+           "images": out / "images", "raw": out / "figures"}
+    for d in (out, ctx["images"], ctx["raw"]):
+        d.mkdir(parents=True, exist_ok=True)
+
+    path = out / "figures.json"
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    data["run"] = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
+                   "commit": _commit(), "python": platform.python_version(),
+                   "machine": platform.platform(), "cpu_count": os.cpu_count(),
+                   "numba_num_threads": os.environ.get("NUMBA_NUM_THREADS"),
+                   "quick": args.quick, "sections": sections}
+    funcs = {name: globals()[name] for name in SECTIONS}
+    for name in sections:
+        t0 = time.perf_counter()
+        print(f"[{name}] ...", flush=True)
+        data[name] = funcs[name](ctx)
+        data[name + "_section_wall_s"] = time.perf_counter() - t0
+        print(f"[{name}] done in {time.perf_counter() - t0:.1f} s", flush=True)
+        _write_json_atomic(path, data)  # keep what is done if a later section fails
+    print(f"wrote {path} and images in {ctx['images']}")
+    return data
+
+
+def cli(argv=None):
+    """Run :func:`main`; a failing run ends with one line on stderr, exit 1."""
+    try:
+        main(argv)
+    except (RuntimeError, ValueError, OSError, subprocess.TimeoutExpired) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
