@@ -27,6 +27,7 @@ from .plotting import plot_tracking_errors
 from .replay import measured_counts, prediction_errors
 from .response import ClosedLoopResponse
 from .rig import F_NAMES, F_UNITS, Rig, RigConstants, rig_constants
+from .synthetic import emulate_log
 from .simulate import (
     DEFAULT_SUBSTEPS,
     ExperimentSimulation,
@@ -80,6 +81,7 @@ __all__ = [
     "plot_tracking_errors",
     "simulate_closed_loop",
     "ClosedLoopResponse",
+    "emulate_log",
     "warm_up",
     "kernels_cached",
 ]
