@@ -77,7 +77,7 @@ import numpy as np
 import plant
 from identification import OutputError, identify
 from identification.result import write_json_atomic
-from plant.simulate import warm_up
+from plant import warm_up
 
 LOG = "puma560_paper_rigid"
 VALIDATION = "puma560_validation_rigid"
@@ -104,7 +104,7 @@ LABELS = {
 
 def _data_dir() -> Path:
     env = os.environ.get("PUMA_DATA_DIR")
-    return Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    return Path(env) if env else Path(__file__).resolve().parents[1] / "tests" / "data"
 
 
 class Recorder:
@@ -153,9 +153,9 @@ def run_paper(log, bounds, seed, workers):
     """The paper's GA, ``identify(method='paper')``."""
     r = identify(log, method="paper", rng=seed, workers=workers, progress=False)
     h = r.history
-    curve = list(zip(np.asarray(h["evaluations"]).tolist(),
+    curve = list(zip(np.asarray(h["nfev"]).tolist(),
                      np.asarray(h["best_so_far"]).tolist()))
-    return dict(f=np.asarray(r.f), objective=float(r.objective), evaluations=int(r.evaluations),
+    return dict(f=np.asarray(r.f), objective=float(r.fun), evaluations=int(r.nfev),
                 wall_time_s=float(r.wall_time_s), curve=curve)
 
 
@@ -163,14 +163,14 @@ def run_ga_pem(log, bounds, seed, workers):
     """The default method with 36 GA generations (GA + refinement on the budget)."""
     r = identify(log, rng=seed, workers=workers, progress=False, ga_options={"n_gen": 36})
     h = r.history
-    curve = list(zip(np.asarray(h["evaluations"]).tolist(),
+    curve = list(zip(np.asarray(h["nfev"]).tolist(),
                      np.asarray(h["best_so_far"]).tolist()))
     # after the refinement: the eq.-4 objective of the refined f
-    curve.append((int(r.evaluations), float(r.objective)))
-    return dict(f=np.asarray(r.f), objective=float(r.objective), evaluations=int(r.evaluations),
+    curve.append((int(r.nfev), float(r.fun)))
+    return dict(f=np.asarray(r.f), objective=float(r.fun), evaluations=int(r.nfev),
                 wall_time_s=float(r.wall_time_s), curve=curve,
                 ga_objective=float(np.min(h["best_so_far"])),
-                refine_evaluations=int(r.refinement["evaluations"]))
+                refine_evaluations=int(r.refinement["nfev"]))
 
 
 def run_de(log, bounds, seed, workers, budget=BUDGET, objective=None):
@@ -227,7 +227,7 @@ def _with_refinement(runner):
 
     The control experiment: is the default method's accuracy due to its GA
     or to the refinement?  Same refinement as ``identify()``: 4 starts (the
-    best distinct points evaluated), 40 residual evaluations each.
+    best distinct points evaluated), refined together, at most 40 batches.
     """
     from identification.refine import DEFAULT_GAIN, PredictionErrorProblem, refine
 
@@ -237,13 +237,13 @@ def _with_refinement(runner):
         rec = r.pop("recorder")
         problem = PredictionErrorProblem(log, gain=DEFAULT_GAIN, substeps=SUBSTEPS,
                                          workers=workers)
-        ref = refine(problem, rec.best_points(4), bounds, max_nfev=40)
+        ref = refine(problem, rec.best_points(4), bounds, max_iter=40)
         y = float(OutputError(log, substeps=SUBSTEPS, workers=workers)(ref.x[None])[0])
-        evals = rec.evaluations + ref.evaluations + 1
+        evals = rec.evaluations + ref.nfev + 1
         curve = list(r["curve"]) + [(evals, y)]
         return dict(f=np.asarray(ref.x), objective=y, evaluations=evals,
                     wall_time_s=time.perf_counter() - t0, curve=curve,
-                    search_objective=r["objective"], refine_evaluations=int(ref.evaluations))
+                    search_objective=r["objective"], refine_evaluations=int(ref.nfev))
 
     run.__doc__ = f"{runner.__name__} on {GA_PEM_BUDGET} simulations, then the refinement."
     return run
@@ -262,9 +262,9 @@ def run_pem(log, bounds, seed, workers):
     lo, hi = bounds[:, 0], bounds[:, 1]
     starts = lo + rng.uniform(size=(4, 9)) * (hi - lo)
     problem = PredictionErrorProblem(log, gain=DEFAULT_GAIN, substeps=SUBSTEPS, workers=workers)
-    ref = refine(problem, starts, bounds, max_nfev=40)
+    ref = refine(problem, starts, bounds, max_iter=40)
     y = float(OutputError(log, substeps=SUBSTEPS, workers=workers)(ref.x[None])[0])
-    evals = ref.evaluations + 1
+    evals = ref.nfev + 1
     return dict(f=np.asarray(ref.x), objective=y, evaluations=evals,
                 wall_time_s=time.perf_counter() - t0, curve=[(evals, y)],
                 refine_costs=np.asarray(ref.costs).tolist())

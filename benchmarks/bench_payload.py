@@ -25,7 +25,7 @@ Prints, in sections (``--sections``, default all):
     1.5 kg) and ``wall_time_s`` (kernels compiled).
 
 Only benchmarks, tests and examples read the ``*.truth.json`` files.  The
-development logs are looked up in ``PUMA_DATA_DIR`` or ``../shared/data``.
+development logs are looked up in ``PUMA_DATA_DIR`` or ``tests/data``.
 Run from the repository root (long: start it in the background)::
 
     NUMBA_NUM_THREADS=2 nohup python benchmarks/bench_payload.py > out/bench_payload.txt &
@@ -60,9 +60,9 @@ SECTIONS = ("spectrum", "drill", "coarse", "payload")
 
 
 def data_dir():
-    """Directory of the development logs (``PUMA_DATA_DIR`` or ``../shared/data``)."""
+    """Directory of the development logs (``PUMA_DATA_DIR`` or ``tests/data``)."""
     env = os.environ.get("PUMA_DATA_DIR")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
+    return Path(env) if env else Path(__file__).resolve().parents[1] / "tests" / "data"
 
 
 def load(stem):
@@ -234,7 +234,7 @@ def main(argv=None):
         p.error(f"unknown section(s): {', '.join(sorted(unknown))}")
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    print(f"compile/load kernels: {plant.simulate.warm_up():.1f} s; "
+    print(f"compile/load kernels: {plant.warm_up():.1f} s; "
           f"numba threads: {os.environ.get('NUMBA_NUM_THREADS', 'default')}")
     cutoff = error_spectrum(load(DRILL)).cutoff_hz
     if "spectrum" in sections:

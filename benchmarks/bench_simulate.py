@@ -1,35 +1,39 @@
-"""Benchmark of the closed-loop simulator and of a full identification (issues 3 and 6).
+"""Benchmark of the one closed-loop core and of a full identification.
 
 Prints (asserts nothing):
 
-1. JIT compile time (first call in a fresh process; a second process loads
-   numba's cache).
+1. Compile time: the first compile of the kernels in a fresh process with an
+   empty numba cache, and the load from the cache in a second fresh process
+   (both in subprocesses, so this process's state does not matter).
 2. Exactness against the log's own integration: fraction of samples identical
-   and within +-1 pulse for the true f, against the RK4 substeps (tests only
-   check the default; this shows the convergence).
-3. One simulation of the paper log (5215 samples): ms per run, reference and
-   lockstep kernels, for the identification's substeps and the exact default;
-   then the cost per candidate of lockstep batches of 1 to 160 candidates.
-4. Candidates per second of the batch form on 1 and 2 threads.
-5. Scaling: cost against log length (windows of the validation log),
-   population size and threads; the per-sample cost in ns and the arithmetic
-   the model needs per sample.
-6. The paper's full GA budget (4 x 20 individuals, 40 generations) through
-   ``identify(method='paper')`` and the default GA + refinement: wall time
-   excluding compilation.
+   and within +-1 pulse for the true f, against the RK4 substeps.
+3. One simulation of the paper log (5215 samples, one lane): ms per run at the
+   identification's substeps and the exact default.
+4. Cost per candidate against the number of SIMD lanes (1 to 160), 1 thread.
+5. Candidates per second of one GA generation (76 candidates) on 1 and 2
+   threads; scaling with log length and population.
+6. The refinement's replay: one batch of 40 candidates (4 starts x (1 + 9)
+   Jacobian columns), the cost per candidate.
+7. Side by side in one run: the paper's GA budget (4 x 20 individuals, 40
+   generations, ``identify(method='paper')``) and the default GA + batched
+   Levenberg-Marquardt refinement, wall time excluding compilation, and
+   their ratio (target <= 1.5).
 
 Usage::
 
-    NUMBA_NUM_THREADS=2 python benchmarks/bench_simulate.py [--plot scaling.png] [--quick]
+    python benchmarks/bench_simulate.py [--plot scaling.png] [--quick]
 
-The true parameters are read from the development data (benchmarks may).
+The true parameters are read from the development data (benchmarks may):
+``PUMA_DATA_DIR`` or ``tests/data``.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -37,10 +41,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-DATA = Path(os.environ.get("PUMA_DATA_DIR", ROOT.parent / "shared" / "data"))
+DATA = Path(os.environ.get("PUMA_DATA_DIR", ROOT / "tests" / "data"))
+WELL_EXCITED = [0, 1, 3, 5, 6, 8]  # f1 f2 f4 f6 f7 f9
 
 
 def best_of(fn, repeat=5):
+    """Best wall time (s) of ``repeat`` calls."""
     best = np.inf
     for _ in range(repeat):
         t = time.perf_counter()
@@ -49,100 +55,120 @@ def best_of(fn, repeat=5):
     return best
 
 
+_COMPILE_SNIPPET = """
+import sys, time
+t0 = time.perf_counter()
+sys.path.insert(0, {root!r})
+import plant
+t1 = time.perf_counter()
+cached = plant.kernels_cached()
+t2 = time.perf_counter()
+plant.warm_up(closed_loop=False)
+t3 = time.perf_counter()
+plant.warm_up()
+t4 = time.perf_counter()
+print(f"{{t1 - t0:.2f}} {{cached}} {{t3 - t2:.2f}} {{t4 - t3:.2f}}")
+"""
+
+
+def compile_times():
+    """(import s, was cached, logged-run kernel s, closed-loop step s) for cold and warm runs."""
+    out = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for _ in range(2):
+            r = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET.format(root=str(ROOT))],
+                               env=env, capture_output=True, text=True, check=True)
+            imp, cached, run_s, cl_s = r.stdout.split()
+            out.append((float(imp), cached == "True", float(run_s), float(cl_s)))
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plot", help="write the scaling figure to this PNG")
-    ap.add_argument("--quick", action="store_true", help="fewer repetitions, no identification")
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions and cases")
     args = ap.parse_args(argv)
     rep = 2 if args.quick else 5
 
-    t0 = time.perf_counter()
+    print("== compile time (fresh processes, empty numba cache, then the cache) ==")
+    for label, (imp, cached, run_s, cl_s) in zip(("first run", "second run"), compile_times()):
+        print(f"{label:>10}: import plant {imp:.2f} s, kernels cached: {cached}, "
+              f"logged-run kernel (P experiment + replay) {run_s:.2f} s, "
+              f"any-controller step {cl_s:.2f} s")
+
     import plant
-    from plant.simulate import DEFAULT_SUBSTEPS, simulate_batch, warm_up
+    from plant import DEFAULT_SUBSTEPS, simulate_batch
 
-    import_s = time.perf_counter() - t0
-    compile_s = warm_up()
-    print(f"import {import_s:.2f} s, kernel compile/cache load {compile_s:.2f} s")
-
+    plant.warm_up()
     log = plant.load_log(DATA / "puma560_paper_rigid.csv")
     val = plant.load_log(DATA / "puma560_validation_rigid.csv")
     truth = {s: np.array(json.loads((DATA / f"{s}.truth.json").read_text())["f_vector"])
              for s in ("puma560_paper_rigid", "puma560_validation_rigid")}
     f = truth["puma560_paper_rigid"]
+    n = log.n_samples
 
     print("\n== exactness against the logs (true f) ==")
     print(f"{'substeps':>8} {'log':>26} {'identical':>10} {'within 1':>9} {'Y (pulses^2)':>13}")
-    for S in (1, 2, 4, 8, 16, 24, 32, 48, 64):
+    for S in ((1, 8, 48) if args.quick else (1, 2, 4, 8, 16, 24, 32, 48, 64)):
         for lg in (log, val):
             e = plant.simulate_experiment(lg, truth[lg.name], substeps=S)
             d = e - lg.e_pulses
             print(f"{S:>8} {lg.name:>26} {np.mean(np.all(d == 0, 1)):>10.4f} "
                   f"{np.mean(np.all(np.abs(d) <= 1, 1)):>9.4f} {int(np.sum(d * d)):>13}")
 
-    print("\n== one simulation of the paper log (5215 samples), 1 thread ==")
-    print("(a single candidate runs the plain loop on both paths: lockstep needs >= 8 lanes)")
-    n = log.n_samples
+    print("\n== one simulation of the paper log (5215 samples, one lane, 1 thread) ==")
     for S in (1, 2, DEFAULT_SUBSTEPS):
-        for fast in (False, True):
-            fn = lambda: simulate_batch(log, f[None], substeps=S, errors=False,  # noqa: E731
-                                        workers=1, fast=fast)
-            fn()
-            t = best_of(fn, rep)
-            print(f"substeps {S:>2} {'fast' if fast else 'reference':>9}: {t * 1e3:8.3f} ms "
-                  f"({t / n * 1e9:6.0f} ns/sample, {t / n / (4 * S) * 1e9:5.1f} ns per "
-                  f"derivative evaluation)")
+        t = best_of(lambda: simulate_batch(log, f[None], substeps=S, errors=False, workers=1),
+                    rep)
+        print(f"substeps {S:>2}: {t * 1e3:8.3f} ms ({t / n * 1e9:6.0f} ns/sample, "
+              f"{t / n / (4 * S) * 1e9:5.1f} ns per right-hand-side evaluation)")
 
-    print("\n== lockstep batches: cost per candidate against lanes, 1 thread, substeps 1 ==")
+    print("\n== SIMD lanes: cost per candidate against lanes, 1 thread, substeps 1 ==")
     rng = np.random.default_rng(0)
-    for m in (1, 8, 16, 40, 80, 160):
+    lane_counts = (1, 8, 40, 160) if args.quick else (1, 4, 8, 16, 40, 80, 160)
+    for m in lane_counts:
         Fm = f * (1 + 0.05 * rng.standard_normal((m, 9)))
-        for fast in (False, True):
-            fn = lambda: simulate_batch(log, Fm, substeps=1, errors=False,  # noqa: E731
-                                        workers=1, fast=fast)
-            fn()
-            t = best_of(fn, rep) / m
-            print(f"{m:4d} candidates {'lockstep' if fast else 'reference':>9}: {t * 1e3:7.3f} ms "
-                  f"per candidate, {t / n * 1e9:5.0f} ns per candidate-sample, "
-                  f"{t / n / 4 * 1e9:5.1f} ns per derivative evaluation")
+        t = best_of(lambda: simulate_batch(log, Fm, substeps=1, errors=False, workers=1),
+                    rep) / m
+        print(f"{m:4d} lanes: {t * 1e3:7.3f} ms per candidate, {t / n * 1e9:5.0f} ns per "
+              f"candidate-sample, {t / n / 4 * 1e9:5.1f} ns per right-hand-side evaluation")
 
-    print("\n== batch form: candidates per second (paper log, 76 candidates = one GA generation) ==")
+    print("\n== one GA generation (76 candidates, paper log) ==")
     F = f * (1 + 0.05 * rng.standard_normal((76, 9)))
     for S in (1, 2):
         for w in (1, 2):
-            simulate_batch(log, F[:2], substeps=S, errors=False, workers=w)
             t = best_of(lambda: simulate_batch(log, F, substeps=S, errors=False, workers=w),
                         rep)
             print(f"substeps {S}, {w} thread(s): {76 / t:8.0f} candidates/s "
                   f"({t / 76 * 1e3:.3f} ms each)")
 
-    print("\n== scaling ==")
+    print("\n== scaling (substeps 2) ==")
     lengths, costs_len = [], []
     for frac in (0.125, 0.25, 0.5, 1.0):
         lg = val.window(0.0, val.t[-1] * frac + 1e-9) if frac < 1 else val
-        t = best_of(lambda: simulate_batch(lg, F[:20], substeps=2, errors=False, workers=1),
+        t = best_of(lambda: simulate_batch(lg, F[:40], substeps=2, errors=False, workers=1),
                     rep)
         lengths.append(lg.n_samples)
-        costs_len.append(t / 20)
-        print(f"log length {lg.n_samples:5d} samples: {t / 20 * 1e3:7.3f} ms per candidate, "
-              f"{t / 20 / lg.n_samples * 1e9:5.0f} ns/sample")
+        costs_len.append(t / 40)
+        print(f"log length {lg.n_samples:5d} samples: {t / 40 * 1e3:7.3f} ms per candidate, "
+              f"{t / 40 / lg.n_samples * 1e9:5.0f} ns/sample")
     pops, costs_pop = [], []
     for m in (4, 16, 64, 256):
         Fm = f * (1 + 0.05 * rng.standard_normal((m, 9)))
         for w in (1, 2):
-            simulate_batch(log, Fm[:2], substeps=2, errors=False, workers=w)
             t = best_of(lambda: simulate_batch(log, Fm, substeps=2, errors=False, workers=w),
                         max(1, rep // 2))
             pops.append((m, w))
             costs_pop.append(t)
             print(f"population {m:4d}, {w} thread(s): {t * 1e3:8.1f} ms "
                   f"({m / t:7.0f} candidates/s)")
-    # Arithmetic per derivative evaluation: ~60 flops of the model (D, h, g,
-    # 2x2 solve with one division, friction with one division per joint) and
-    # ~30 for the two angle additions; RK4 adds ~20 per stage.  At substeps 2
-    # a sample needs 8 evaluations, ~900 flops: 0.09 us at 4 doubles per
-    # instruction and 2.5 GHz, if every instruction were an arithmetic one.
-    print("model arithmetic: ~8 x 110 = 900 flops per sample at substeps 2 "
-          "(~0.09 us at 4-wide SIMD, 2.5 GHz)")
+
+    print("\n== refinement replay: one batch of 40 candidates (4 starts x 10), substeps 1 ==")
+    F40 = f * (1 + 1e-3 * rng.standard_normal((40, 9)))
+    for w in (1, 2):
+        t = best_of(lambda: plant.prediction_errors(log, F40, substeps=1, workers=w), rep)
+        print(f"{w} thread(s): {t * 1e3:7.1f} ms per batch ({t / 40 * 1e3:.3f} ms per candidate)")
 
     if args.plot:
         import matplotlib
@@ -153,7 +179,7 @@ def main(argv=None):
         fig, ax = plt.subplots(1, 2, figsize=(9, 3.6), layout="constrained")
         ax[0].plot(lengths, np.array(costs_len) * 1e3, "o-")
         ax[0].set_xlabel("log length (samples)")
-        ax[0].set_ylabel("ms per candidate (1 thread)")
+        ax[0].set_ylabel("ms per candidate (1 thread, 40 lanes)")
         for w in (1, 2):
             ms = [m for (m, ww) in pops if ww == w]
             cs = [c for (m, ww), c in zip(pops, costs_pop) if ww == w]
@@ -164,23 +190,24 @@ def main(argv=None):
         fig.savefig(args.plot, dpi=120)
         print(f"wrote {args.plot}")
 
-    if args.quick:
-        return 0
-    print("\n== identification on the paper log (wall time excludes compilation) ==")
+    print("\n== identification on the paper log, side by side (wall time excludes compilation) ==")
     import identification
 
-    print("(best and median of 3 runs: this machine's speed varies from minute to minute)")
+    repeats = 2 if args.quick else 5
+    walls = {}
     for method in ("paper", "ga+pem"):
-        for w in (1, 2):
-            runs = [identification.identify(log, method=method, rng=0, progress=False,
-                                            workers=w) for _ in range(3)]
-            walls = sorted(r.wall_time_s for r in runs)
-            r = runs[0]
-            err = np.abs(r.f - f) / np.abs(f) * 100
-            print(f"{method:>7}, {w} thread(s): wall {walls[0]:6.2f} s (median {walls[1]:.2f}), "
-                  f"{r.evaluations} simulations, objective {r.objective:.0f} pulses^2, "
-                  f"max error of f1 f2 f4 f6 f7 f9 {err[[0, 1, 3, 5, 6, 8]].max():.3f} %, "
-                  f"compile {r.compile_time_s:.2f} s")
+        runs = [identification.identify(log, method=method, rng=0, progress=False)
+                for _ in range(repeats)]
+        w = sorted(r.wall_time_s for r in runs)
+        walls[method] = w
+        r = runs[0]
+        err = np.abs(r.f - f) / np.abs(f) * 100
+        print(f"{method:>7}: wall best {w[0]:6.3f} s, median {w[len(w) // 2]:.3f} s, "
+              f"{r.nfev} simulations, output error {r.fun:.0f} pulses^2 "
+              f"(1 RK4 step/sample), max error of f1 f2 f4 f6 f7 f9 "
+              f"{err[WELL_EXCITED].max():.3f} %")
+    ratio = walls["ga+pem"][len(walls["ga+pem"]) // 2] / walls["paper"][len(walls["paper"]) // 2]
+    print(f"default method / paper GA (medians): {ratio:.2f} (target <= 1.5)")
     return 0
 
 

@@ -72,6 +72,9 @@ _EXTERNAL = {
     ],
     "py:func": [
         "dataclasses.replace",
+        "open",
+        "os.access",
+        "os.path.realpath",
         "functools.lru_cache",
         "numpy.random.default_rng",
         "os.replace",

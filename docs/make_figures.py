@@ -133,7 +133,7 @@ def identification(ctx):
         out[method] = {
             "f": [float(v) for v in res.f], "error_pct": err,
             "max_abs_error_well_excited_pct": max(abs(err[i]) for i in WELL_EXCITED),
-            "objective_pulses2": float(res.objective), "evaluations": int(res.evaluations),
+            "objective_pulses2": float(res.fun), "evaluations": int(res.nfev),
             "wall_time_s": float(res.wall_time_s),
             "ga_final_best_pulses2": float(res.history["best"][-1]),
             "validation_output_error_pulses2": float(np.sum((val.e_pulses - e_val) ** 2)),

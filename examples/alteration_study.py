@@ -195,16 +195,16 @@ def main(argv=None):
                                           workers=args.workers, ga_options=ga_options,
                                           refine_options=refine_options)
             run = {"seed": seed, "f": [float(v) for v in res.f],
-                   "objective_pulses2": float(res.objective),
+                   "objective_pulses2": float(res.fun),
                    "initial_best_pulses2": float(res.history["best"][0]),
                    "ga_final_best_pulses2": float(res.history["best"][-1]),
-                   "evaluations": int(res.evaluations),
+                   "evaluations": int(res.nfev),
                    "wall_time_s": float(res.wall_time_s)}
             if val is not None:
                 run["validation_pulses2"] = float(plant.output_error(val, res.f))
             runs.append(run)
-            print(f"  {method} seed {seed}: objective {res.objective:.0f} pulses^2, "
-                  f"{res.evaluations} simulations, {res.wall_time_s:.1f} s", flush=True)
+            print(f"  {method} seed {seed}: objective {res.fun:.0f} pulses^2, "
+                  f"{res.nfev} simulations, {res.wall_time_s:.1f} s", flush=True)
         stats = spread_statistics([r["f"] for r in runs], f_true)
         report["methods"][method] = {"runs": runs, "statistics": stats,
                                      "total_time_s": time.perf_counter() - t0}

@@ -80,7 +80,7 @@ def main(argv=None):
     if res.refinement is not None:
         y_ga = identification.OutputError(log)(res.refinement["ga_f"])[0]
         print(f"the GA alone ended at {res.history['best'][-1]:.0f} pulses^2 "
-              f"(its best f re-evaluated: {y_ga:.0f}); after refinement {res.objective:.0f}")
+              f"(its best f re-evaluated: {y_ga:.0f}); after refinement {res.fun:.0f}")
     res.save_json(args.out / "result.json")
 
     # 3. figures: convergence, and logged vs simulated tracking errors

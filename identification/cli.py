@@ -175,20 +175,6 @@ def _isatty(stream) -> bool:
         return False
 
 
-# Accessors of result fields.  An ``identify()`` older than the result
-# vocabulary of issue 11 returned ``objective`` / ``evaluations`` instead of
-# ``fun`` / ``nfev`` (IdentificationResult renames them; these fallbacks cover
-# any other mapping and can go once every producer uses the new keys).
-def _result_fun(result) -> float:
-    v = result.get("fun")
-    return float(result.get("objective") if v is None else v)
-
-
-def _result_nfev(result):
-    v = result.get("nfev")
-    return result.get("evaluations") if v is None else v
-
-
 def _result_setting(result) -> str:
     """The integration setting of ``fun`` as text (e.g. '1 RK4 step/sample (identification)')."""
     if hasattr(result, "setting_text"):
@@ -306,11 +292,11 @@ def format_result_table(result, log=None) -> str:
         for k, v in payload.items():
             val = f"{v:.6g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else str(v)
             lines.append(f"payload {k}: {val}")
-    lines.append(f"output error Y (eq. 4): {_result_fun(result):.6g} pulses^2 "
+    lines.append(f"output error Y (eq. 4): {float(result.fun):.6g} pulses^2 "
                  f"at {_result_setting(result)}")
     nit = result.get("nit")
     nit = f"   iterations: {nit}" if nit is not None else ""
-    lines.append(f"simulations: {_result_nfev(result)}{nit}   "
+    lines.append(f"simulations: {result.nfev}{nit}   "
                  f"wall time: {float(result.get('wall_time_s') or 0.0):.2f} s")
     if result.get("interrupted"):
         lines.append(f"INTERRUPTED: {result.get('message')} (best so far)")

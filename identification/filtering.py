@@ -11,7 +11,6 @@ removed from both sides alike.
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 __all__ = ["lowpass_sos", "apply_lowpass"]
 
@@ -46,6 +45,8 @@ def lowpass_sos(cutoff_hz, sample_time_s, order=FILTER_ORDER):
         raise ValueError(
             f"low-pass cutoff must lie in (0, {0.5 * fs:g}) Hz (Nyquist), got {cutoff_hz}"
         )
+    from scipy import signal  # imported on use: scipy.signal takes ~0.5 s to import
+
     return signal.butter(int(order), float(cutoff_hz), btype="low", fs=fs, output="sos")
 
 
@@ -67,4 +68,6 @@ def apply_lowpass(x, sos, axis=-2):
     """
     x = np.asarray(x, dtype=float)
     padlen = min(3 * (2 * len(sos) + 1), x.shape[axis] - 1)
+    from scipy import signal
+
     return signal.sosfiltfilt(sos, x, axis=axis, padlen=padlen)

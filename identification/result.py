@@ -27,11 +27,6 @@ from plant.rig import F_NAMES, F_UNITS
 
 __all__ = ["IdentificationResult", "ResultFileError", "write_json_atomic", "describe_setting"]
 
-#: Old key -> new key (results built by an older ``identify()``); the old
-#: names remain readable as attributes (deprecated aliases), never as keys.
-_LEGACY_KEYS = {"objective": "fun", "evaluations": "nfev",
-                "population_objective": "population_energies"}
-
 #: Keys written by :meth:`IdentificationResult.to_dict` that
 #: :meth:`IdentificationResult.load_json` requires (an alternative older name
 #: in parentheses): ``f``, ``fun`` (``objective_pulses2``), ``nfev``
@@ -220,40 +215,10 @@ class IdentificationResult(OptimizeResult):
     payload : dict, optional
         Identified payload (payload mode only): ``mass_kg``, ``com_m``,
         ``izz_kgm2``, ``vector``, ...
-
-    Notes
-    -----
-    ``objective``, ``evaluations`` and ``population_objective`` are
-    deprecated read-only aliases of ``fun``, ``nfev`` and
-    ``population_energies`` (attributes only, not keys).  A result built
-    with those old keys has them renamed.
     """
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        for old, new in _LEGACY_KEYS.items():
-            if old in self:
-                value = dict.pop(self, old)
-                self.setdefault(new, value)
 
     def __dir__(self):
         return list(self.keys())
-
-    # -- deprecated aliases (attributes, not keys) ---------------------------
-    @property
-    def objective(self):
-        """Deprecated alias of ``fun``."""
-        return self["fun"]
-
-    @property
-    def evaluations(self):
-        """Deprecated alias of ``nfev``."""
-        return self["nfev"]
-
-    @property
-    def population_objective(self):
-        """Deprecated alias of ``population_energies``."""
-        return self.get("population_energies")
 
     # -- derived --------------------------------------------------------------
     def _settings(self):

@@ -39,16 +39,16 @@ import numpy as np
 
 from .anchors import REANCHOR
 from .core import STATUS_MESSAGES, STATUS_OK, advance_sample, encoder_read
-from .plants import RIGID, FlexibleJoints
+from .plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older code)
 from .response import ClosedLoopResponse
 from .rig import rig_constants
 from .simulate import _dummy_problem, _kernel, check_substeps, new_lanes
 from .model import is_positive_definite
 
+# ClosedLoopResponse (plant.response) and FlexibleJoints (plant.plants) are
+# importable from here too, for older code; they are documented where defined.
 __all__ = [
     "DEFAULT_CLOSED_LOOP_SUBSTEPS",
-    "ClosedLoopResponse",
-    "FlexibleJoints",
     "simulate_closed_loop",
 ]
 

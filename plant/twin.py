@@ -10,7 +10,7 @@ arithmetic as :func:`plant.core.advance_sample`.  It serves two purposes:
 * an independent check of the compiled core: :func:`simulate_experiment_twin`
   runs the logged P experiment through it, and the tests compare its pulses
   with :func:`plant.simulate_experiment` sample for sample;
-* the plant side of :func:`ctc.evaluate_ctc`, the casadi closed-loop
+* the plant side of :func:`ctc.evaluate.evaluate_ctc`, the casadi closed-loop
   evaluation of the computed-torque controller (design card).
 """
 from __future__ import annotations

@@ -412,3 +412,16 @@ def test_early_stop_passes_the_population_quantile_as_cap():
     for q in (-0.1, 1.5):
         with pytest.raises(ValueError, match="early_stop"):
             run_ga(evaluate, bounds, n_gen=1, rng=0, early_stop=q)
+
+
+def test_average_ranks_match_scipy_rankdata():
+    """The GA's own tie-averaging ranks equal scipy.stats.rankdata(method='average')."""
+    from scipy.stats import rankdata
+
+    from identification.operators import _average_ranks
+
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        a = rng.integers(0, 5, size=(3, int(rng.integers(1, 12)))).astype(float)
+        a[a == 4] = np.inf
+        np.testing.assert_array_equal(_average_ranks(-a), rankdata(-a, method="average", axis=-1))

@@ -184,13 +184,11 @@ def test_repr_is_short_and_summarises_arrays(small_log, f_true):
     assert str(res) == text
 
 
-def test_legacy_keys_become_aliases(small_log, f_true):
-    res = IdentificationResult(f=f_true, x=f_true, objective=12.5, evaluations=40,
-                               population_objective=np.ones(3), method="paper")
-    assert "objective" not in res and "evaluations" not in res
-    assert "population_objective" not in res
-    assert res.fun == res.objective == 12.5 and res.nfev == res.evaluations == 40
-    assert res.population_energies is res.population_objective
+def test_one_name_per_quantity(small_log, f_true):
+    """scipy's vocabulary only: no duplicated keys for the same quantity."""
+    res = make_result(small_log, f_true)
+    for old in ("objective", "evaluations", "population_objective", "x_best"):
+        assert old not in res and not hasattr(res, old)
 
 
 # ---------------------------------------------------------------------------- plots
