@@ -472,7 +472,7 @@ def _run(args, stdout, stderr) -> int:
     status.say(f"identifying {log.name} ({log.n_samples} samples), method {args.method}, "
                f"seed {args.seed}")
     if hasattr(plant, "warm_up"):  # compile the numerical kernels once, saying so
-        plant.warm_up(announce=None if args.quiet else status.say)
+        plant.warm_up(announce=None if args.quiet else status.say, closed_loop=False)
     with ctrl_c:
         result = api.identify(log, callback=status, **kwargs)
     if ctrl_c.requested and result.get("interrupted"):

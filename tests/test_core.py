@@ -1,0 +1,93 @@
+"""The one closed-loop core: every driver advances the plant through the same step.
+
+Issue 12: the P experiment in SIMD lanes, one candidate alone, the loop with
+a Python controller, and the logged-input replay all run
+``plant.core.advance_sample`` with the same rig layout, so they give the same
+pulses bit for bit on every development log.
+"""
+import dataclasses
+import json
+
+import numba
+import numpy as np
+import pytest
+
+import plant
+from ctc import PController
+from plant.core import STATUS_OK
+from plant.rig import RigConstants, rig_constants
+
+SUBSTEPS = 8
+
+
+@pytest.fixture(scope="module", params=["puma560_paper_rigid", "puma560_validation_rigid",
+                                        "puma560_paper_drill_flex"])
+def log_and_f(request, data_dir):
+    log = plant.load_log(data_dir / f"{request.param}.csv")
+    f = np.array(json.loads((data_dir / f"{request.param}.truth.json").read_text())["f_vector"])
+    return log, f
+
+
+def test_lane_single_and_controller_drivers_give_identical_pulses(log_and_f):
+    log, f = log_and_f
+    rng = np.random.default_rng(0)
+    F = np.vstack([f, f * (1 + 0.01 * rng.standard_normal((15, 9)))])
+    lanes = plant.simulate_batch(log, F, substeps=SUBSTEPS, workers=2)  # 2 chunks of 8 lanes
+    assert np.all(lanes.status == STATUS_OK)
+    single = plant.simulate_batch(log, f[None], substeps=SUBSTEPS, workers=1)
+    np.testing.assert_array_equal(lanes.e_pulses[0], single.e_pulses[0])
+    resp = plant.simulate_closed_loop(log, f, PController.from_log(log), substeps=SUBSTEPS)
+    np.testing.assert_array_equal(resp.e_pulses[log.start_index:], single.e_pulses[0])
+    np.testing.assert_array_equal(resp.i_A, np.asarray(log.rig.p_gain_A_per_pulse) * resp.e_pulses)
+
+
+def test_replay_of_a_runs_own_currents_retraces_its_counts(log_and_f):
+    """Replay driver (gain 0) fed with a simulated run's errors == that run, count for count."""
+    log, f = log_and_f
+    w = log.window(0.0, 0.6)
+    sim = plant.simulate_batch(w, f[None], substeps=SUBSTEPS, continuous_output=True)
+    ref = plant.simulation_inputs(w).ref_counts
+    c_sim = ref - sim.e_pulses[0]  # continuous counts of the simulated run
+    own = w.replace(e_pulses=(np.trunc(ref) - np.trunc(c_sim)).astype(np.int64))
+    eps, status = plant.prediction_errors(own, f, gain=0.0, substeps=SUBSTEPS)
+    assert status == STATUS_OK
+    c_replay = plant.measured_counts(own) - eps
+    np.testing.assert_array_equal(np.trunc(c_replay), np.trunc(c_sim))
+    np.testing.assert_allclose(c_replay, c_sim, rtol=0, atol=1e-9)
+
+
+def test_rig_layout_is_named_and_joint_side(paper_log):
+    rig = paper_log.rig
+    c = rig_constants(rig)
+    assert isinstance(c, RigConstants) and c._fields[0] == "sample_time_s"
+    k = np.asarray(rig.gear_ratio)
+    np.testing.assert_allclose(c.pulses_per_rad, rig.pulses_per_rad)
+    np.testing.assert_allclose(c.viscous, k**2 * np.asarray(rig.viscous_friction_Nms_per_rad))
+    np.testing.assert_allclose(c.coulomb_neg, np.abs(k) * np.asarray(rig.coulomb_friction_Nm)[:, 1])
+    moved = rig_constants(rig, q0=(0.1, -0.2))
+    assert moved.q0 == (0.1, -0.2) and moved.qd0 == c.qd0
+    with pytest.raises(ValueError, match="q0"):
+        rig_constants(rig, q0=(np.nan, 0.0))
+
+
+def test_simulation_leaves_no_state_behind(paper_log):
+    """No write onto the frozen log, numba's thread count untouched by workers=."""
+    threads = numba.get_num_threads()
+    f = np.array([0.9, 0.35, 0.01, -0.4, 0.03, -0.9, 4.5, -0.1, 3.8])
+    plant.simulate_batch(paper_log, np.tile(f, (4, 1)), substeps=1, workers=1, errors=False)
+    assert numba.get_num_threads() == threads
+    assert not hasattr(paper_log, "_sim_cache") and "_sim_cache" not in vars(paper_log)
+    assert plant.simulation_inputs(paper_log) is plant.simulation_inputs(paper_log)  # cached
+
+
+def test_a_new_plant_kind_must_be_registered(paper_log):
+    """The core dispatches on the plant's kind type; an unregistered kind is refused at compile time."""
+    from typing import NamedTuple
+
+    class UnknownKind(NamedTuple):
+        code: int = 7
+
+    bogus = dataclasses.replace(plant.RIGID, kind=UnknownKind())
+    f = np.array([0.9, 0.35, 0.01, -0.4, 0.03, -0.9, 4.5, -0.1, 3.8])
+    with pytest.raises(Exception, match="unknown plant kind"):
+        plant.simulate_batch(paper_log.window(0.0, 0.01), f[None], plant=bogus)
