@@ -20,6 +20,7 @@ from .parameters import (
 )
 from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
+from .uncertainty import uncertainty_entries
 
 __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS"]
 
@@ -258,7 +259,7 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         messages.append(ga.message)
         nit += ga.nit
 
-    refinement = None
+    refinement, unc = None, {}
     if refining and not interrupted:
         starts = _refine_starts(space, log, ga, int(ropts["n_starts"]))
         rb = xb
@@ -278,6 +279,8 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
             refinement["ga_f"] = space.to_f(ga.x, log)
         if state is not None:
             refinement["initial_state"] = ref.x[k:]
+        unc = uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
+                                  k=k, names=space.names(log), a3=log.rig.a3_m)
 
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here
@@ -301,5 +304,5 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         settings=dict(ga=ga_settings if ga is not None else None,
                       refine=ropts if refining else None, substeps=int(substeps),
                       lowpass_hz=lowpass_hz, parameters=repr(space)),
-        **space.extras(x, log),
+        **space.extras(x, log), **unc,
     )
