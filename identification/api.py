@@ -20,12 +20,13 @@ from .parameters import (
 )
 from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
+from .uncertainty import uncertainty_entries
 
 __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS"]
 
 #: Identification methods: the paper's GA alone, and GA + prediction-error
 #: refinement (the default).
-METHODS = ("ga+pem", "paper")
+METHODS = ("ga+pem", "paper", "idim-ls")
 DEFAULT_METHOD = "ga+pem"
 
 #: The paper's GA settings (section 4): 4 subpopulations of 20, 40
@@ -104,10 +105,12 @@ def identify(
     log : plant.ExperimentLog or path
         The experiment (CSV + JSON sidecar); rig, trajectory and start state
         come from it.
-    method : {'ga+pem', 'paper'}
+    method : {'ga+pem', 'paper', 'idim-ls'}
         ``'paper'`` runs the paper's GA alone (binary chromosome, its
         settings); ``'ga+pem'`` (default) runs the same GA on Gray-coded
-        chromosomes and then the refinement.
+        chromosomes and then the refinement; ``'idim-ls'`` the classical
+        inverse dynamic model by least squares on the logged currents
+        (:mod:`identification.idim`; the base parameters only).
     parameters : Parameterisation, optional
         What is searched (:mod:`identification.parameters`):
         :class:`~identification.parameters.BaseParameters` (default),
@@ -179,6 +182,11 @@ def identify(
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     log = _as_log(log)
+    if method == "idim-ls":  # the classical inverse-dynamic model, least squares (issue 15)
+        from .idim import identify_idim
+
+        return identify_idim(log, substeps=substeps, workers=workers, lowpass_hz=lowpass_hz,
+                             seed=_seed_of(rng))
     space = _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent)
     seed = _seed_of(rng)
     rng = np.random.default_rng(rng)
@@ -258,7 +266,7 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         messages.append(ga.message)
         nit += ga.nit
 
-    refinement = None
+    refinement, unc = None, {}
     if refining and not interrupted:
         starts = _refine_starts(space, log, ga, int(ropts["n_starts"]))
         rb = xb
@@ -278,6 +286,8 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
             refinement["ga_f"] = space.to_f(ga.x, log)
         if state is not None:
             refinement["initial_state"] = ref.x[k:]
+        unc = uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
+                                  k=k, names=space.names(log), a3=log.rig.a3_m)
 
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here
@@ -301,5 +311,5 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         settings=dict(ga=ga_settings if ga is not None else None,
                       refine=ropts if refining else None, substeps=int(substeps),
                       lowpass_hz=lowpass_hz, parameters=repr(space)),
-        **space.extras(x, log),
+        **space.extras(x, log), **unc,
     )

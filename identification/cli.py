@@ -62,6 +62,7 @@ import json
 import math
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -280,13 +281,17 @@ def format_result_table(result, log=None) -> str:
 
     log = log if log is not None else result.get("log")
     n = f" ({log.n_samples} samples)" if log is not None else ""
+    std = result.get("f_std")  # the ± column (issue 15), when standard errors exist
+    std = [None] * 9 if std is None else np.asarray(std, dtype=float)
+    pm = "" if std[0] is None else f"{'± std':>12}"
     lines = [
         f"log: {result.get('log_name')}{n}   method: {result.get('method')}   "
         f"seed: {result.get('seed')}",
-        f"{'param':<6}{'value':>14}  unit",
+        f"{'param':<6}{'value':>14}{pm}  unit",
     ]
-    for name, unit, v in zip(F_NAMES, F_UNITS, np.asarray(result["f"], dtype=float)):
-        lines.append(f"{name:<6}{v:>14.6g}  {unit}")
+    for name, unit, v, sd in zip(F_NAMES, F_UNITS, np.asarray(result["f"], dtype=float), std):
+        lines.append(f"{name:<6}{v:>14.6g}" + ("" if sd is None else f"  ± {sd:<8.2g}")
+                     + f"  {unit}")
     payload = result.get("payload")
     if payload:
         for k, v in payload.items():
@@ -298,6 +303,10 @@ def format_result_table(result, log=None) -> str:
     nit = f"   iterations: {nit}" if nit is not None else ""
     lines.append(f"simulations: {result.nfev}{nit}   "
                  f"wall time: {float(result.get('wall_time_s') or 0.0):.2f} s")
+    if result.get("poorly_excited"):
+        from .uncertainty import warning_text
+
+        lines.append("warning: " + warning_text(result["poorly_excited"], result["f_rse"]))
     if result.get("interrupted"):
         lines.append(f"INTERRUPTED: {result.get('message')} (best so far)")
     return "\n".join(lines)
@@ -433,6 +442,7 @@ def _run(args, stdout, stderr) -> int:
     import plant
 
     from . import api
+    from .uncertainty import PoorExcitationWarning
 
     _validate(args)
     out = Path(args.output) if args.output else None
@@ -473,7 +483,8 @@ def _run(args, stdout, stderr) -> int:
                f"seed {args.seed}")
     if hasattr(plant, "warm_up"):  # compile the numerical kernels once, saying so
         plant.warm_up(announce=None if args.quiet else status.say, closed_loop=False)
-    with ctrl_c:
+    with ctrl_c, warnings.catch_warnings():  # the table's warning line says it
+        warnings.simplefilter("ignore", PoorExcitationWarning)
         result = api.identify(log, callback=status, **kwargs)
     if ctrl_c.requested and result.get("interrupted"):
         result["message"] = str(result.get("message", "")).replace(

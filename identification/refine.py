@@ -140,6 +140,12 @@ class RefineResult:
     merged : list of (int, int)
         ``(dropped, kept)`` start indices (0-based) of merged starts.
     interrupted : bool
+    jac : ndarray, shape (n_residuals, k) or None
+        Forward-difference Jacobian of the residuals at x (the one the last
+        accepted step was taken with); None if no point was evaluated.
+    residuals : ndarray, shape (n_residuals,) or None
+        Residual vector at x (prediction errors, pulses; for the standard
+        errors, :mod:`identification.uncertainty`).
     """
 
     x: np.ndarray
@@ -152,6 +158,8 @@ class RefineResult:
     costs: np.ndarray = field(default_factory=lambda: np.empty(0))
     merged: list = field(default_factory=list)
     interrupted: bool = False
+    jac: np.ndarray | None = None
+    residuals: np.ndarray | None = None
 
 
 def _fd_points(x, lo, hi):
@@ -302,13 +310,13 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
         costs[drop] = cost[keep]
     best = int(np.argmin(cost))
     if not np.isfinite(cost[best]):
-        best_x, best_cost = starts[0], np.inf
+        best_x, best_cost, best_jac, best_r = starts[0], np.inf, None, None
     else:
-        best_x, best_cost = x[best], float(cost[best])
+        best_x, best_cost, best_jac, best_r = x[best], float(cost[best]), J[best], r[best]
     if not message:
         message = (f"refined {ns} start(s) together by Levenberg-Marquardt in {nit} batches"
                    + (f" ({len(merged)} merged)" if merged else ""))
     return RefineResult(x=np.asarray(best_x, dtype=float), fun=best_cost,
                         nfev=problem.nfev - nfev0, nit=nit, success=not interrupted,
                         message=message, start_costs=start_costs, costs=costs, merged=merged,
-                        interrupted=interrupted)
+                        interrupted=interrupted, jac=best_jac, residuals=best_r)

@@ -212,6 +212,17 @@ class IdentificationResult(OptimizeResult):
     settings : dict
         At least ``substeps`` (RK4 steps per sample while identifying) and
         ``lowpass_hz`` (float or None), plus the GA and refinement settings.
+    f_std, f_rse : ndarray, shape (9,), optional
+        Standard errors of f and relative standard errors ``f_std / |f|``
+        (after a refinement; :mod:`identification.uncertainty`).
+    f_correlation, x_correlation : ndarray, optional
+        Correlation matrices of f (9, 9) and of x (k, k).
+    x_std : ndarray, shape (k,), optional
+        Standard errors of x (e.g. the payload's ``[m, xp, yp, Jc]``).
+    poorly_excited : list of str, optional
+        Parameters of f whose relative standard error exceeds 10 %.
+    uncertainty : dict, optional
+        How the standard errors were computed (lag, HAC factor, scale).
     payload : dict, optional
         Identified payload (payload mode only): ``mass_kg``, ``com_m``,
         ``izz_kgm2``, ``vector``, ...
@@ -319,7 +330,10 @@ class IdentificationResult(OptimizeResult):
             ``bounds``, ``settings`` (with ``substeps`` and ``lowpass_hz``),
             ``setting`` (``fun``'s integration setting as text),
             ``history``, ``refinement``, ``wall_time_s``,
-            ``compile_time_s``, and in payload mode ``payload`` and its
+            ``compile_time_s``, the standard errors when computed
+            (``f_std``, ``f_rse``, ``f_correlation``, ``x_std``,
+            ``x_correlation``, ``poorly_excited``, ``uncertainty``;
+            :mod:`identification.uncertainty`), and in payload mode ``payload`` and its
             flattened ``payload_<key>`` entries (``payload_mass_kg``, ...).
             Non-finite floats become ``null``.  ``log``, ``population`` and
             ``population_energies`` are not written.
@@ -355,6 +369,8 @@ class IdentificationResult(OptimizeResult):
             "wall_time_s": float(self.get("wall_time_s") or 0.0),
             "compile_time_s": self.get("compile_time_s"),
         }
+        from .uncertainty import RESULT_KEYS  # standard errors (issue 15)
+        d.update({k: self[k] for k in RESULT_KEYS if self.get(k) is not None})
         payload = self.get("payload")
         if payload:
             d["payload"] = payload
@@ -504,6 +520,10 @@ class IdentificationResult(OptimizeResult):
             res["parameters"] = res._parameters()
         if d.get("payload") is not None:
             res["payload"] = d["payload"]
+        from .uncertainty import RESULT_KEYS  # standard errors (issue 15)
+        for k in RESULT_KEYS:
+            if d.get(k) is not None:
+                res[k] = d[k] if k in ("poorly_excited", "uncertainty") else num_array(k, d[k])
         return res
 
     # -- plots --------------------------------------------------------------

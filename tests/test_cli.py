@@ -562,7 +562,7 @@ def test_warm_up_announced_once(monkeypatch, capsys):
     calls = _spy_identify(monkeypatch)
     order = []
 
-    def warm_up(announce=None):
+    def warm_up(announce=None, closed_loop=True):
         order.append("warm_up")
         if announce is not None:
             announce("compiling the numerical kernels once (about a minute)")
@@ -581,7 +581,7 @@ def test_warm_up_announced_once(monkeypatch, capsys):
 
 # -------------------------------------------------------------- Ctrl-C at any time
 def test_ctrl_c_while_compiling(monkeypatch, tmp_path, capsys):
-    def warm_up(announce=None):
+    def warm_up(announce=None, closed_loop=True):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(plant, "warm_up", warm_up, raising=False)
