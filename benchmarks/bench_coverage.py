@@ -43,7 +43,6 @@ FLEX = {"stiff": ((60000.0, 15000.0), (6.0, 1.0)), "soft": ((30000.0, 6000.0), (
 
 def trajectories():
     """Name -> (Trajectory, duration s)."""
-    q = math.pi / 4
     two = plant.Trajectory.from_terms(
         [-0.4, 0.6], [[(0.35, 2 * math.pi / 3.0, 0.0), (0.15, 2 * math.pi / 1.0, 0.7)],
                       [(0.45, 2 * math.pi / 1.5, 1.2), (0.12, 2 * math.pi / 0.6, 0.3)]], 0.6)
