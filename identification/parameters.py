@@ -331,6 +331,10 @@ class PayloadParameters(Parameterisation):
     """
 
     name = "payload"
+    #: Relative cost decrease at which a refinement start has converged: the
+    #: payload moves by < 1e-5 of its box below it (measured), and an
+    #: on-line identification must be fast.
+    refine_ftol = 1e-6
 
     def __init__(self, prior, bounds=None):
         self.prior_f = _prior_f(prior)
@@ -409,22 +413,20 @@ class PayloadParameters(Parameterisation):
     def initial_state(self, log):
         """Guess and box of the state at the log's first sample.
 
-        The centre of the first count interval and the reference velocity (no
-        quantised simulation before a window, which would not be smooth in
-        the payload; no differentiated encoder counts); box +-2 pulses and
+        Estimated from the window itself
+        (:func:`identification.window.estimate_initial_state`: positions
+        from the counts within their pulse cell, velocities from the
+        reference and the error trend; no quantised simulation before a
+        window, which would not be smooth in the payload); box +-2 pulses and
         +-(20 % of the reference rate + 0.05 rad/s).
 
         Parameters
         ----------
         log : plant.ExperimentLog
         """
-        import plant
+        from .window import estimate_initial_state
 
-        scale = log.rig.pulses_per_rad
-        _, qd_ref, _ = log.trajectory.evaluate(log.t[:1])
-        x = np.concatenate([plant.measured_counts(log)[0] / scale, qd_ref[0]])
-        half = np.r_[2.0 / np.abs(scale), 0.2 * np.abs(qd_ref[0]) + 0.05]
-        return x, np.column_stack([x - half, x + half])
+        return estimate_initial_state(log)
 
     def __repr__(self) -> str:
         return f"PayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()})"

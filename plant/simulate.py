@@ -14,7 +14,10 @@ The simulator reproduces what the rig's control card did, sample by sample
 All rig constants come from the log's sidecar (:func:`plant.rig.rig_constants`),
 the reference from its :class:`~plant.trajectory.Trajectory`, the start state
 from ``start_state``.  A log that is a window of a longer run is simulated
-from ``t = 0`` and compared on its own samples only.
+from ``t = 0`` and compared on its own samples only -- unless the state at
+the window's first sample is given (``initial_state=``): then the simulation
+starts there.  A window whose sidecar gives no start state (the rig's
+``q0_rad`` is None) needs ``initial_state``.
 
 Failed candidates
 -----------------
@@ -255,6 +258,46 @@ def new_lanes(Pall, lo, hi, x0) -> Lanes:
                  new_workspace(nx, lanes))
 
 
+def start_states(log, initial_state, m, nx):
+    """Per-candidate states at a log's first sample, or None (start at t = 0).
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+    initial_state : array_like, shape (m, nx) or (nx,), or None
+        State at the log's first sample (rad, rad/s).
+    m, nx : int
+        Candidates and state components.
+
+    Returns
+    -------
+    ndarray, shape (m, nx), or None
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape or NaN/inf, or no ``initial_state`` for a window
+        log without a start state.
+    """
+    if initial_state is None:
+        if log.rig.q0_rad is None or log.rig.qd0_rad_per_s is None:
+            raise ValueError(f"{getattr(log, 'name', 'log')} is a window without a start state: "
+                             "give initial_state= (the state at its first sample)")
+        return None
+    x = np.asarray(initial_state, dtype=float)
+    if x.shape not in ((nx,), (m, nx)):
+        raise ValueError(f"initial_state must have shape ({nx},) or ({m}, {nx}), got {x.shape}")
+    return as_float_array(np.broadcast_to(x, (m, nx)), "initial_state")
+
+
+def lanes_from(Pall, lo, hi, x0, X0):
+    """:func:`new_lanes`, each lane started from its candidate's row of ``X0`` if given."""
+    lanes = new_lanes(Pall, lo, hi, x0)
+    if X0 is not None:
+        lanes.X[:] = X0[lanes.idx].T
+    return lanes
+
+
 @_jit
 def _move_lane(P, X, U, A, S, E, idx, dst, src):
     for i in range(P.shape[0]):
@@ -492,6 +535,7 @@ def simulate_batch(
     cap=None,
     plant=None,
     plant_parameters=None,
+    initial_state=None,
 ):
     """Simulate the logged closed-loop experiment for a population of candidates.
 
@@ -531,6 +575,10 @@ def simulate_batch(
         Per-candidate plant parameters beyond f, as keyword arguments of the
         plant's ``lane_parameters`` (e.g. ``friction`` (m, 8), or ``joints``
         (m, 6) of a flexible plant).
+    initial_state : array_like, shape (n_candidates, n_x) or (n_x,), optional
+        State (q2, q3, qd2, qd3 for the rigid plant; rad, rad/s) at the log's
+        first sample, per candidate: the simulation then starts there instead
+        of at t = 0 (required for a window log without a start state).
 
     Returns
     -------
@@ -539,8 +587,9 @@ def simulate_batch(
     Raises
     ------
     ValueError
-        On a wrongly shaped or non-finite ``F``, ``substeps < 1``, a
-        non-positive bound, a NaN cap or bad ``workers``.
+        On a wrongly shaped or non-finite ``F`` or ``initial_state``,
+        ``substeps < 1``, a non-positive bound, a NaN cap, bad ``workers``,
+        or a window without a start state and no ``initial_state``.
     """
     F = check_candidates(F)
     substeps = check_substeps(substeps)
@@ -561,10 +610,13 @@ def simulate_batch(
     compared = np.empty(m, dtype=np.int64)
     Pall = plant.lane_parameters(F, log.rig, **(plant_parameters or {}))
     x0 = plant.initial_state(inputs.constants)
+    X0 = start_states(log, initial_state, m, plant.n_states)
+    k_start = 0 if X0 is None else inputs.start_index
 
     def chunk(lo, hi):
-        _log_chunk(plant.kind, new_lanes(Pall, lo, hi, x0), inputs.constants, plant.encoder_row,
-                   inputs.ref_counts, e_log, inputs.start_index, 0, substeps, False,
+        _log_chunk(plant.kind, lanes_from(Pall, lo, hi, x0, X0), inputs.constants,
+                   plant.encoder_row, inputs.ref_counts, e_log, inputs.start_index, k_start,
+                   substeps, False,
                    bool(quantize), 0.0, bound, cap, err, bool(errors), bool(continuous_output),
                    obj, status, compared, hi - lo)
 
@@ -605,7 +657,7 @@ def output_error(log, F, *, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None)
 
 
 def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bound=None,
-                        plant=None, plant_parameters=None):
+                        plant=None, plant_parameters=None, initial_state=None):
     """Simulate the logged P-control experiment for one parameter vector.
 
     Parameters
@@ -626,6 +678,8 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
     plant_parameters : dict, optional
         Plant parameters beyond f (see :func:`simulate_batch`), for this one
         candidate.
+    initial_state : array_like, shape (n_x,), optional
+        State at the log's first sample (see :func:`simulate_batch`).
 
     Returns
     -------
@@ -645,7 +699,8 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
         raise ValueError(f"f must have shape (9,) (f1..f9), got {f.shape}")
     extra = {k: np.asarray(v, dtype=float)[None] for k, v in (plant_parameters or {}).items()}
     sim = simulate_batch(log, f[None], substeps=substeps, quantize=quantize, bound=bound,
-                         workers=1, plant=plant, plant_parameters=extra)
+                         workers=1, plant=plant, plant_parameters=extra,
+                         initial_state=initial_state)
     st = int(sim.status[0])
     if st != STATUS_OK:
         k = int(log.start_index) + int(sim.n_compared[0])
