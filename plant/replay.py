@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .parallel import check_workers, run_chunks
+from .controllers import as_logged_controller
 from .plants import RIGID
 from .simulate import (
     DEFAULT_SUBSTEPS,
@@ -56,7 +57,7 @@ def measured_counts(log) -> np.ndarray:
 
 def prediction_errors(
     log, F, *, gain=DEFAULT_REPLAY_GAIN, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None,
-    initial_state=None, plant=None, plant_parameters=None,
+    initial_state=None, plant=None, plant_parameters=None, controller=None,
 ):
     """One-step prediction errors of the model replaying the logged input.
 
@@ -100,6 +101,11 @@ def prediction_errors(
     plant_parameters : dict, optional
         Per-candidate plant parameters beyond f (see
         :func:`plant.simulate_batch`).
+    controller : object, optional
+        The controller that ran (see :func:`plant.simulate_batch`; default
+        the rig's P law).  The rig's P law is replayed as ``P e_log``;
+        any other controller by the logged currents ``i_A`` (what it
+        applied), both with the output injection ``gain P (m - c)``.
 
     Returns
     -------
@@ -135,13 +141,16 @@ def prediction_errors(
     Pall = plant.lane_parameters(F2, log.rig, **(plant_parameters or {}))
     x0 = plant.initial_state(inputs.constants)
     k0 = inputs.start_index
+    law = as_logged_controller(controller, log)
+    i_log = np.ascontiguousarray(log.i_A, dtype=np.float64)
 
     def chunk(lo, hi):
         # with X0, the given state at the first logged sample: no simulation before it
         lanes = lanes_from(Pall, lo, hi, x0, X0)
         _log_chunk(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts,
                    inputs.e_log, k0, k0 if use_x0 else 0, substeps, True, False, float(gain),
-                   bound, np.inf, out, True, False, cost, status, compared, hi - lo)
+                   bound, np.inf, out, True, False, cost, status, compared, hi - lo, law.kind,
+                   law.parameters, law.lane_states(lanes.X.shape[1]), i_log, not law.is_p_law)
 
     run_chunks(chunk, m, workers)
     if single:
