@@ -90,6 +90,7 @@ def identify(
     prior=None,
     payload_bounds=None,
     consistent=False,
+    controller=None,
 ):
     """Identify the base parameters f1..f9 from a P-control log.
 
@@ -161,6 +162,12 @@ def identify(
     consistent : bool
         Shorthand for ``parameters=ConsistentBaseParameters(bounds)``: eq. 3's
         ``f3 = a3 f5``, ``f4 = a3 f6``, seven free parameters.
+    controller : object, optional
+        The controller that ran the log, if not the rig's P law (e.g. a
+        :class:`ctc.ComputedTorqueController`, or its
+        :class:`plant.controllers.LoggedController` with the estimator state
+        at the window's start): the output error simulates it in the loop,
+        the refinement replays its logged currents (:mod:`plant.controllers`).
 
     Returns
     -------
@@ -199,7 +206,7 @@ def identify(
     ropts.update(refine_options or {})
     return _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
                    ropts=ropts, callback=callback, workers=workers, progress=progress,
-                   lowpass_hz=lowpass_hz, substeps=substeps)
+                   lowpass_hz=lowpass_hz, substeps=substeps, controller=controller)
 
 
 def _user_callback(callback, stage, nfev):
@@ -226,7 +233,7 @@ def _refine_starts(space, log, ga, n_starts):
 
 
 def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, workers, progress,
-            lowpass_hz, substeps):
+            lowpass_hz, substeps, controller=None):
     """GA on the output error and/or prediction-error refinement over a parameterisation."""
     compile_s = plant.warm_up(closed_loop=False)
     t0 = time.perf_counter()
@@ -238,7 +245,8 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
     if unknown_start and state is None:
         state = estimate_initial_state(log)
     objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers,
-                            initial_state=state[0] if unknown_start else None)
+                            initial_state=state[0] if unknown_start else None,
+                            controller=controller)
 
     def f_objective(X, cap=None):
         return objective(space.to_f(X, log), cap=cap)
@@ -249,7 +257,7 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         problem = PredictionErrorProblem(log, to_f=lambda X: space.to_f(X[:, :k], log),
                                          to_state=to_state, gain=ropts["gain"],
                                          substeps=substeps, lowpass_hz=lowpass_hz,
-                                         workers=workers)
+                                         workers=workers, controller=controller)
 
     def nfev():
         return objective.nfev + (problem.nfev if problem else 0)

@@ -46,6 +46,9 @@ class OutputError:
     initial_state : array_like, shape (4,), optional
         State at the log's first sample: the simulation starts there instead
         of at t = 0 (a window without a start state).
+    controller : object, optional
+        The controller that ran, simulated in the loop (see
+        :func:`plant.simulate_batch`; default the rig's P law).
 
     Notes
     -----
@@ -56,8 +59,9 @@ class OutputError:
     """
 
     def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None,
-                 initial_state=None):
+                 initial_state=None, controller=None):
         self.log = log
+        self.controller = controller
         self.initial_state = initial_state
         self.substeps = int(substeps)
         self.workers = workers
@@ -85,6 +89,7 @@ class OutputError:
             self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers,
             cap=None if filtered else cap,
             initial_state=self.initial_state if initial_state is None else initial_state,
+            controller=self.controller,
         )
         self.nfev += F.shape[0]
         if not filtered:
@@ -109,4 +114,5 @@ class OutputError:
         """
         self.nfev += 1
         return plant.simulate_experiment(self.log, f, substeps=self.substeps,
-                                         initial_state=self.initial_state)
+                                         initial_state=self.initial_state,
+                                         controller=self.controller)
