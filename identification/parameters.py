@@ -393,8 +393,12 @@ class PayloadParameters(Parameterisation):
         log : plant.ExperimentLog
         """
         p = self.linear(x)
-        pl = payload_from_vector(p, clip_negative_inertia=True)
-        return dict(payload=dict(mass_kg=pl.mass_kg, com_m=list(pl.com_m), izz_kgm2=pl.izz_kgm2,
+        if p[0] > 0:
+            pl = payload_from_vector(p, clip_negative_inertia=True)
+            mass, com, izz = pl.mass_kg, list(pl.com_m), pl.izz_kgm2
+        else:  # no payload (mass at its lower bound 0): no centre of mass to recover
+            mass, com, izz = 0.0, [0.0, 0.0], float(max(x[3], 0.0))
+        return dict(payload=dict(mass_kg=mass, com_m=com, izz_kgm2=izz,
                                  vector=[float(v) for v in p],
                                  vector_names=["m_kg", "m_xp_kgm", "m_yp_kgm", "J_kgm2"]),
                     prior_f=self.prior_f)

@@ -5,7 +5,7 @@ controller (sidecar ``window_s``) may come without a start state
 (:attr:`plant.rig.Rig.q0_rad` is None).  Its model then starts at the
 window's first sample, from a state estimated from the window and refined
 with the searched parameters as nuisance parameters
-(:meth:`identification.parameters.Parameterisation.initial_state`,
+(``Parameterisation.initial_state``,
 :func:`identification.identify`).
 
 :func:`estimate_initial_state` gives the guess and the box of that state:

@@ -1,8 +1,8 @@
 """Compiled control laws in the logged-run driver: the controller that ran, in the loop.
 
-The logged-run driver (:func:`plant.simulate._log_chunk`) simulates a
+The logged-run driver (``plant.simulate._log_chunk``) simulates a
 window or a run *with the controller that actually ran*.  As the plants of
-the core (:mod:`plant.plants`), a control law is found by a *kind* (a type
+the core (``plant.plants``), a control law is found by a *kind* (a type
 tag whose numba type selects the law at compile time) in the registry
 :data:`CONTROL_LAWS`; the driver calls :func:`control_law`, so each kernel is
 compiled once per (plant, law) with only that law, loads from numba's cache,
@@ -88,7 +88,7 @@ CONTROL_LAWS = {PLawKind: p_law}
 def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     """The control law of ``kind``: the one place a law kind becomes its function.
 
-    Compiled code only (see :func:`plant.core.plant_rhs` for the pattern).
+    Compiled code only (the pattern of ``plant.core.plant_rhs``).
 
     Parameters
     ----------
