@@ -3,6 +3,8 @@
 * :mod:`ctc.protocol` -- the sampled-controller protocol and the paper's
   :class:`PController`;
 * :mod:`ctc.computed_torque` -- :class:`ComputedTorqueController`;
+* :mod:`ctc.adaptive` -- :class:`AdaptiveComputedTorqueController` (on-line
+  payload identification and adaptation);
 * :mod:`ctc.design` -- gain design and analysis with python-control
   (:func:`design_gains`);
 * :mod:`ctc.evaluate` -- closed-loop evaluation with casadi
@@ -11,6 +13,7 @@
 Run a controller against the model robot with
 :func:`plant.closed_loop.simulate_closed_loop`.
 """
+from .adaptive import AdaptiveComputedTorqueController
 from .computed_torque import ComputedTorqueController
 from .design import GainDesign, design_gains
 from .protocol import PController, SampledController
@@ -19,6 +22,7 @@ __all__ = [
     "SampledController",
     "PController",
     "ComputedTorqueController",
+    "AdaptiveComputedTorqueController",
     "GainDesign",
     "design_gains",
     "evaluate_ctc",

@@ -68,11 +68,12 @@ from plant.model import (
     inverse_dynamics_terms,
     is_positive_definite,
 )
+from plant.controllers import CONTROL_LAWS, LoggedController
 from plant.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, design_gains
 
-__all__ = ["ComputedTorqueController", "CTCParameters"]
+__all__ = ["ComputedTorqueController", "CTCParameters", "CTCLaw", "CTCLawKind", "ctc_law"]
 
 
 class CTCParameters(NamedTuple):
@@ -124,22 +125,25 @@ _S_LEN = 9
 _NLV = {"reference": 0.0, "estimate": 1.0}
 
 
-@numba.njit(cache=True, nogil=True)
-def _joint_update(j, k, qm, p, ref, s):
-    """Estimator and outer loop of joint ``j`` (0 or 1); returns (y, q_hat, qd_hat, a, v_nl)."""
+@numba.njit(nogil=True)
+def _joint_update(j, k, qm, p, ref, S, lane):
+    """Estimator and outer loop of joint ``j`` (0 or 1); returns (y, q_hat, qd_hat, a, v_nl).
+
+    ``S`` (_S_LEN, lanes): estimator states, column ``lane``.
+    """
     ts = p.rig.sample_time_s
     sc = p.rig.pulses_per_rad[j]
     if p.cell_centre:
         y = cell_centre(float(round(qm * sc))) / sc
     else:
         y = qm
-    if s[_S_INIT] == 0.0:
+    if S[_S_INIT, lane] == 0.0:
         qh = y
         wh = ref[k, 2 + j]
     elif p.estimator == 0:
         # current observer: predict with the previous command, correct with y
-        qb = s[_S_Q + j] + ts * s[_S_W + j] + 0.5 * ts * ts * s[_S_A + j]
-        wb = s[_S_W + j] + ts * s[_S_A + j]
+        qb = S[_S_Q + j, lane] + ts * S[_S_W + j, lane] + 0.5 * ts * ts * S[_S_A + j, lane]
+        wb = S[_S_W + j, lane] + ts * S[_S_A + j, lane]
         r = y - qb
         qh = qb + p.observer_q[j] * r
         wh = wb + p.observer_w[j] * r
@@ -147,39 +151,106 @@ def _joint_update(j, k, qm, p, ref, s):
         # low-pass filtered backward difference
         al = p.alpha[j]
         qh = y
-        wh = al * s[_S_W + j] + (1.0 - al) * (y - s[_S_Y + j]) / ts
+        wh = al * S[_S_W + j, lane] + (1.0 - al) * (y - S[_S_Y + j, lane]) / ts
     a = ref[k, 4 + j] + p.kv[j] * (ref[k, 2 + j] - wh) + p.kp[j] * (ref[k, j] - qh)
     vn = wh if p.estimate_in_nonlinear else ref[k, 2 + j]
     return y, qh, wh, a, vn
 
 
-@numba.njit(cache=True, nogil=True)
-def _ctc_step(k, q_meas, f, p, ref, s):
-    """One CTC sample: update the estimator state ``s`` in place, return the currents (2,).
+@numba.njit(nogil=True)
+def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
+    """The CTC law of one sample for estimator column ``lane`` of ``S``: currents (i2, i3).
 
-    ``ref`` (n, 6) holds q_d (2), qd_d (2), qdd_d (2) per sample; row ``k`` is
-    used.  The only allocation is the returned array.
+    The one implementation of the law: the Python controller
+    (:func:`_ctc_step`) and the compiled law of the logged-run driver
+    (:func:`ctc_law`) call it.
     """
     c = p.rig
-    y2, q2, w2, a2, v2 = _joint_update(0, k, q_meas[0], p, ref, s)
-    y3, q3, w3, a3, v3 = _joint_update(1, k, q_meas[1], p, ref, s)
+    y2, q2, w2, a2, v2 = _joint_update(0, k, qm2, p, ref, S, lane)
+    y3, q3, w3, a3, v3 = _joint_update(1, k, qm3, p, ref, S, lane)
     t2, t3 = inverse_dynamics_terms(f, q2, q3, v2, v3, a2, a3, c.gravity)
     if p.friction:
         t2 -= friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
         t3 -= friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
-    s[_S_Q] = q2
-    s[_S_Q + 1] = q3
-    s[_S_W] = w2
-    s[_S_W + 1] = w3
-    s[_S_A] = a2
-    s[_S_A + 1] = a3
-    s[_S_Y] = y2
-    s[_S_Y + 1] = y3
-    s[_S_INIT] = 1.0
+    S[_S_Q, lane] = q2
+    S[_S_Q + 1, lane] = q3
+    S[_S_W, lane] = w2
+    S[_S_W + 1, lane] = w3
+    S[_S_A, lane] = a2
+    S[_S_A + 1, lane] = a3
+    S[_S_Y, lane] = y2
+    S[_S_Y + 1, lane] = y3
+    S[_S_INIT, lane] = 1.0
+    return t2 / c.torque_per_amp[0], t3 / c.torque_per_amp[1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _ctc_step(k, q_meas, f, p, ref, s):
+    """One CTC sample: update the estimator state ``s`` ((_S_LEN,) or (_S_LEN, 1)) in place; currents (2,).
+
+    ``ref`` (n, 6) holds q_d (2), qd_d (2), qdd_d (2) per sample; row ``k`` is
+    used.  The only allocation is the returned array.
+    """
     out = np.empty(2)
-    out[0] = t2 / c.torque_per_amp[0]
-    out[1] = t3 / c.torque_per_amp[1]
+    out[0], out[1] = _ctc_currents(k, q_meas[0], q_meas[1], f, p, ref, s.reshape((s.size, 1)), 0)
     return out
+
+
+class CTCLawKind(NamedTuple):
+    """Type tag of the CTC law in the logged-run driver (:mod:`plant.controllers`).
+
+    Attributes
+    ----------
+    code : int
+        2 (informative only: the *type* is what the driver dispatches on).
+    """
+
+    code: int = 2
+
+
+class CTCLaw(NamedTuple):
+    """Parameters of the compiled CTC law in the logged-run driver.
+
+    Attributes
+    ----------
+    parameters : CTCParameters
+        Rig layout, gains and options.
+    f : ndarray, shape (9,)
+        The controller's model f (D_hat, h_hat, g_hat).
+    reference : ndarray, shape (n_total, 6)
+        q_d, qd_d, qdd_d at t_k = k Ts from the start of the run.
+    """
+
+    parameters: CTCParameters
+    f: np.ndarray
+    reference: np.ndarray
+
+
+@numba.njit(nogil=True)
+def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
+    """The CTC as a compiled law of the logged-run driver (:mod:`plant.controllers`).
+
+    Parameters
+    ----------
+    lp : CTCLaw
+        Parameters, model f and reference table.
+    c : plant.rig.RigConstants
+        Rig layout of the simulation (unused: the law's own is in ``lp``).
+    k : int
+        Sample index from the start of the run.
+    q2m, q3m : float
+        Measured joint angles (rad).
+    e2, e3 : float
+        Pulse errors (unused).
+    CS : ndarray, shape (9, lanes)
+        Estimator states per lane.
+    j : int
+        Lane.
+    """
+    return _ctc_currents(k, q2m, q3m, lp.f, lp.parameters, lp.reference, CS, j)
+
+
+CONTROL_LAWS[CTCLawKind] = ctc_law
 
 
 def _pair(values):
@@ -284,7 +355,7 @@ class ComputedTorqueController:
             raise ValueError("the reference trajectory is not finite")
         self._n = n
         self._scratch = np.zeros((1, 6))
-        self._state = np.zeros(_S_LEN)
+        self._state = np.zeros((_S_LEN, 1))
 
     @classmethod
     def from_log(cls, f, log, *, gains=None, nonlinear_velocity="reference", friction=True,
@@ -362,6 +433,44 @@ class ComputedTorqueController:
             return _ctc_step(k, q_meas, self.f, self.parameters, self.reference_table, self._state)
         self._scratch[:] = _reference_table(self.trajectory, np.array([float(t)]))
         return _ctc_step(0, q_meas, self.f, self.parameters, self._scratch, self._state)
+
+    def logged_controller(self, log, state=None):
+        """This controller as a compiled law of the logged-run driver.
+
+        :func:`plant.simulate_batch` then simulates a log (a window of a run
+        under this CTC) with the CTC in the loop of every lane
+        (:mod:`plant.controllers`).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+            The log (its trajectory and ``n_total`` size the reference table).
+        state : array_like, shape (9,), optional
+            Estimator state at the log's first simulated sample (default:
+            none yet -- the estimator starts from the first measurement and
+            the reference velocity, as after :meth:`reset`).
+
+        Returns
+        -------
+        plant.controllers.LoggedController
+        """
+        n = int(log.n_total)
+        if log.trajectory == self.trajectory and self.reference_table.shape[0] >= n:
+            table = self.reference_table
+        else:
+            table = _reference_table(log.trajectory, np.arange(n) * self._ts)
+        s0 = np.zeros(_S_LEN) if state is None else np.asarray(state, dtype=float).reshape(_S_LEN)
+        return LoggedController(kind=CTCLawKind(), parameters=CTCLaw(self.parameters, self.f, table),
+                                state=s0, name="CTC")
+
+    def estimator_state(self) -> np.ndarray:
+        """A copy of the estimator state (9,) (for :meth:`logged_controller`).
+
+        Returns
+        -------
+        ndarray, shape (9,)
+        """
+        return self._state[:, 0].copy()
 
     def torque(self, q, qd, qdd) -> np.ndarray:
         """Model torque ``D_hat(q) qdd + h_hat(q, qd) + g_hat(q)`` (N m), friction excluded.

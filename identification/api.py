@@ -21,6 +21,7 @@ from .parameters import (
 from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
 from .uncertainty import uncertainty_entries
+from .window import estimate_initial_state
 
 __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS"]
 
@@ -90,6 +91,7 @@ def identify(
     prior=None,
     payload_bounds=None,
     consistent=False,
+    controller=None,
 ):
     """Identify the base parameters f1..f9 from a P-control log.
 
@@ -147,7 +149,10 @@ def identify(
         ``'paper'`` runs the paper's binary GA without early termination.
     refine_options : dict, optional
         ``gain`` (replay output injection, default 0.02), ``n_starts``
-        (default 4), ``max_iter`` (batches, default 40).
+        (default 4), ``max_iter`` (batches, default 40), ``ftol`` (relative
+        decrease of the cost below which a start has converged, default
+        1e-10, or the parameterisation's ``refine_ftol``: 1e-6 for the
+        payload).
     payload : bool
         Shorthand for ``parameters=PayloadParameters(prior, payload_bounds)``:
         on-line payload identification on top of the unloaded robot's f
@@ -160,6 +165,12 @@ def identify(
     consistent : bool
         Shorthand for ``parameters=ConsistentBaseParameters(bounds)``: eq. 3's
         ``f3 = a3 f5``, ``f4 = a3 f6``, seven free parameters.
+    controller : object, optional
+        The controller that ran the log, if not the rig's P law (e.g. a
+        :class:`ctc.ComputedTorqueController`, or its
+        :class:`plant.controllers.LoggedController` with the estimator state
+        at the window's start): the output error simulates it in the loop,
+        the refinement replays its logged currents (:mod:`plant.controllers`).
 
     Returns
     -------
@@ -195,14 +206,15 @@ def identify(
     ga_settings = dict(PAPER_GA, gray=(method != "paper"),
                        early_stop=None if method == "paper" else 1.0)
     ga_settings.update(ga_options or {})
-    ropts = dict(gain=DEFAULT_GAIN, n_starts=4, max_iter=40)
+    ropts = dict(gain=DEFAULT_GAIN, n_starts=4, max_iter=40,
+                 ftol=getattr(space, "refine_ftol", 1e-10))
     unknown = set(refine_options or {}) - set(ropts)
     if unknown:
         raise ValueError(f"unknown refine option(s): {', '.join(sorted(unknown))}")
     ropts.update(refine_options or {})
     return _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
                    ropts=ropts, callback=callback, workers=workers, progress=progress,
-                   lowpass_hz=lowpass_hz, substeps=substeps)
+                   lowpass_hz=lowpass_hz, substeps=substeps, controller=controller)
 
 
 def _user_callback(callback, stage, nfev):
@@ -229,26 +241,31 @@ def _refine_starts(space, log, ga, n_starts):
 
 
 def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, workers, progress,
-            lowpass_hz, substeps):
+            lowpass_hz, substeps, controller=None):
     """GA on the output error and/or prediction-error refinement over a parameterisation."""
     compile_s = plant.warm_up(closed_loop=False)
     t0 = time.perf_counter()
     xb = space.bounds(log)
     k = xb.shape[0]
-    objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers)
+    refining = method == "ga+pem"
+    state = space.initial_state(log) if refining else None
+    unknown_start = log.rig.q0_rad is None  # a window without a start state
+    if unknown_start and state is None:
+        state = estimate_initial_state(log)
+    objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers,
+                            initial_state=state[0] if unknown_start else None,
+                            controller=controller)
 
     def f_objective(X, cap=None):
         return objective(space.to_f(X, log), cap=cap)
 
-    refining = method == "ga+pem"
-    state = space.initial_state(log) if refining else None
     problem = None
     if refining:
         to_state = None if state is None else (lambda X: X[:, k:])
         problem = PredictionErrorProblem(log, to_f=lambda X: space.to_f(X[:, :k], log),
                                          to_state=to_state, gain=ropts["gain"],
                                          substeps=substeps, lowpass_hz=lowpass_hz,
-                                         workers=workers)
+                                         workers=workers, controller=controller)
 
     def nfev():
         return objective.nfev + (problem.nfev if problem else 0)
@@ -274,7 +291,7 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
             starts = np.hstack([starts, np.tile(state[0], (len(starts), 1))])
             rb = np.vstack([xb, state[1]])
         ref_cb = _user_callback(callback, "refine", nfev)
-        ref = refine(problem, starts, rb, max_iter=int(ropts["max_iter"]),
+        ref = refine(problem, starts, rb, max_iter=int(ropts["max_iter"]), ftol=float(ropts["ftol"]),
                      callback=lambda i, n, xs, c: ref_cb(xs[:k], c, start=i, n_starts=n))
         x = ref.x[:k]
         interrupted = ref.interrupted
@@ -291,7 +308,8 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
 
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here
-    fun = float(ga.fun) if refinement is None else float(objective(f[None])[0])
+    x0 = refinement.get("initial_state") if (refinement and unknown_start) else None
+    fun = float(ga.fun) if refinement is None else float(objective(f[None], initial_state=x0)[0])
     wall = time.perf_counter() - t0
     if ga is not None:
         hist = {name: np.asarray(v) for name, v in ga.history.items()}

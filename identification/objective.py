@@ -43,6 +43,12 @@ class OutputError:
         (:mod:`identification.filtering`).
     workers : int, optional
         Threads of the parallel simulation.
+    initial_state : array_like, shape (4,), optional
+        State at the log's first sample: the simulation starts there instead
+        of at t = 0 (a window without a start state).
+    controller : object, optional
+        The controller that ran, simulated in the loop (see
+        :func:`plant.simulate_batch`; default the rig's P law).
 
     Notes
     -----
@@ -52,8 +58,11 @@ class OutputError:
     candidates.
     """
 
-    def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None):
+    def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None,
+                 initial_state=None, controller=None):
         self.log = log
+        self.controller = controller
+        self.initial_state = initial_state
         self.substeps = int(substeps)
         self.workers = workers
         self.lowpass_hz = None if lowpass_hz is None else float(lowpass_hz)
@@ -62,8 +71,11 @@ class OutputError:
             self._sos = lowpass_sos(self.lowpass_hz, log.rig.sample_time_s)
             self._e_log_filtered = apply_lowpass(log.e_pulses, self._sos)
 
-    def __call__(self, F, cap=None):
+    def __call__(self, F, cap=None, initial_state=None):
         """Output errors of candidates ``F`` (m, 9) -> (m,) pulses^2.
+
+        ``initial_state`` ((4,) or (m, 4), optional) overrides the one given
+        at construction for this call.
 
         ``cap`` (pulses^2, optional) terminates candidates early once their
         running output error passes it (see :func:`plant.simulate_batch`);
@@ -76,6 +88,8 @@ class OutputError:
         sim = plant.simulate_batch(
             self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers,
             cap=None if filtered else cap,
+            initial_state=self.initial_state if initial_state is None else initial_state,
+            controller=self.controller,
         )
         self.nfev += F.shape[0]
         if not filtered:
@@ -99,4 +113,6 @@ class OutputError:
         ndarray, shape (n_samples, 2), int64 (pulses)
         """
         self.nfev += 1
-        return plant.simulate_experiment(self.log, f, substeps=self.substeps)
+        return plant.simulate_experiment(self.log, f, substeps=self.substeps,
+                                         initial_state=self.initial_state,
+                                         controller=self.controller)

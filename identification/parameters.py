@@ -331,6 +331,10 @@ class PayloadParameters(Parameterisation):
     """
 
     name = "payload"
+    #: Relative cost decrease at which a refinement start has converged: the
+    #: payload moves by < 1e-5 of its box below it (measured), and an
+    #: on-line identification must be fast.
+    refine_ftol = 1e-6
 
     def __init__(self, prior, bounds=None):
         self.prior_f = _prior_f(prior)
@@ -389,8 +393,12 @@ class PayloadParameters(Parameterisation):
         log : plant.ExperimentLog
         """
         p = self.linear(x)
-        pl = payload_from_vector(p, clip_negative_inertia=True)
-        return dict(payload=dict(mass_kg=pl.mass_kg, com_m=list(pl.com_m), izz_kgm2=pl.izz_kgm2,
+        if p[0] > 0:
+            pl = payload_from_vector(p, clip_negative_inertia=True)
+            mass, com, izz = pl.mass_kg, list(pl.com_m), pl.izz_kgm2
+        else:  # no payload (mass at its lower bound 0): no centre of mass to recover
+            mass, com, izz = 0.0, [0.0, 0.0], float(max(x[3], 0.0))
+        return dict(payload=dict(mass_kg=mass, com_m=com, izz_kgm2=izz,
                                  vector=[float(v) for v in p],
                                  vector_names=["m_kg", "m_xp_kgm", "m_yp_kgm", "J_kgm2"]),
                     prior_f=self.prior_f)
@@ -409,22 +417,20 @@ class PayloadParameters(Parameterisation):
     def initial_state(self, log):
         """Guess and box of the state at the log's first sample.
 
-        The centre of the first count interval and the reference velocity (no
-        quantised simulation before a window, which would not be smooth in
-        the payload; no differentiated encoder counts); box +-2 pulses and
+        Estimated from the window itself
+        (:func:`identification.window.estimate_initial_state`: positions
+        from the counts within their pulse cell, velocities from the
+        reference and the error trend; no quantised simulation before a
+        window, which would not be smooth in the payload); box +-2 pulses and
         +-(20 % of the reference rate + 0.05 rad/s).
 
         Parameters
         ----------
         log : plant.ExperimentLog
         """
-        import plant
+        from .window import estimate_initial_state
 
-        scale = log.rig.pulses_per_rad
-        _, qd_ref, _ = log.trajectory.evaluate(log.t[:1])
-        x = np.concatenate([plant.measured_counts(log)[0] / scale, qd_ref[0]])
-        half = np.r_[2.0 / np.abs(scale), 0.2 * np.abs(qd_ref[0]) + 0.05]
-        return x, np.column_stack([x - half, x + half])
+        return estimate_initial_state(log)
 
     def __repr__(self) -> str:
         return f"PayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()})"

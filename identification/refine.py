@@ -68,6 +68,9 @@ class PredictionErrorProblem:
         Low-pass both sides (as :class:`identification.objective.OutputError`).
     workers : int, optional
         Threads of the simulation.
+    controller : object, optional
+        The controller that ran (:func:`plant.prediction_errors`: a non-P
+        controller is replayed by its logged currents).
 
     Attributes
     ----------
@@ -77,8 +80,9 @@ class PredictionErrorProblem:
     """
 
     def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=1,
-                 lowpass_hz=None, workers=None):
+                 lowpass_hz=None, workers=None, controller=None):
         self.log = log
+        self.controller = controller
         self.to_state = to_state
         self.to_f = to_f if to_f is not None else (lambda X: np.asarray(X, dtype=float))
         self.gain = float(gain)
@@ -107,7 +111,7 @@ class PredictionErrorProblem:
         X0 = None if self.to_state is None else np.asarray(self.to_state(X), dtype=float)
         eps, status = plant.prediction_errors(
             self.log, F, gain=self.gain, substeps=self.substeps, workers=self.workers,
-            initial_state=X0)
+            initial_state=X0, controller=self.controller)
         self.nfev += F.shape[0]
         if self._sos is not None:
             ok = status == STATUS_OK

@@ -606,7 +606,15 @@ class IdentificationResult(OptimizeResult):
                 raise ValueError(f"lowpass_hz must be a frequency, None or 'identification', "
                                  f"got {lowpass_hz!r}")
             lowpass_hz = self.lowpass_hz if ident else None
-        e = plant.simulate_experiment(log, np.asarray(self.f, dtype=float), substeps=n)
+        x0 = None
+        if log.rig.q0_rad is None:  # a window without a start state: the refined one
+            x0 = (self.get("refinement") or {}).get("initial_state")
+            if x0 is None:
+                from .window import estimate_initial_state
+
+                x0 = estimate_initial_state(log)[0]
+        e = plant.simulate_experiment(log, np.asarray(self.f, dtype=float), substeps=n,
+                                      initial_state=x0)
         if lowpass_hz is None:
             d = log.e_pulses - e
             y = float(np.sum(d * d))

@@ -98,6 +98,7 @@ def simulate_closed_loop(
     qd0=None,
     flexible=None,
     label=None,
+    f_schedule=None,
 ):
     """Simulate the sampled closed loop of the robot ``f_robot`` and ``controller``.
 
@@ -129,6 +130,11 @@ def simulate_closed_loop(
         it starts with the springs relaxed.
     label : str, optional
         Label of the response (default: the controller's class name).
+    f_schedule : sequence of (float, array_like (9,)), optional
+        Changes of the robot during the run: from the first sample at or
+        after ``t_s`` on, the robot is ``f`` (e.g. a payload picked up:
+        ``[(1.0, plant.add_payload(f, payload, a3))]``); the state carries
+        over.
 
     Returns
     -------
@@ -185,11 +191,18 @@ def simulate_closed_loop(
     QD = np.zeros((n, 2))
     E = np.zeros((n, 2), dtype=np.int64)
     I = np.zeros((n, 2))
+    changes = []
+    for t_s, f_new in (f_schedule or ()):
+        k_s = max(0, int(math.ceil(float(t_s) / ts - 1e-9)))
+        changes.append((k_s, plant.lane_parameters(_check_f(f_new, "f_schedule f")[None], rig)))
+    changes.sort(key=lambda ch: ch[0])
     controller.reset()
     status = STATUS_OK
     n_done = n
     n_clipped = 0
     for k in range(n):
+        while changes and changes[0][0] <= k:  # the robot changes (payload picked up)
+            lanes.P[:, :] = changes.pop(0)[1]
         a2, a3, e2, e3 = _read(X, enc, c, ref[k, 0], ref[k, 1])
         Q[k] = X[0:2, 0]
         QD[k] = X[2:4, 0]

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core import cell_centre
-from .parallel import as_float_array, check_workers, run_chunks
+from .parallel import check_workers, run_chunks
+from .controllers import as_logged_controller
 from .plants import RIGID
 from .simulate import (
     DEFAULT_SUBSTEPS,
@@ -21,8 +21,9 @@ from .simulate import (
     check_candidates,
     check_substeps,
     default_bound,
-    new_lanes,
+    lanes_from,
     simulation_inputs,
+    start_states,
 )
 
 __all__ = ["measured_counts", "prediction_errors", "DEFAULT_REPLAY_GAIN"]
@@ -49,12 +50,14 @@ def measured_counts(log) -> np.ndarray:
     """
     inputs = simulation_inputs(log)
     a = np.trunc(inputs.ref_counts[inputs.start_index:]) - inputs.e_log
-    return np.vectorize(cell_centre, otypes=[float])(a)
+    # plant.core.cell_centre in numpy (calling the compiled helper from Python
+    # would compile it at the first call: ~0.3 s, more than an on-line identification)
+    return np.where(a > 0, a + 0.5, np.where(a < 0, a - 0.5, 0.0))
 
 
 def prediction_errors(
     log, F, *, gain=DEFAULT_REPLAY_GAIN, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None,
-    initial_state=None, plant=None, plant_parameters=None,
+    initial_state=None, plant=None, plant_parameters=None, controller=None,
 ):
     """One-step prediction errors of the model replaying the logged input.
 
@@ -91,12 +94,18 @@ def prediction_errors(
         Threads for the loop over candidates.
     initial_state : array_like, shape (n_candidates, n_x) or (n_x,), optional
         State (q2, q3, qd2, qd3 for the rigid plant) in rad, rad/s at the
-        log's first sample, per candidate; the replay then starts there.
+        log's first sample, per candidate; the replay then starts there
+        (required for a window log without a start state).
     plant : plant.plants.Plant, optional
         Default :data:`plant.plants.RIGID`.
     plant_parameters : dict, optional
         Per-candidate plant parameters beyond f (see
         :func:`plant.simulate_batch`).
+    controller : object, optional
+        The controller that ran (see :func:`plant.simulate_batch`; default
+        the rig's P law).  The rig's P law is replayed as ``P e_log``;
+        any other controller by the logged currents ``i_A`` (what it
+        applied), both with the output injection ``gain P (m - c)``.
 
     Returns
     -------
@@ -123,12 +132,8 @@ def prediction_errors(
     if not bound > 0:
         raise ValueError(f"bound must be positive, got {bound}")
     m, nx = F2.shape[0], plant.n_states
-    if initial_state is None:
-        X0, use_x0 = np.zeros((m, nx)), False
-    else:
-        X0 = as_float_array(np.broadcast_to(np.asarray(initial_state, float), (m, nx)),
-                            "initial_state")
-        use_x0 = True
+    X0 = start_states(log, initial_state, m, nx)
+    use_x0 = X0 is not None
     out = np.empty((m, inputs.e_log.shape[0], 2))
     status = np.empty(m, dtype=np.int64)
     cost = np.empty(m)
@@ -136,14 +141,16 @@ def prediction_errors(
     Pall = plant.lane_parameters(F2, log.rig, **(plant_parameters or {}))
     x0 = plant.initial_state(inputs.constants)
     k0 = inputs.start_index
+    law = as_logged_controller(controller, log)
+    i_log = np.ascontiguousarray(log.i_A, dtype=np.float64)
 
     def chunk(lo, hi):
-        lanes = new_lanes(Pall, lo, hi, x0)
-        if use_x0:  # the given state at the first logged sample: no simulation before it
-            lanes.X[:] = X0[lanes.idx].T
+        # with X0, the given state at the first logged sample: no simulation before it
+        lanes = lanes_from(Pall, lo, hi, x0, X0)
         _log_chunk(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts,
                    inputs.e_log, k0, k0 if use_x0 else 0, substeps, True, False, float(gain),
-                   bound, np.inf, out, True, False, cost, status, compared, hi - lo)
+                   bound, np.inf, out, True, False, cost, status, compared, hi - lo, law.kind,
+                   law.parameters, law.lane_states(lanes.X.shape[1]), i_log, not law.is_p_law)
 
     run_chunks(chunk, m, workers)
     if single:

@@ -44,8 +44,13 @@ class Rig:
         Gravitational acceleration g.
     a3_m : float
         Link length a3 (m).
-    q0_rad, qd0_rad_per_s : tuple of 2 float
-        Start state of the run (at t = 0).
+    q0_rad, qd0_rad_per_s : tuple of 2 float or None
+        Start state of the run (at t = 0); None for a window log whose
+        sidecar gives no ``start_state.q_rad`` / ``qd_rad_per_s`` (a robot
+        that has run for hours: the run's t = 0 is not known).  A simulation
+        of such a log starts at the window's first sample from a state given
+        to it (``initial_state=``, e.g. estimated from the window by
+        :func:`identification.window.estimate_initial_state`).
     f_bounds : tuple of 9 (float, float)
         Search ranges (low, high) of f1..f9.
     current_full_scale_A : float or None
@@ -113,7 +118,8 @@ class RigConstants(NamedTuple):
     gravity : float
         Gravitational acceleration g (m/s^2).
     q0, qd0 : tuple of 2 float
-        Start angles (rad) and rates (rad/s) of the run.
+        Start angles (rad) and rates (rad/s) of the run (NaN when the rig's
+        start state is unknown and none was given).
     """
 
     sample_time_s: float
@@ -142,7 +148,8 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     rig : Rig
         Sidecar constants (motor side where the sidecar gives them so).
     q0, qd0 : array_like, shape (2,), optional
-        Start angles (rad) and rates (rad/s); default the rig's start state.
+        Start angles (rad) and rates (rad/s); default the rig's start state
+        (NaN if the rig has none: a window log without a start state).
 
     Returns
     -------
@@ -160,6 +167,9 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     tc = np.asarray(rig.coulomb_friction_Nm, dtype=float).reshape(2, 2)
     start = []
     for name, given, default in (("q0", q0, rig.q0_rad), ("qd0", qd0, rig.qd0_rad_per_s)):
+        if given is None and default is None:  # a window without a start state
+            start.append((math.nan, math.nan))
+            continue
         v = np.asarray(default if given is None else given, dtype=float)
         if v.shape != (2,) or not np.all(np.isfinite(v)):
             raise ValueError(f"{name} must be 2 finite numbers, got {given!r}")

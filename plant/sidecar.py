@@ -131,7 +131,9 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
         ``coulomb_ramp_speed_rad_per_s`` (> 0) or else the speed in
         ``coulomb_friction_note`` ("... below 0.5 rad/s ..."),
         ``gravity_m_s2``, ``a3_m``, ``start_state.q_rad`` (2),
-        ``start_state.qd_rad_per_s`` (2), ``f_search_ranges`` (``f1``..``f9``
+        ``start_state.qd_rad_per_s`` (2) (both optional in a window log,
+        ``window_s`` set: then the rig's ``q0_rad`` and ``qd0_rad_per_s`` are
+        None, the start of the run being unknown), ``f_search_ranges`` (``f1``..``f9``
         -> [low, high], low < high), optional ``current_full_scale_A``
         (> 0 or null) and ``payload`` (null or ``{"mass_kg": number or null}``).
         When every Coulomb value is zero and no ramp speed is given, the ramp
@@ -182,8 +184,13 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
             ramp = _UNUSED_RAMP_SPEED
     gravity = k.number("gravity_m_s2")
     a3 = k.number("a3_m")
-    q0 = k.vector("start_state.q_rad")
-    qd0 = k.vector("start_state.qd_rad_per_s")
+    start = sidecar.get("start_state")
+    if (sidecar.get("window_s") is not None
+            and not (isinstance(start, Mapping) and ("q_rad" in start or "qd_rad_per_s" in start))):
+        q0 = qd0 = None  # a window of a run whose start is unknown
+    else:
+        q0 = k.vector("start_state.q_rad")
+        qd0 = k.vector("start_state.qd_rad_per_s")
 
     ranges = k.get("f_search_ranges")
     if not isinstance(ranges, Mapping):
@@ -248,8 +255,12 @@ def _rig_into_sidecar(rig: Rig, d: dict) -> None:
     d["a3_m"] = float(rig.a3_m)
     start = d.get("start_state")
     start = dict(start) if isinstance(start, Mapping) else {}
-    start["q_rad"] = [float(x) for x in rig.q0_rad]
-    start["qd_rad_per_s"] = [float(x) for x in rig.qd0_rad_per_s]
+    if rig.q0_rad is None or rig.qd0_rad_per_s is None:  # window without a start state
+        start.pop("q_rad", None)
+        start.pop("qd_rad_per_s", None)
+    else:
+        start["q_rad"] = [float(x) for x in rig.q0_rad]
+        start["qd_rad_per_s"] = [float(x) for x in rig.qd0_rad_per_s]
     d["start_state"] = start
     ranges = d.get("f_search_ranges")
     ranges = dict(ranges) if isinstance(ranges, Mapping) else {}

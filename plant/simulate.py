@@ -14,7 +14,10 @@ The simulator reproduces what the rig's control card did, sample by sample
 All rig constants come from the log's sidecar (:func:`plant.rig.rig_constants`),
 the reference from its :class:`~plant.trajectory.Trajectory`, the start state
 from ``start_state``.  A log that is a window of a longer run is simulated
-from ``t = 0`` and compared on its own samples only.
+from ``t = 0`` and compared on its own samples only -- unless the state at
+the window's first sample is given (``initial_state=``): then the simulation
+starts there.  A window whose sidecar gives no start state (the rig's
+``q0_rad`` is None) needs ``initial_state``.
 
 Failed candidates
 -----------------
@@ -64,6 +67,7 @@ from .core import (
     new_workspace,
     padded_lanes,
 )
+from .controllers import P_LAW, as_logged_controller, control_law
 from .parallel import as_float_array, check_workers, run_chunks
 from .plants import RIGID
 from .rig import RigConstants, rig_constants
@@ -255,8 +259,50 @@ def new_lanes(Pall, lo, hi, x0) -> Lanes:
                  new_workspace(nx, lanes))
 
 
+def start_states(log, initial_state, m, nx):
+    """Per-candidate states at a log's first sample, or None (start at t = 0).
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+    initial_state : array_like, shape (m, nx) or (nx,), or None
+        State at the log's first sample (rad, rad/s).
+    m, nx : int
+        Candidates and state components.
+
+    Returns
+    -------
+    ndarray, shape (m, nx), or None
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape or NaN/inf, or no ``initial_state`` for a window
+        log without a start state.
+    """
+    if initial_state is None:
+        if log.rig.q0_rad is None or log.rig.qd0_rad_per_s is None:
+            raise ValueError(f"{getattr(log, 'name', 'log')} is a window without a start state: "
+                             "give initial_state= (the state at its first sample)")
+        return None
+    x = np.asarray(initial_state, dtype=float)
+    if x.shape not in ((nx,), (m, nx)):
+        raise ValueError(f"initial_state must have shape ({nx},) or ({m}, {nx}), got {x.shape}")
+    return as_float_array(np.broadcast_to(x, (m, nx)), "initial_state")
+
+
+def lanes_from(Pall, lo, hi, x0, X0):
+    """:func:`new_lanes`, each lane started from its candidate's row of ``X0`` if given."""
+    lanes = new_lanes(Pall, lo, hi, x0)
+    if X0 is not None:
+        lanes.X[:] = X0[lanes.idx].T
+    return lanes
+
+
 @_jit
-def _move_lane(P, X, U, A, S, E, idx, dst, src):
+def _move_lane(P, X, U, A, S, E, idx, CS, dst, src):
+    for i in range(CS.shape[0]):
+        CS[i, dst] = CS[i, src]
     for i in range(P.shape[0]):
         P[i, dst] = P[i, src]
     for i in range(X.shape[0]):
@@ -271,17 +317,18 @@ def _move_lane(P, X, U, A, S, E, idx, dst, src):
 
 
 @_jit
-def retire_lane(P, X, U, A, S, E, idx, j, act):
+def retire_lane(P, X, U, A, S, E, idx, CS, j, act):
     """Retire lane ``j``: the last active lane moves into it; returns the new count.
 
     The vacated column becomes padding, a copy of a running lane (lane 0), so
-    the SIMD loops never compute on a failed state.
+    the SIMD loops never compute on a failed state.  ``CS`` holds the lanes'
+    controller states (:mod:`plant.controllers`).
     """
     last = act - 1
     if j != last:
-        _move_lane(P, X, U, A, S, E, idx, j, last)
+        _move_lane(P, X, U, A, S, E, idx, CS, j, last)
     if last > 0:
-        _move_lane(P, X, U, A, S, E, idx, last, np.int64(0))
+        _move_lane(P, X, U, A, S, E, idx, CS, last, np.int64(0))
     return last
 
 
@@ -313,18 +360,22 @@ def _finish(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, out, 
 
 @_kernel
 def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
-               bound, cap, out, write, continuous_out, obj, status, compared, n_act):
+               bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
+               CS, i_log, logged_current):
     """Simulate the candidates of one chunk of lanes against a log, in lockstep.
 
     The driver of the logged run, in two modes (one compiled kernel):
 
-    * experiment (``replay`` False): the rig's P loop, ``i = P e`` with the
-      integer error ``e = trunc(ref) - trunc(c)`` (``quantize``; otherwise
-      the smooth surrogate ``ref - c``); ``obj`` the output error of eq. 4
+    * experiment (``replay`` False): the closed loop of the control law
+      ``law`` (:func:`plant.controllers.control_law`; the rig's P loop ``i =
+      P e`` for :data:`plant.controllers.P_LAW`) with the integer error ``e
+      = trunc(ref) - trunc(c)`` and the measured angles ``trunc(c) / (kN /
+      2 pi)`` (``quantize``; otherwise the smooth surrogate ``ref - c`` and
+      ``c / (kN / 2 pi)``), per-lane controller state ``CS``; ``obj`` the output error of eq. 4
       against ``e_log``; with ``write`` the model errors go to ``out``
       (unquantised ``ref - c`` with ``continuous_out``);
     * replay (``replay`` True): the logged input ``i = P (e_log + gain (m -
-      c))`` with ``m`` the centre of the count cell the log allows; ``out``
+      c))`` (``logged_current``: ``i = i_log + P gain (m - c)``) with ``m`` the centre of the count cell the log allows; ``out``
       the prediction errors ``m - c`` (a failed lane's remaining ones are
       ``bound``); ``obj`` their sum of squares.  Before a window the run's
       own P loop with continuous counts (``quantize`` False).
@@ -352,7 +403,7 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
             if abs(r2 - X[enc, j] * sc2) > bound or abs(r3 - X[enc + 1, j] * sc3) > bound:
                 _finish(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
                         compared, replay, out, i)
-                act = retire_lane(P, X, U, A, S, E, idx, j, act)
+                act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
         if act == 0:
             break
         _, t2 = encoder_read(r2, 1.0)
@@ -369,8 +420,12 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                 d3 = m3 - c3
                 E[j] += d2 * d2 + d3 * d3
                 # logged input (the current the rig applied) plus the predictor correction
-                U[0, j] = p2 * (el2 + gain * d2)
-                U[1, j] = p3 * (el3 + gain * d3)
+                if logged_current:
+                    U[0, j] = i_log[i, 0] + p2 * gain * d2
+                    U[1, j] = i_log[i, 1] + p3 * gain * d3
+                else:
+                    U[0, j] = p2 * (el2 + gain * d2)
+                    U[1, j] = p3 * (el3 + gain * d3)
             for j in range(act):
                 c2, _ = encoder_read(X[enc, j], sc2)
                 c3, _ = encoder_read(X[enc + 1, j], sc3)
@@ -386,8 +441,10 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                     d2 = el2 - (r2 - c2 if continuous_out else e2)
                     d3 = el3 - (r3 - c3 if continuous_out else e3)
                     E[j] += d2 * d2 + d3 * d3
-                U[0, j] = p2 * e2
-                U[1, j] = p3 * e3
+                y2 = a2 if quantize else c2
+                y3 = a3 if quantize else c3
+                U[0, j], U[1, j] = control_law(law, law_params, c, k, y2 / sc2, y3 / sc3, e2, e3,
+                                               CS, j)
             if write and i >= 0:
                 for j in range(act):
                     c2, a2 = encoder_read(X[enc, j], sc2)
@@ -404,7 +461,7 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                 if E[j] > cap:
                     _finish(idx, j, np.int64(STATUS_STOPPED), E, cmp, n, bound, obj, status,
                             compared, replay, out, i + 1)
-                    act = retire_lane(P, X, U, A, S, E, idx, j, act)
+                    act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
             if act == 0:
                 break
         if k == n_total - 1:
@@ -414,7 +471,7 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
         for j in range(act - 1, -1, -1):
             if S[j] != STATUS_OK:
                 _finish(idx, j, S[j], E, cmp, n, bound, obj, status, compared, replay, out, i + 1)
-                act = retire_lane(P, X, U, A, S, E, idx, j, act)
+                act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
         if act == 0:
             break
     for j in range(act):
@@ -492,6 +549,8 @@ def simulate_batch(
     cap=None,
     plant=None,
     plant_parameters=None,
+    initial_state=None,
+    controller=None,
 ):
     """Simulate the logged closed-loop experiment for a population of candidates.
 
@@ -531,6 +590,16 @@ def simulate_batch(
         Per-candidate plant parameters beyond f, as keyword arguments of the
         plant's ``lane_parameters`` (e.g. ``friction`` (m, 8), or ``joints``
         (m, 6) of a flexible plant).
+    initial_state : array_like, shape (n_candidates, n_x) or (n_x,), optional
+        State (q2, q3, qd2, qd3 for the rigid plant; rad, rad/s) at the log's
+        first sample, per candidate: the simulation then starts there instead
+        of at t = 0 (required for a window log without a start state).
+    controller : object, optional
+        The controller that ran (default: the rig's P law ``i = P e``): a
+        :class:`plant.controllers.LoggedController` or an object with a
+        ``logged_controller(log)`` method returning one (e.g. a
+        :class:`ctc.ComputedTorqueController`); its compiled law runs in
+        the loop of every lane.
 
     Returns
     -------
@@ -539,8 +608,9 @@ def simulate_batch(
     Raises
     ------
     ValueError
-        On a wrongly shaped or non-finite ``F``, ``substeps < 1``, a
-        non-positive bound, a NaN cap or bad ``workers``.
+        On a wrongly shaped or non-finite ``F`` or ``initial_state``,
+        ``substeps < 1``, a non-positive bound, a NaN cap, bad ``workers``,
+        or a window without a start state and no ``initial_state``.
     """
     F = check_candidates(F)
     substeps = check_substeps(substeps)
@@ -561,12 +631,19 @@ def simulate_batch(
     compared = np.empty(m, dtype=np.int64)
     Pall = plant.lane_parameters(F, log.rig, **(plant_parameters or {}))
     x0 = plant.initial_state(inputs.constants)
+    X0 = start_states(log, initial_state, m, plant.n_states)
+    k_start = 0 if X0 is None else inputs.start_index
+    law = as_logged_controller(controller, log)
+    i_log = np.ascontiguousarray(log.i_A, dtype=np.float64)
 
     def chunk(lo, hi):
-        _log_chunk(plant.kind, new_lanes(Pall, lo, hi, x0), inputs.constants, plant.encoder_row,
-                   inputs.ref_counts, e_log, inputs.start_index, 0, substeps, False,
+        lanes = lanes_from(Pall, lo, hi, x0, X0)
+        _log_chunk(plant.kind, lanes, inputs.constants,
+                   plant.encoder_row, inputs.ref_counts, e_log, inputs.start_index, k_start,
+                   substeps, False,
                    bool(quantize), 0.0, bound, cap, err, bool(errors), bool(continuous_output),
-                   obj, status, compared, hi - lo)
+                   obj, status, compared, hi - lo, law.kind, law.parameters,
+                   law.lane_states(lanes.X.shape[1]), i_log, False)
 
     run_chunks(chunk, m, workers)
     if errors and quantize and not continuous_output:
@@ -605,7 +682,7 @@ def output_error(log, F, *, substeps=DEFAULT_SUBSTEPS, bound=None, workers=None)
 
 
 def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bound=None,
-                        plant=None, plant_parameters=None):
+                        plant=None, plant_parameters=None, initial_state=None, controller=None):
     """Simulate the logged P-control experiment for one parameter vector.
 
     Parameters
@@ -626,6 +703,11 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
     plant_parameters : dict, optional
         Plant parameters beyond f (see :func:`simulate_batch`), for this one
         candidate.
+    initial_state : array_like, shape (n_x,), optional
+        State at the log's first sample (see :func:`simulate_batch`).
+    controller : object, optional
+        The controller that ran (see :func:`simulate_batch`; default the
+        rig's P law).
 
     Returns
     -------
@@ -645,7 +727,8 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
         raise ValueError(f"f must have shape (9,) (f1..f9), got {f.shape}")
     extra = {k: np.asarray(v, dtype=float)[None] for k, v in (plant_parameters or {}).items()}
     sim = simulate_batch(log, f[None], substeps=substeps, quantize=quantize, bound=bound,
-                         workers=1, plant=plant, plant_parameters=extra)
+                         workers=1, plant=plant, plant_parameters=extra,
+                         initial_state=initial_state, controller=controller)
     st = int(sim.status[0])
     if st != STATUS_OK:
         k = int(log.start_index) + int(sim.n_compared[0])
@@ -669,7 +752,8 @@ def _warm_arguments():
     c, Pall, ref, e_log = _dummy_problem()
     return (RIGID.kind, new_lanes(Pall, 0, 1, RIGID.initial_state(c)), c, RIGID.encoder_row,
             ref, e_log, 0, 0, 1, False, True, 0.0, 100.0, np.inf, np.zeros((1, 3, 2)), True,
-            False, np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64), 1)
+            False, np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64), 1,
+            P_LAW.kind, P_LAW.parameters, P_LAW.lane_states(1), np.zeros((3, 2)), False)
 
 
 def _warm():

@@ -27,6 +27,7 @@ OUTPUTS = {
                      "payload_window_errors.png", "drill_window_1000_1200ms.csv",
                      "drill_window_1000_1200ms.json"),
     "alteration_study.py": ("alteration.json",),
+    "online_payload.py": ("errors.png", "results.json"),
 }
 
 

@@ -1,0 +1,56 @@
+"""Per-identification wall time of the on-line payload identification (issue 14).
+
+A held-out emulated run (2 kg payload) is cut into 200 ms windows without a
+start state; each is identified with ``identify(..., payload=True)`` (P
+control in the loop) and, for a CTC run of the same robot, with the CTC in
+the loop (``controller=``).  Prints the wall time per identification
+(kernels compiled; target <= 0.2 s) and the identified mass.
+
+    python benchmarks/bench_online_payload.py
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import ctc  # noqa: E402
+import identification  # noqa: E402
+import plant  # noqa: E402
+
+PRIOR = np.array([0.9385, 0.3618, 0.01087, -0.3860, 0.02538, -0.8942, 4.4358, -0.1040, 3.7952])
+
+
+def main():
+    """Print the table."""
+    print(f"compile/load kernels: {plant.warm_up():.1f} s")
+    base = plant.load_example()
+    f = plant.add_payload(PRIOR, plant.Payload(2.0, (0.1, 0.02), 0.01), base.rig.a3_m)
+    p_run = plant.emulate_log(base, f)
+    c = ctc.ComputedTorqueController.from_log(PRIOR, base)
+    r = plant.simulate_closed_loop(base, f, c, substeps=16)
+    ctc_run = p_run.replace(e_pulses=r.e_pulses, i_A=r.i_A)
+    print(f"{'run':<6s} {'window':>16s} {'wall s':>8s} {'mass kg':>8s}")
+    walls = []
+    for name, log, ctl in (("P", p_run, None), ("CTC", ctc_run, c)):
+        for t0 in np.arange(0.2, 3.4, 0.4):
+            w = log.window(t0, t0 + 0.2)
+            w = w.replace(rig=dataclasses.replace(w.rig, q0_rad=None, qd0_rad_per_s=None))
+            law = None if ctl is None else ctl.logged_controller(w)
+            t = time.perf_counter()
+            res = identification.identify(w, payload=True, prior=PRIOR, rng=0, progress=False,
+                                          controller=law)
+            walls.append(res.wall_time_s)
+            print(f"{name:<6s} [{t0:.2f}, {t0 + 0.2:.2f}) s {res.wall_time_s:8.3f} "
+                  f"{res.payload['mass_kg']:8.3f}   (call {time.perf_counter() - t:.3f} s)")
+    print(f"wall time per identification: median {np.median(walls):.3f} s, "
+          f"max {np.max(walls):.3f} s (target <= 0.2 s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,190 @@
+"""Compiled control laws in the logged-run driver: the controller that ran, in the loop.
+
+The logged-run driver (``plant.simulate._log_chunk``) simulates a
+window or a run *with the controller that actually ran*.  As the plants of
+the core (``plant.plants``), a control law is found by a *kind* (a type
+tag whose numba type selects the law at compile time) in the registry
+:data:`CONTROL_LAWS`; the driver calls :func:`control_law`, so each kernel is
+compiled once per (plant, law) with only that law, loads from numba's cache,
+and is not a copy of the sample loop.
+
+A compiled law has the signature ``law(lp, c, k, q2m, q3m, e2, e3, CS, j) ->
+(i2, i3)``: law parameters ``lp`` (any numba-typed value, e.g. a NamedTuple
+of constants and arrays), the rig layout ``c`` (:class:`plant.rig.RigConstants`),
+the absolute sample index ``k`` (t = k Ts from the start of the run), the
+measured joint angles ``q2m, q3m`` (rad, the encoder counts times 2 pi / kN),
+the pulse errors ``e2, e3``, and the per-lane controller state ``CS``
+(n_cs, lanes), column ``j`` being this lane's (updated in place).  It returns
+the motor currents (A) held over the sample.
+
+:data:`P_LAW` is the rig's P law ``i = P e`` (the logged experiment of the
+paper, bit for bit the driver's former inline law).  Another package
+provides its law by registering it (``CONTROL_LAWS[MyKind] = my_law``) and
+describing it by a :class:`LoggedController`; :class:`ctc.ComputedTorqueController`
+does so (:meth:`~ctc.ComputedTorqueController.logged_controller`), keeping
+``plant`` independent of ``ctc``.
+
+Replay (:func:`plant.prediction_errors`) drives the model with the logged
+input: ``i = P e_log`` for the P law (exact), the logged currents ``i_A``
+for any other law (a controller records what it applied).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numba
+import numpy as np
+from numba import types
+from numba.core.errors import TypingError
+from numba.extending import overload
+
+__all__ = ["PLawKind", "P_LAW", "LoggedController", "CONTROL_LAWS", "control_law", "p_law"]
+
+
+class PLawKind(NamedTuple):
+    """Type tag of the rig's P law ``i = P e`` (its numba type selects the law).
+
+    Attributes
+    ----------
+    code : int
+        0 (informative only: the *type* is what the driver dispatches on).
+    """
+
+    code: int = 0
+
+
+_jit = numba.njit(nogil=True, error_model="numpy")
+
+
+@_jit
+def p_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
+    """The rig's P law ``i = P e`` with the rig's gains (``lp`` unused).
+
+    Parameters
+    ----------
+    lp : float
+        Unused.
+    c : plant.rig.RigConstants
+        Rig layout (``p_gain``).
+    k : int
+        Sample index.
+    q2m, q3m : float
+        Measured angles (unused).
+    e2, e3 : float
+        Pulse errors.
+    CS : ndarray
+        Controller state (unused).
+    j : int
+        Lane.
+    """
+    return c.p_gain[0] * e2, c.p_gain[1] * e3
+
+
+#: Registry of the logged-run driver: law kind class -> compiled law.
+CONTROL_LAWS = {PLawKind: p_law}
+
+
+def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
+    """The control law of ``kind``: the one place a law kind becomes its function.
+
+    Compiled code only (the pattern of ``plant.core.plant_rhs``).
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A :attr:`LoggedController.kind`, registered in :data:`CONTROL_LAWS`.
+    lp, c, k, q2m, q3m, e2, e3, CS, j
+        As the laws of the module docstring.
+
+    Raises
+    ------
+    numba.core.errors.TypingError
+        At compile time, for a kind that is not registered.
+    """
+    raise NotImplementedError("control_law is called from compiled code only")
+
+
+@overload(control_law, jit_options=dict(nogil=True, error_model="numpy"))
+def _control_law_overload(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
+    law = CONTROL_LAWS.get(getattr(kind, "instance_class", None))
+    if not isinstance(kind, types.BaseNamedTuple) or law is None:
+        raise TypingError(f"unknown control-law kind {kind}; register it in "
+                          "plant.controllers.CONTROL_LAWS")
+
+    def impl(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
+        return law(lp, c, k, q2m, q3m, e2, e3, CS, j)
+
+    return impl
+
+
+@dataclass(frozen=True)
+class LoggedController:
+    """A compiled control law for the logged-run driver, with its parameters and state.
+
+    Attributes
+    ----------
+    kind : NamedTuple
+        Type tag registered in :data:`CONTROL_LAWS`.
+    parameters : object
+        The law's parameters ``lp`` (numba-typed value).
+    state : ndarray, shape (n_cs,)
+        Controller state at the log's first simulated sample (every lane
+        starts from it).
+    name : str
+        For messages.
+    """
+
+    kind: Any
+    parameters: Any
+    state: np.ndarray
+    name: str = "controller"
+
+    @property
+    def is_p_law(self) -> bool:
+        """True for the rig's P law (replay with ``P e_log``)."""
+        return isinstance(self.kind, PLawKind)
+
+    def lane_states(self, lanes) -> np.ndarray:
+        """Per-lane controller state (n_cs, lanes), every column the start state.
+
+        Parameters
+        ----------
+        lanes : int
+        """
+        s = np.ascontiguousarray(self.state, dtype=np.float64).reshape(-1)
+        return np.ascontiguousarray(np.tile(s[:, None], (1, lanes)))
+
+
+#: The rig's P law (no parameters, no state).
+P_LAW = LoggedController(kind=PLawKind(), parameters=0.0, state=np.zeros(1), name="P")
+
+
+def as_logged_controller(controller, log) -> LoggedController:
+    """The compiled law of ``controller`` for ``log`` (None: the rig's P law).
+
+    Parameters
+    ----------
+    controller : LoggedController, object with ``logged_controller(log)``, or None
+        E.g. a :class:`ctc.ComputedTorqueController`.
+    log : plant.ExperimentLog
+
+    Returns
+    -------
+    LoggedController
+
+    Raises
+    ------
+    ValueError
+        If ``controller`` provides no compiled law.
+    """
+    if controller is None:
+        return P_LAW
+    if isinstance(controller, LoggedController):
+        return controller
+    make = getattr(controller, "logged_controller", None)
+    if make is None:
+        raise ValueError(f"{type(controller).__name__} provides no compiled law for the logged "
+                         "run (a logged_controller(log) method returning a "
+                         "plant.controllers.LoggedController)")
+    return make(log)
