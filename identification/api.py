@@ -18,6 +18,8 @@ from .parameters import (
     Parameterisation,
     PayloadParameters,
 )
+from .friction import FrictionParameters
+from .models import result_entries
 from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
 
@@ -69,6 +71,13 @@ def _parameterisation(parameters, bounds, payload, prior, payload_bounds, consis
     if consistent:
         return ConsistentBaseParameters(bounds)
     return BaseParameters(bounds)
+
+
+def _with_friction(space, log):
+    """Wrap ``space`` in FrictionParameters when the log's friction is unknown."""
+    if log.rig.unknown_friction and not isinstance(space, FrictionParameters):
+        return FrictionParameters(space)
+    return space
 
 
 def identify(
@@ -179,7 +188,8 @@ def identify(
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     log = _as_log(log)
-    space = _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent)
+    space = _with_friction(
+        _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent), log)
     seed = _seed_of(rng)
     rng = np.random.default_rng(rng)
     if workers is not None and int(workers) < 1:
@@ -227,10 +237,15 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
     t0 = time.perf_counter()
     xb = space.bounds(log)
     k = xb.shape[0]
-    objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers)
+    sim_plant = space.plant(log)
+    objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers,
+                            plant=sim_plant)
 
     def f_objective(X, cap=None):
-        return objective(space.to_f(X, log), cap=cap)
+        extra = space.plant_parameters(np.atleast_2d(X), log)
+        if extra is None:  # the rigid plant's call
+            return objective(space.to_f(X, log), cap=cap)
+        return objective(space.to_f(X, log), cap=cap, plant_parameters=extra)
 
     refining = method == "ga+pem"
     state = space.initial_state(log) if refining else None
@@ -240,7 +255,9 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         problem = PredictionErrorProblem(log, to_f=lambda X: space.to_f(X[:, :k], log),
                                          to_state=to_state, gain=ropts["gain"],
                                          substeps=substeps, lowpass_hz=lowpass_hz,
-                                         workers=workers)
+                                         workers=workers, plant=sim_plant,
+                                         to_plant_parameters=lambda X: space.plant_parameters(
+                                             X[:, :k], log))
 
     def nfev():
         return objective.nfev + (problem.nfev if problem else 0)
@@ -281,7 +298,8 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
 
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here
-    fun = float(ga.fun) if refinement is None else float(objective(f[None])[0])
+    fun = float(ga.fun) if refinement is None else float(objective(
+        f[None], plant_parameters=space.plant_parameters(np.atleast_2d(x), log))[0])
     wall = time.perf_counter() - t0
     if ga is not None:
         hist = {name: np.asarray(v) for name, v in ga.history.items()}
@@ -301,5 +319,5 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         settings=dict(ga=ga_settings if ga is not None else None,
                       refine=ropts if refining else None, substeps=int(substeps),
                       lowpass_hz=lowpass_hz, parameters=repr(space)),
-        **space.extras(x, log),
+        **result_entries(space, x, log),
     )

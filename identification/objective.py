@@ -43,6 +43,9 @@ class OutputError:
         (:mod:`identification.filtering`).
     workers : int, optional
         Threads of the parallel simulation.
+    plant : plant.plants.Plant, optional
+        The simulated plant (default rigid); per-candidate parameters beyond
+        f go to a call's ``plant_parameters``.
 
     Notes
     -----
@@ -52,8 +55,10 @@ class OutputError:
     candidates.
     """
 
-    def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None):
+    def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None,
+                 plant=None):
         self.log = log
+        self.plant = plant
         self.substeps = int(substeps)
         self.workers = workers
         self.lowpass_hz = None if lowpass_hz is None else float(lowpass_hz)
@@ -62,20 +67,22 @@ class OutputError:
             self._sos = lowpass_sos(self.lowpass_hz, log.rig.sample_time_s)
             self._e_log_filtered = apply_lowpass(log.e_pulses, self._sos)
 
-    def __call__(self, F, cap=None):
+    def __call__(self, F, cap=None, plant_parameters=None):
         """Output errors of candidates ``F`` (m, 9) -> (m,) pulses^2.
 
         ``cap`` (pulses^2, optional) terminates candidates early once their
         running output error passes it (see :func:`plant.simulate_batch`);
         their value is then the running sum extrapolated to the whole log,
         above ``cap``.  With a low-pass filter the errors are filtered over
-        the whole run, so the cap is not applied.
+        the whole run, so the cap is not applied.  ``plant_parameters``
+        (dict, optional): the candidates' plant parameters beyond f
+        (:func:`plant.simulate_batch`).
         """
         F = np.atleast_2d(np.asarray(F, dtype=float))
         filtered = self.lowpass_hz is not None
         sim = plant.simulate_batch(
             self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers,
-            cap=None if filtered else cap,
+            cap=None if filtered else cap, plant=self.plant, plant_parameters=plant_parameters,
         )
         self.nfev += F.shape[0]
         if not filtered:

@@ -68,6 +68,11 @@ class PredictionErrorProblem:
         Low-pass both sides (as :class:`identification.objective.OutputError`).
     workers : int, optional
         Threads of the simulation.
+    plant : plant.plants.Plant, optional
+        The simulated plant (default rigid).
+    to_plant_parameters : callable, optional
+        Maps x (m, k) to the plant parameters beyond f (a dict of arrays,
+        :func:`plant.prediction_errors`).
 
     Attributes
     ----------
@@ -77,8 +82,10 @@ class PredictionErrorProblem:
     """
 
     def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=1,
-                 lowpass_hz=None, workers=None):
+                 lowpass_hz=None, workers=None, plant=None, to_plant_parameters=None):
         self.log = log
+        self.plant = plant
+        self.to_plant_parameters = to_plant_parameters
         self.to_state = to_state
         self.to_f = to_f if to_f is not None else (lambda X: np.asarray(X, dtype=float))
         self.gain = float(gain)
@@ -107,7 +114,9 @@ class PredictionErrorProblem:
         X0 = None if self.to_state is None else np.asarray(self.to_state(X), dtype=float)
         eps, status = plant.prediction_errors(
             self.log, F, gain=self.gain, substeps=self.substeps, workers=self.workers,
-            initial_state=X0)
+            initial_state=X0, plant=self.plant,
+            plant_parameters=None if self.to_plant_parameters is None
+            else self.to_plant_parameters(X))
         self.nfev += F.shape[0]
         if self._sos is not None:
             ok = status == STATUS_OK

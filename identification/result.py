@@ -355,7 +355,10 @@ class IdentificationResult(OptimizeResult):
             ``setting`` (``fun``'s integration setting as text),
             ``history``, ``refinement``, ``wall_time_s``,
             ``compile_time_s``, and in payload mode ``payload`` and its
-            flattened ``payload_<key>`` entries (``payload_mass_kg``, ...).
+            flattened ``payload_<key>`` entries (``payload_mass_kg``, ...);
+            always the model keys of :data:`identification.models.MODEL_KEYS`
+            (``model``, joint stiffness/damping/reflected inertia, friction,
+            ``friction_identified``, ``model_choice``).
             Non-finite floats become ``null``.  ``log``, ``population`` and
             ``population_energies`` are not written.
         """
@@ -395,6 +398,11 @@ class IdentificationResult(OptimizeResult):
             d["payload"] = payload
             for k, v in payload.items():
                 d[f"payload_{k}"] = v
+        from .models import MODEL_KEYS  # rigid/flexible model and friction (always written)
+
+        d.update({key: self.get(key) for key in MODEL_KEYS})
+        if d["model"] is None:
+            d["model"] = "rigid"
         return _jsonable(d)
 
     def save_json(self, path, *, create_dirs=True):
@@ -539,6 +547,11 @@ class IdentificationResult(OptimizeResult):
             res["parameters"] = res._parameters()
         if d.get("payload") is not None:
             res["payload"] = d["payload"]
+        from .models import MODEL_KEYS
+
+        for key in MODEL_KEYS:
+            if key in d:
+                res[key] = d[key]
         return res
 
     # -- plots --------------------------------------------------------------

@@ -529,8 +529,9 @@ def simulate_batch(
         :class:`plant.plants.FlexibleJoints`).
     plant_parameters : dict, optional
         Per-candidate plant parameters beyond f, as keyword arguments of the
-        plant's ``lane_parameters`` (e.g. ``friction`` (m, 8), or ``joints``
-        (m, 6) of a flexible plant).
+        plant's ``lane_parameters`` (e.g. ``friction`` (m, 6) of
+        :data:`plant.friction.RIGID_FRICTION`, or ``joints`` (m, 6) of a
+        flexible plant).
 
     Returns
     -------
