@@ -18,6 +18,7 @@ from .parameters import (
     Parameterisation,
     PayloadParameters,
 )
+from .flexible import MODELS, apply_model
 from .friction import FrictionParameters
 from .models import result_entries
 from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
@@ -98,6 +99,7 @@ def identify(
     prior=None,
     payload_bounds=None,
     consistent=False,
+    model="auto",
 ):
     """Identify the base parameters f1..f9 from a P-control log.
 
@@ -167,6 +169,14 @@ def identify(
         Shorthand for ``parameters=ConsistentBaseParameters(bounds)``: eq. 3's
         ``f3 = a3 f5``, ``f4 = a3 f6``, seven free parameters.
 
+    model : {'auto', 'rigid', 'flexible'}
+        The robot model (:mod:`identification.flexible`): ``'auto'``
+        (default) fits the two-mass flexible-joint model too when the log's
+        error spectrum shows a lightly damped mode and keeps it if it
+        predicts held-back samples better (``model_choice`` says why);
+        only with the default search (no low-pass, base parameters, known
+        friction, ``'ga+pem'``, default budgets), otherwise rigid.
+
     Returns
     -------
     IdentificationResult
@@ -202,9 +212,15 @@ def identify(
     if unknown:
         raise ValueError(f"unknown refine option(s): {', '.join(sorted(unknown))}")
     ropts.update(refine_options or {})
-    return _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
-                   ropts=ropts, callback=callback, workers=workers, progress=progress,
-                   lowpass_hz=lowpass_hz, substeps=substeps)
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
+    res = _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
+                  ropts=ropts, callback=callback, workers=workers, progress=progress,
+                  lowpass_hz=lowpass_hz, substeps=substeps)
+    eligible = (type(space) is BaseParameters and lowpass_hz is None and method == "ga+pem"
+                and not res.interrupted and (model == "flexible" or (
+                    ga_options is None and refine_options is None)))
+    return apply_model(res, log, model, workers=workers, eligible=eligible)
 
 
 def _user_callback(callback, stage, nfev):
