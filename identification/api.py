@@ -18,6 +18,9 @@ from .parameters import (
     Parameterisation,
     PayloadParameters,
 )
+from .flexible import MODELS, apply_model
+from .friction import FrictionParameters
+from .models import result_entries
 from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
 from .uncertainty import uncertainty_entries
@@ -73,6 +76,13 @@ def _parameterisation(parameters, bounds, payload, prior, payload_bounds, consis
     return BaseParameters(bounds)
 
 
+def _with_friction(space, log):
+    """Wrap ``space`` in FrictionParameters when the log's friction is unknown."""
+    if log.rig.unknown_friction and not isinstance(space, FrictionParameters):
+        return FrictionParameters(space)
+    return space
+
+
 def identify(
     log,
     *,
@@ -92,6 +102,7 @@ def identify(
     payload_bounds=None,
     consistent=False,
     controller=None,
+    model="auto",
 ):
     """Identify the base parameters f1..f9 from a P-control log.
 
@@ -172,6 +183,14 @@ def identify(
         at the window's start): the output error simulates it in the loop,
         the refinement replays its logged currents (:mod:`plant.controllers`).
 
+    model : {'auto', 'rigid', 'flexible'}
+        The robot model (:mod:`identification.flexible`): ``'auto'``
+        (default) fits the two-mass flexible-joint model too when the log's
+        error spectrum shows a lightly damped mode and keeps it if it
+        predicts held-back samples better (``model_choice`` says why);
+        only with the default search (no low-pass, base parameters, known
+        friction, ``'ga+pem'``, default budgets), otherwise rigid.
+
     Returns
     -------
     IdentificationResult
@@ -198,7 +217,8 @@ def identify(
 
         return identify_idim(log, substeps=substeps, workers=workers, lowpass_hz=lowpass_hz,
                              seed=_seed_of(rng))
-    space = _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent)
+    space = _with_friction(
+        _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent), log)
     seed = _seed_of(rng)
     rng = np.random.default_rng(rng)
     if workers is not None and int(workers) < 1:
@@ -212,9 +232,16 @@ def identify(
     if unknown:
         raise ValueError(f"unknown refine option(s): {', '.join(sorted(unknown))}")
     ropts.update(refine_options or {})
-    return _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
-                   ropts=ropts, callback=callback, workers=workers, progress=progress,
-                   lowpass_hz=lowpass_hz, substeps=substeps, controller=controller)
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
+    res = _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
+                  ropts=ropts, callback=callback, workers=workers, progress=progress,
+                  lowpass_hz=lowpass_hz, substeps=substeps, controller=controller)
+    eligible = (type(space) is BaseParameters and lowpass_hz is None and method == "ga+pem"
+                and controller is None and log.rig.q0_rad is not None
+                and not res.interrupted and (model == "flexible" or (
+                    ga_options is None and refine_options is None)))
+    return apply_model(res, log, model, workers=workers, eligible=eligible)
 
 
 def _user_callback(callback, stage, nfev):
@@ -252,12 +279,16 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
     unknown_start = log.rig.q0_rad is None  # a window without a start state
     if unknown_start and state is None:
         state = estimate_initial_state(log)
+    sim_plant = space.plant(log)
     objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers,
                             initial_state=state[0] if unknown_start else None,
-                            controller=controller)
+                            controller=controller, plant=sim_plant)
 
     def f_objective(X, cap=None):
-        return objective(space.to_f(X, log), cap=cap)
+        extra = space.plant_parameters(np.atleast_2d(X), log)
+        if extra is None:  # the rigid plant's call
+            return objective(space.to_f(X, log), cap=cap)
+        return objective(space.to_f(X, log), cap=cap, plant_parameters=extra)
 
     problem = None
     if refining:
@@ -265,7 +296,10 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         problem = PredictionErrorProblem(log, to_f=lambda X: space.to_f(X[:, :k], log),
                                          to_state=to_state, gain=ropts["gain"],
                                          substeps=substeps, lowpass_hz=lowpass_hz,
-                                         workers=workers, controller=controller)
+                                         workers=workers, controller=controller,
+                                         plant=sim_plant,
+                                         to_plant_parameters=lambda X: space.plant_parameters(
+                                             X[:, :k], log))
 
     def nfev():
         return objective.nfev + (problem.nfev if problem else 0)
@@ -309,7 +343,9 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here
     x0 = refinement.get("initial_state") if (refinement and unknown_start) else None
-    fun = float(ga.fun) if refinement is None else float(objective(f[None], initial_state=x0)[0])
+    fun = float(ga.fun) if refinement is None else float(objective(
+        f[None], initial_state=x0,
+        plant_parameters=space.plant_parameters(np.atleast_2d(x), log))[0])
     wall = time.perf_counter() - t0
     if ga is not None:
         hist = {name: np.asarray(v) for name, v in ga.history.items()}
@@ -329,5 +365,5 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         settings=dict(ga=ga_settings if ga is not None else None,
                       refine=ropts if refining else None, substeps=int(substeps),
                       lowpass_hz=lowpass_hz, parameters=repr(space)),
-        **space.extras(x, log), **unc,
+        **result_entries(space, x, log), **unc,
     )

@@ -147,6 +147,11 @@ def build_parser():
                         "joint-flexibility oscillations); 'auto' takes the cutoff that "
                         "identification.diagnostics.suggest_lowpass finds in the error "
                         "spectrum (none for a log without such a mode)")
+    p.add_argument("--model", choices=("rigid", "flexible", "auto"), default="auto",
+                   help="robot model: rigid, two-mass flexible joints, or auto (default): "
+                        "flexible when the error spectrum shows a lightly damped mode and "
+                        "the flexible fit predicts held-back samples better (the result's "
+                        "model_choice says why)")
     p.add_argument("--consistent", action="store_true",
                    help="enforce f3 = a3 f5 and f4 = a3 f6 (eq. 3; a3 from the sidecar) and "
                         "search the 7 other base parameters (recommended for flexible "
@@ -468,7 +473,8 @@ def _run(args, stdout, stderr) -> int:
 
     # tqdm's bar only on a terminal (no carriage returns in a log file)
     kwargs = dict(method=args.method, rng=args.seed, workers=args.workers,
-                  progress=not args.quiet and _isatty(stderr), lowpass_hz=args.lowpass)
+                  progress=not args.quiet and _isatty(stderr), lowpass_hz=args.lowpass,
+                  model=args.model)
     if args.generations is not None:
         kwargs["ga_options"] = {"n_gen": args.generations}
     if args.payload:
@@ -491,6 +497,9 @@ def _run(args, stdout, stderr) -> int:
             "stopped by callback", "interrupted by Ctrl-C")
 
     print(format_result_table(result, log), file=stdout, flush=True)
+    choice = result.get("model_choice") or {}
+    if choice.get("reason") and not args.quiet:
+        status.say(f"model: {result.get('model', 'rigid')} ({choice['reason']})")
     if out is not None:
         _wrote(status, result.save_json(out, create_dirs=True))
     if plot_dir is not None:

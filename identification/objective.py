@@ -49,6 +49,9 @@ class OutputError:
     controller : object, optional
         The controller that ran, simulated in the loop (see
         :func:`plant.simulate_batch`; default the rig's P law).
+    plant : plant.plants.Plant, optional
+        The simulated plant (default rigid); per-candidate parameters beyond
+        f go to a call's ``plant_parameters``.
 
     Notes
     -----
@@ -59,10 +62,11 @@ class OutputError:
     """
 
     def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None,
-                 initial_state=None, controller=None):
+                 initial_state=None, controller=None, plant=None):
         self.log = log
         self.controller = controller
         self.initial_state = initial_state
+        self.plant = plant
         self.substeps = int(substeps)
         self.workers = workers
         self.lowpass_hz = None if lowpass_hz is None else float(lowpass_hz)
@@ -71,7 +75,7 @@ class OutputError:
             self._sos = lowpass_sos(self.lowpass_hz, log.rig.sample_time_s)
             self._e_log_filtered = apply_lowpass(log.e_pulses, self._sos)
 
-    def __call__(self, F, cap=None, initial_state=None):
+    def __call__(self, F, cap=None, initial_state=None, plant_parameters=None):
         """Output errors of candidates ``F`` (m, 9) -> (m,) pulses^2.
 
         ``initial_state`` ((4,) or (m, 4), optional) overrides the one given
@@ -81,7 +85,9 @@ class OutputError:
         running output error passes it (see :func:`plant.simulate_batch`);
         their value is then the running sum extrapolated to the whole log,
         above ``cap``.  With a low-pass filter the errors are filtered over
-        the whole run, so the cap is not applied.
+        the whole run, so the cap is not applied.  ``plant_parameters``
+        (dict, optional): the candidates' plant parameters beyond f
+        (:func:`plant.simulate_batch`).
         """
         F = np.atleast_2d(np.asarray(F, dtype=float))
         filtered = self.lowpass_hz is not None
@@ -89,7 +95,7 @@ class OutputError:
             self.log, F, substeps=self.substeps, errors=filtered, workers=self.workers,
             cap=None if filtered else cap,
             initial_state=self.initial_state if initial_state is None else initial_state,
-            controller=self.controller,
+            controller=self.controller, plant=self.plant, plant_parameters=plant_parameters,
         )
         self.nfev += F.shape[0]
         if not filtered:

@@ -170,6 +170,34 @@ class Parameterisation:
         """
         return None
 
+    def plant(self, log):
+        """The simulated plant (default None: :data:`plant.plants.RIGID`).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        plant.plants.Plant or None
+        """
+        return None
+
+    def plant_parameters(self, x, log):
+        """Per-candidate plant parameters beyond f (default None).
+
+        Parameters
+        ----------
+        x : ndarray, shape (m, k)
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        dict or None
+            Keyword arrays of the plant's ``lane_parameters``.
+        """
+        return None
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}()"
 

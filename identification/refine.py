@@ -71,6 +71,11 @@ class PredictionErrorProblem:
     controller : object, optional
         The controller that ran (:func:`plant.prediction_errors`: a non-P
         controller is replayed by its logged currents).
+    plant : plant.plants.Plant, optional
+        The simulated plant (default rigid).
+    to_plant_parameters : callable, optional
+        Maps x (m, k) to the plant parameters beyond f (a dict of arrays,
+        :func:`plant.prediction_errors`).
 
     Attributes
     ----------
@@ -80,9 +85,12 @@ class PredictionErrorProblem:
     """
 
     def __init__(self, log, *, to_f=None, to_state=None, gain=DEFAULT_GAIN, substeps=1,
-                 lowpass_hz=None, workers=None, controller=None):
+                 lowpass_hz=None, workers=None, controller=None, plant=None,
+                 to_plant_parameters=None):
         self.log = log
         self.controller = controller
+        self.plant = plant
+        self.to_plant_parameters = to_plant_parameters
         self.to_state = to_state
         self.to_f = to_f if to_f is not None else (lambda X: np.asarray(X, dtype=float))
         self.gain = float(gain)
@@ -111,7 +119,9 @@ class PredictionErrorProblem:
         X0 = None if self.to_state is None else np.asarray(self.to_state(X), dtype=float)
         eps, status = plant.prediction_errors(
             self.log, F, gain=self.gain, substeps=self.substeps, workers=self.workers,
-            initial_state=X0, controller=self.controller)
+            initial_state=X0, controller=self.controller, plant=self.plant,
+            plant_parameters=None if self.to_plant_parameters is None
+            else self.to_plant_parameters(X))
         self.nfev += F.shape[0]
         if self._sos is not None:
             ok = status == STATUS_OK

@@ -333,8 +333,11 @@ class IdentificationResult(OptimizeResult):
             ``compile_time_s``, the standard errors when computed
             (``f_std``, ``f_rse``, ``f_correlation``, ``x_std``,
             ``x_correlation``, ``poorly_excited``, ``uncertainty``;
-            :mod:`identification.uncertainty`), and in payload mode ``payload`` and its
-            flattened ``payload_<key>`` entries (``payload_mass_kg``, ...).
+            :mod:`identification.uncertainty`), in payload mode ``payload`` and its
+            flattened ``payload_<key>`` entries (``payload_mass_kg``, ...);
+            always the model keys of :data:`identification.models.MODEL_KEYS`
+            (``model``, joint stiffness/damping/reflected inertia, friction,
+            ``friction_identified``, ``model_choice``).
             Non-finite floats become ``null``.  ``log``, ``population`` and
             ``population_energies`` are not written.
         """
@@ -376,6 +379,11 @@ class IdentificationResult(OptimizeResult):
             d["payload"] = payload
             for k, v in payload.items():
                 d[f"payload_{k}"] = v
+        from .models import MODEL_KEYS  # rigid/flexible model and friction (always written)
+
+        d.update({key: self.get(key) for key in MODEL_KEYS})
+        if d["model"] is None:
+            d["model"] = "rigid"
         return _jsonable(d)
 
     def save_json(self, path, *, create_dirs=True):
@@ -524,6 +532,11 @@ class IdentificationResult(OptimizeResult):
         for k in RESULT_KEYS:
             if d.get(k) is not None:
                 res[k] = d[k] if k in ("poorly_excited", "uncertainty") else num_array(k, d[k])
+        from .models import MODEL_KEYS
+
+        for key in MODEL_KEYS:
+            if key in d:
+                res[key] = d[key]
         return res
 
     # -- plots --------------------------------------------------------------

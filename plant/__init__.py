@@ -23,6 +23,7 @@ from .model import (
 from .parallel import kernels_cached, warm_up
 from .payload import Payload, add_payload, payload_delta, recover_payload
 from .plants import RIGID, FlexibleJoints, Plant
+from .friction import RIGID_FRICTION
 from .plotting import plot_tracking_errors
 from .replay import measured_counts, prediction_errors
 from .response import ClosedLoopResponse
@@ -66,6 +67,7 @@ __all__ = [
     "Plant",
     "RIGID",
     "FlexibleJoints",
+    "RIGID_FRICTION",
     "STATUS_OK",
     "STATUS_MESSAGES",
     "DEFAULT_SUBSTEPS",

@@ -358,7 +358,7 @@ class FlexibleJoints(Plant):
         fl[..., 0] -= jk2[1]
         return fl
 
-    def lane_parameters(self, F, rig) -> np.ndarray:
+    def lane_parameters(self, F, rig, joints=None) -> np.ndarray:
         """Per-lane parameters (15, m): link f, Ks, Ds, Jm k^2 (see :func:`flexible_rhs`).
 
         Parameters
@@ -366,6 +366,10 @@ class FlexibleJoints(Plant):
         F : ndarray, shape (m, 9)
             Rigid-equivalent base parameters per candidate.
         rig : plant.rig.Rig
+        joints : array_like, shape (m, 6), optional
+            Per-candidate joints ``(K2, K3, D2, D3, Jm2 k2^2, Jm3 k3^2)``
+            (N m/rad, N m s/rad, kg m^2; identification); default this
+            plant's constants for every candidate.
 
         Returns
         -------
@@ -374,6 +378,13 @@ class FlexibleJoints(Plant):
         F = np.atleast_2d(np.asarray(F, dtype=float))
         m = F.shape[0]
         P = np.empty((15, m))
+        if joints is not None:
+            J = np.broadcast_to(np.atleast_2d(np.asarray(joints, dtype=float)), (m, 6))
+            P[:9] = F.T
+            P[6] -= J[:, 4]
+            P[0] -= J[:, 5]
+            P[_FX_K:] = J.T
+            return P
         P[:9] = self.link_parameters(F, rig).T
         P[_FX_K:_FX_K + 2] = np.asarray(self.stiffness_Nm_per_rad)[:, None]
         P[_FX_D:_FX_D + 2] = np.asarray(self.damping_Nms_per_rad)[:, None]

@@ -33,11 +33,13 @@ class Rig:
         P gain (A per pulse of error).
     torque_constant_Nm_per_A : tuple of 2 float
         Motor torque constant Kt.
-    viscous_friction_Nms_per_rad : tuple of 2 float
-        Motor-side viscous friction B (joint side: k^2 B).
-    coulomb_friction_Nm : tuple of 2 (float, float)
+    viscous_friction_Nms_per_rad : tuple of 2 float or None
+        Motor-side viscous friction B (joint side: k^2 B); None when the
+        sidecar says it is unknown (``null``; see :attr:`unknown_friction`).
+    coulomb_friction_Nm : tuple of 2 (float, float) or None
         Motor-side Coulomb friction per joint, (magnitude for positive joint
-        velocity, magnitude for negative joint velocity); joint side: abs(k) Tc.
+        velocity, magnitude for negative joint velocity); joint side:
+        abs(k) Tc; None when unknown.
     coulomb_ramp_speed_rad_per_s : float
         Motor speed below which the Coulomb friction ramps linearly to zero.
     gravity_m_s2 : float
@@ -81,6 +83,17 @@ class Rig:
         return np.array(
             [k * n / (2.0 * math.pi) for k, n in zip(self.gear_ratio, self.encoder_ppr)]
         )
+
+    @property
+    def unknown_friction(self) -> tuple:
+        """Names of the friction fields the sidecar leaves unknown (``null``), possibly empty.
+
+        A subset of ``("viscous_friction_Nms_per_rad", "coulomb_friction_Nm")``;
+        :func:`rig_constants` takes zeros for them and
+        :func:`identification.identify` estimates them with f.
+        """
+        return tuple(name for name in ("viscous_friction_Nms_per_rad", "coulomb_friction_Nm")
+                     if getattr(self, name) is None)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -154,7 +167,8 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     Returns
     -------
     RigConstants
-        Joint side: viscous ``k^2 B``, Coulomb ``abs(k) Tc``, ramp speed
+        Joint side: viscous ``k^2 B``, Coulomb ``abs(k) Tc`` (zero where the
+        rig's friction is unknown, None), ramp speed
         ``v / abs(k)``, torque per amp ``k Kt``, pulses per rad ``k N / 2 pi``.
 
     Raises
@@ -164,7 +178,11 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     """
     k = np.asarray(rig.gear_ratio, dtype=float)
     n = np.asarray(rig.encoder_ppr, dtype=float)
-    tc = np.asarray(rig.coulomb_friction_Nm, dtype=float).reshape(2, 2)
+    # unknown friction (None) is zero here: a plant that identifies it carries it per lane
+    tc = np.zeros((2, 2)) if rig.coulomb_friction_Nm is None else np.asarray(
+        rig.coulomb_friction_Nm, dtype=float).reshape(2, 2)
+    visc = np.zeros(2) if rig.viscous_friction_Nms_per_rad is None else np.asarray(
+        rig.viscous_friction_Nms_per_rad, dtype=float)
     start = []
     for name, given, default in (("q0", q0, rig.q0_rad), ("qd0", qd0, rig.qd0_rad_per_s)):
         if given is None and default is None:  # a window without a start state
@@ -179,7 +197,7 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
         pulses_per_rad=_pair(k * n / (2.0 * math.pi)),
         torque_per_amp=_pair(k * np.asarray(rig.torque_constant_Nm_per_A, dtype=float)),
         p_gain=_pair(rig.p_gain_A_per_pulse),
-        viscous=_pair(k * k * np.asarray(rig.viscous_friction_Nms_per_rad, dtype=float)),
+        viscous=_pair(k * k * visc),
         coulomb_pos=_pair(np.abs(k) * tc[:, 0]),
         coulomb_neg=_pair(np.abs(k) * tc[:, 1]),
         ramp_speed=_pair(rig.coulomb_ramp_speed_rad_per_s / np.abs(k)),

@@ -21,6 +21,12 @@ __all__ = ["rig_from_sidecar"]
 #: Coulomb ramp speed used when every Coulomb value is zero (then it has no effect).
 _UNUSED_RAMP_SPEED = 1.0
 
+#: Coulomb ramp speed (motor side, rad/s) when the Coulomb friction is unknown
+#: (null) and neither ``coulomb_ramp_speed_rad_per_s`` nor the note gives one:
+#: 0.5 rad/s, well below the motor speeds of a moving joint (tens to hundreds
+#: of rad/s), so the identified Coulomb levels hardly depend on it.
+DEFAULT_UNKNOWN_RAMP_SPEED = 0.5
+
 _RAMP_NOTE_RE = re.compile(r"below\s+([0-9.eE+-]+)\s*rad/s")
 
 
@@ -126,8 +132,10 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
         The parsed ``STEM.json``. Keys read: ``sample_time_s`` (s, > 0),
         ``gear_ratio`` (2, nonzero), ``encoder_ppr`` (2 positive integers),
         ``p_gain_A_per_pulse`` (2, > 0), ``torque_constant_Nm_per_A`` (2, > 0),
-        ``viscous_friction_Nms_per_rad`` (2, >= 0),
-        ``coulomb_friction_Nm`` ([[pos, neg], [pos, neg]], >= 0),
+        ``viscous_friction_Nms_per_rad`` (2, >= 0; null or absent: unknown),
+        ``coulomb_friction_Nm`` ([[pos, neg], [pos, neg]], >= 0; null or
+        absent: unknown -- the rig's field is then None and
+        :func:`identification.identify` estimates it with f),
         ``coulomb_ramp_speed_rad_per_s`` (> 0) or else the speed in
         ``coulomb_friction_note`` ("... below 0.5 rad/s ..."),
         ``gravity_m_s2``, ``a3_m``, ``start_state.q_rad`` (2),
@@ -137,7 +145,9 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
         -> [low, high], low < high), optional ``current_full_scale_A``
         (> 0 or null) and ``payload`` (null or ``{"mass_kg": number or null}``).
         When every Coulomb value is zero and no ramp speed is given, the ramp
-        speed is set to 1.0 rad/s; it has no effect then.
+        speed is set to 1.0 rad/s; it has no effect then.  When the Coulomb
+        friction is unknown and no ramp speed is given, it is
+        ``DEFAULT_UNKNOWN_RAMP_SPEED`` (0.5 rad/s).
     source : str or Path, optional
         File name used in error messages.
 
@@ -160,20 +170,26 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
     ppr = k.vector("encoder_ppr", integer=True, positive=True)
     p_gain = k.vector("p_gain_A_per_pulse", positive=True)
     kt = k.vector("torque_constant_Nm_per_A", positive=True)
-    visc = k.vector("viscous_friction_Nms_per_rad", nonneg=True)
-    coul_raw = k.get("coulomb_friction_Nm")
-    if not isinstance(coul_raw, (list, tuple)) or len(coul_raw) != 2:
-        raise k.err("coulomb_friction_Nm",
-                    f"must be [[pos, neg], [pos, neg]] (2 x 2 numbers), got {_short(coul_raw)}")
-    coul = tuple(
-        k.vector(f"coulomb_friction_Nm[{j}]", nonneg=True, value=coul_raw[j]) for j in range(2)
-    )
+    # null or absent friction: unknown (None), identified with f (plant.friction)
+    visc = None
+    if sidecar.get("viscous_friction_Nms_per_rad") is not None:
+        visc = k.vector("viscous_friction_Nms_per_rad", nonneg=True)
+    coul_raw = sidecar.get("coulomb_friction_Nm")
+    coul = None
+    if coul_raw is not None:
+        if not isinstance(coul_raw, (list, tuple)) or len(coul_raw) != 2:
+            raise k.err("coulomb_friction_Nm", "must be [[pos, neg], [pos, neg]] (2 x 2 numbers) "
+                        f"or null, got {_short(coul_raw)}")
+        coul = tuple(k.vector(f"coulomb_friction_Nm[{j}]", nonneg=True, value=coul_raw[j])
+                     for j in range(2))
     ramp = k.number("coulomb_ramp_speed_rad_per_s", positive=True, required=False)
     if ramp is None:
         note = sidecar.get("coulomb_friction_note")
         ramp = _ramp_speed_from_note(note)
         if ramp is not None and not (math.isfinite(ramp) and ramp > 0):
             raise k.err("coulomb_friction_note", f"gives a ramp speed that is not > 0: {ramp!r}")
+        if ramp is None and coul is None:
+            ramp = DEFAULT_UNKNOWN_RAMP_SPEED
         if ramp is None:
             if any(v != 0.0 for row in coul for v in row):
                 raise k.err(
@@ -243,8 +259,9 @@ def _rig_into_sidecar(rig: Rig, d: dict) -> None:
     d["encoder_ppr"] = [int(x) for x in rig.encoder_ppr]
     d["p_gain_A_per_pulse"] = [float(x) for x in rig.p_gain_A_per_pulse]
     d["torque_constant_Nm_per_A"] = [float(x) for x in rig.torque_constant_Nm_per_A]
-    d["viscous_friction_Nms_per_rad"] = [float(x) for x in rig.viscous_friction_Nms_per_rad]
-    d["coulomb_friction_Nm"] = [[float(v) for v in row] for row in rig.coulomb_friction_Nm]
+    visc, coul = rig.viscous_friction_Nms_per_rad, rig.coulomb_friction_Nm
+    d["viscous_friction_Nms_per_rad"] = None if visc is None else [float(x) for x in visc]
+    d["coulomb_friction_Nm"] = None if coul is None else [[float(v) for v in r] for r in coul]
     ramp = float(rig.coulomb_ramp_speed_rad_per_s)
     # The numeric key wins over the note on loading: write it unless the note
     # already states exactly this speed.

@@ -588,8 +588,9 @@ def simulate_batch(
         :class:`plant.plants.FlexibleJoints`).
     plant_parameters : dict, optional
         Per-candidate plant parameters beyond f, as keyword arguments of the
-        plant's ``lane_parameters`` (e.g. ``friction`` (m, 8), or ``joints``
-        (m, 6) of a flexible plant).
+        plant's ``lane_parameters`` (e.g. ``friction`` (m, 6) of
+        :data:`plant.friction.RIGID_FRICTION`, or ``joints`` (m, 6) of a
+        flexible plant).
     initial_state : array_like, shape (n_candidates, n_x) or (n_x,), optional
         State (q2, q3, qd2, qd3 for the rigid plant; rad, rad/s) at the log's
         first sample, per candidate: the simulation then starts there instead

@@ -511,8 +511,7 @@ REQUIRED_KEYS = [
     "encoder_ppr",
     "p_gain_A_per_pulse",
     "torque_constant_Nm_per_A",
-    "viscous_friction_Nms_per_rad",
-    "coulomb_friction_Nm",
+    # the friction keys may be absent or null: unknown (tests/test_unknown_friction.py)
     "gravity_m_s2",
     "a3_m",
     "start_state",

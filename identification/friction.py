@@ -1,0 +1,242 @@
+"""Friction identified with f when the rig does not know it.
+
+The paper (section 3): the drive constants "... if the last ones are unknown,
+then they have to be included as unknown parameters".  A sidecar with
+``"viscous_friction_Nms_per_rad": null`` and/or ``"coulomb_friction_Nm": null``
+(:attr:`plant.rig.Rig.unknown_friction`) makes :func:`identification.identify`
+wrap its parameterisation in :class:`FrictionParameters`: the searched vector
+is the wrapped one's followed by the unknown friction components (motor side,
+the sidecar's units: viscous B per joint, Coulomb Tc per joint and sign of
+the joint velocity), and the simulation runs the rigid plant with per-lane
+friction (:data:`plant.friction.RIGID_FRICTION`).  Both the GA and the
+refinement search them with f: the output error and the prediction errors
+depend on the friction through the same simulation.
+
+The search box of the friction comes from the log itself, not from a guess
+about the drive: no friction torque can exceed the largest motor torque the
+log applied, ``T = max |Kt i|`` (per joint), so ``0 <= Tc <= T`` and
+``0 <= B <= T / w`` with ``w`` the largest motor speed of the reference
+(``|k| max |qd_ref|``).  The Coulomb ramp speed is the rig's (from
+``coulomb_ramp_speed_rad_per_s``, the ``coulomb_friction_note`` or a
+documented default, :func:`plant.rig_from_sidecar`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from plant.friction import FRICTION_NAMES, RIGID_FRICTION, friction_fields, friction_vector
+
+from .parameters import BaseParameters, Parameterisation, check_bounds
+
+__all__ = ["FrictionParameters", "unknown_friction_indices", "default_friction_bounds",
+           "friction_entries"]
+
+
+def unknown_friction_indices(rig) -> list:
+    """Indices (into :data:`plant.friction.FRICTION_NAMES`) of the rig's unknown friction.
+
+    Parameters
+    ----------
+    rig : plant.rig.Rig
+
+    Returns
+    -------
+    list of int
+        0, 1 if the viscous friction is unknown; 2..5 if the Coulomb friction is.
+    """
+    idx = []
+    if rig.viscous_friction_Nms_per_rad is None:
+        idx += [0, 1]
+    if rig.coulomb_friction_Nm is None:
+        idx += [2, 3, 4, 5]
+    return idx
+
+
+def default_friction_bounds(log) -> np.ndarray:
+    """Search box (6, 2) of the motor-side friction from the log (module docstring).
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+
+    Returns
+    -------
+    ndarray, shape (6, 2)
+        ``[0, T / w]`` for B2, B3 and ``[0, T]`` for the four Coulomb levels,
+        with T the largest motor torque ``|Kt i|`` and w the largest motor
+        speed ``|k qd_ref|`` of the log, per joint.
+
+    Raises
+    ------
+    ValueError
+        If the log applies no current or its reference does not move.
+    """
+    rig = log.rig
+    kt = np.asarray(rig.torque_constant_Nm_per_A, dtype=float)
+    k = np.abs(np.asarray(rig.gear_ratio, dtype=float))
+    torque = kt * np.max(np.abs(np.asarray(log.i_A, dtype=float)), axis=0)
+    t = np.arange(log.n_total) * rig.sample_time_s
+    _, qd_ref, _ = log.trajectory.evaluate(t)
+    speed = k * np.max(np.abs(qd_ref), axis=0)
+    if not (np.all(torque > 0) and np.all(speed > 0)):
+        raise ValueError("the friction cannot be identified from a log whose current or "
+                         "reference speed is zero on a joint")
+    hi = np.array([torque[0] / speed[0], torque[1] / speed[1],
+                   torque[0], torque[0], torque[1], torque[1]])
+    return np.column_stack([np.zeros(6), hi])
+
+
+def friction_entries(log) -> dict:
+    """Result entries of a log whose friction is known: echoed from the sidecar.
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+
+    Returns
+    -------
+    dict
+        ``viscous_friction_Nms_per_rad`` (2), ``coulomb_friction_Nm`` (2 x 2)
+        (unknown values as 0) and ``friction_identified`` False.
+    """
+    return dict(friction_fields(friction_vector(log.rig)), friction_identified=False)
+
+
+class FrictionParameters(Parameterisation):
+    """Another parameterisation plus the rig's unknown friction (motor side).
+
+    ``x = [x_base, friction]``: the wrapped parameterisation's vector, then
+    the unknown components of ``(B2, B3, Tc2+, Tc2-, Tc3+, Tc3-)`` (those the
+    sidecar gives as null; the known ones stay the sidecar's).  The
+    simulation is :data:`plant.friction.RIGID_FRICTION` with each
+    candidate's friction.
+
+    Parameters
+    ----------
+    base : Parameterisation, optional
+        What is searched besides the friction (default
+        :class:`~identification.parameters.BaseParameters`).
+    friction_bounds : array_like, shape (6, 2), optional
+        Box of the six friction components (rows of the known ones unused);
+        default :func:`default_friction_bounds`.
+
+    Raises
+    ------
+    ValueError
+        On malformed bounds.
+    """
+
+    def __init__(self, base=None, friction_bounds=None):
+        self.base = BaseParameters() if base is None else base
+        if not isinstance(self.base, Parameterisation):
+            raise ValueError("base must be an identification.Parameterisation")
+        self._fb = None if friction_bounds is None else check_bounds(friction_bounds, 6)
+        self.name = self.base.name + "+friction"
+
+    def _k(self, log):
+        return len(self.base.names(log))
+
+    def names(self, log) -> list:
+        """The wrapped names, then the unknown friction components.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return list(self.base.names(log)) + [FRICTION_NAMES[i]
+                                             for i in unknown_friction_indices(log.rig)]
+
+    def bounds(self, log) -> np.ndarray:
+        """The wrapped box, then the friction box rows of the unknown components.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        fb = default_friction_bounds(log) if self._fb is None else self._fb
+        return np.vstack([self.base.bounds(log), fb[unknown_friction_indices(log.rig)]])
+
+    def to_f(self, x, log) -> np.ndarray:
+        """The wrapped parameterisation's f of the leading components.
+
+        Parameters
+        ----------
+        x : ndarray, shape (k,) or (m, k)
+        log : plant.ExperimentLog
+        """
+        x = np.asarray(x, dtype=float)
+        return self.base.to_f(x[..., :self._k(log)], log)
+
+    def friction(self, x, log) -> np.ndarray:
+        """Full motor-side friction vectors (known from the rig, unknown from x).
+
+        Parameters
+        ----------
+        x : ndarray, shape (k,) or (m, k)
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        ndarray, shape (6,) or (m, 6)
+        """
+        x = np.asarray(x, dtype=float)
+        V = np.tile(friction_vector(log.rig), x.shape[:-1] + (1,))
+        V[..., unknown_friction_indices(log.rig)] = x[..., self._k(log):]
+        return V
+
+    def plant(self, log):
+        """:data:`plant.friction.RIGID_FRICTION`.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return RIGID_FRICTION
+
+    def plant_parameters(self, x, log):
+        """``{"friction": (m, 6)}`` for candidates x (m, k).
+
+        Parameters
+        ----------
+        x : ndarray, shape (m, k)
+        log : plant.ExperimentLog
+        """
+        return {"friction": np.atleast_2d(self.friction(x, log))}
+
+    def extras(self, x, log) -> dict:
+        """The wrapped extras, the identified friction fields, ``friction_identified``.
+
+        Parameters
+        ----------
+        x : ndarray, shape (k,)
+        log : plant.ExperimentLog
+        """
+        out = dict(self.base.extras(np.asarray(x)[:self._k(log)], log))
+        out.update(friction_fields(self.friction(x, log)), friction_identified=True)
+        return out
+
+    def refine_starts(self, log):
+        """The wrapped starts with the friction at the middle of its box (or None: the GA's).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        s = self.base.refine_starts(log)
+        if s is None:
+            return None
+        s = np.atleast_2d(np.asarray(s, dtype=float))
+        fb = self.bounds(log)[self._k(log):]
+        return np.hstack([s, np.tile(fb.mean(axis=1), (len(s), 1))])
+
+    def initial_state(self, log):
+        """The wrapped parameterisation's (see :meth:`Parameterisation.initial_state`).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return self.base.initial_state(log)
+
+    def __repr__(self) -> str:
+        return f"FrictionParameters(base={self.base!r})"

@@ -1,0 +1,250 @@
+"""A rigid plant whose drive friction is a per-lane parameter (friction unknown).
+
+The plants of :mod:`plant.plants` take the drive friction from the rig
+(:class:`plant.rig.RigConstants`, shared by all lanes), which keeps their lane
+loops vectorised.  When the sidecar does not know the friction
+(``"viscous_friction_Nms_per_rad": null`` and/or ``"coulomb_friction_Nm":
+null``; :attr:`plant.rig.Rig.unknown_friction`) it has to be identified with
+f, so every candidate carries its own: :data:`RIGID_FRICTION` is the rigid
+robot of :data:`plant.plants.RIGID` with six more rows in its per-lane
+parameters P, the joint-side viscous coefficients and asymmetric Coulomb
+levels.  Its right-hand side :func:`rigid_friction_rhs` is registered in
+:data:`plant.plants.RIGHT_HAND_SIDES` under :class:`RigidFrictionKind`, so every
+driver of the core (:func:`plant.simulate_batch`, :func:`plant.prediction_errors`)
+simulates it with ``plant=RIGID_FRICTION, plant_parameters={"friction": ...}``.
+It costs more per candidate than the rigid plant (the friction is no longer
+a constant of the loop: measured 0.30 -> 0.84 ms per candidate), which is
+why the default rigid plant does not carry it.
+
+Friction vectors are given motor side, in the sidecar's units and order
+(:data:`FRICTION_NAMES`): ``B2, B3`` (N m s/rad) and ``Tc2+, Tc2-, Tc3+,
+Tc3-`` (N m, magnitudes for positive / negative joint velocity); the lanes
+hold them joint side (``k^2 B``, ``abs(k) Tc``).  The Coulomb ramp speed stays
+the rig's (:attr:`plant.rig.Rig.coulomb_ramp_speed_rad_per_s`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from .anchors import A_C2, A_C3, A_Q2, A_Q3, A_S2, A_S3, SINCOS_RANGE, sincos_offset
+from .model import friction_torque, joint_acceleration_sc
+from .plants import RIGHT_HAND_SIDES, Plant
+
+__all__ = ["RigidFrictionKind", "RIGID_FRICTION_KIND", "RigidWithFriction", "RIGID_FRICTION",
+           "rigid_friction_rhs", "FRICTION_NAMES", "friction_vector", "friction_fields",
+           "joint_side_friction"]
+
+#: Names of the components of a friction vector (motor side, the sidecar's units).
+FRICTION_NAMES = ("B2_Nms_per_rad", "B3_Nms_per_rad", "Tc2_pos_Nm", "Tc2_neg_Nm",
+                  "Tc3_pos_Nm", "Tc3_neg_Nm")
+
+# Rows of the per-lane parameters after the nine f: viscous (2), Coulomb + (2), Coulomb - (2).
+_FR_V, _FR_P, _FR_N = 9, 11, 13
+
+_jit = numba.njit(nogil=True, error_model="numpy")
+
+
+class RigidFrictionKind(NamedTuple):
+    """Type tag of :data:`RIGID_FRICTION` (see :class:`plant.plants.RigidKind`).
+
+    Attributes
+    ----------
+    code : int
+        2.
+    """
+
+    code: int = 2
+
+
+#: The kind value of :data:`RIGID_FRICTION`.
+RIGID_FRICTION_KIND = RigidFrictionKind()
+
+
+def friction_vector(rig) -> np.ndarray:
+    """The rig's friction as a vector (6,) in :data:`FRICTION_NAMES` order; unknown -> 0.
+
+    Parameters
+    ----------
+    rig : plant.rig.Rig
+
+    Returns
+    -------
+    ndarray, shape (6,)
+    """
+    v = np.zeros(6)
+    if rig.viscous_friction_Nms_per_rad is not None:
+        v[:2] = rig.viscous_friction_Nms_per_rad
+    if rig.coulomb_friction_Nm is not None:
+        v[2:] = np.asarray(rig.coulomb_friction_Nm, dtype=float).ravel()
+    return v
+
+
+def friction_fields(v) -> dict:
+    """A friction vector (6,) as the sidecar's fields.
+
+    Parameters
+    ----------
+    v : array_like, shape (6,)
+        Motor-side friction in :data:`FRICTION_NAMES` order.
+
+    Returns
+    -------
+    dict
+        ``viscous_friction_Nms_per_rad`` (list of 2) and
+        ``coulomb_friction_Nm`` (2 x 2 nested list, ``[[pos, neg], [pos, neg]]``).
+    """
+    v = np.asarray(v, dtype=float).reshape(6)
+    return dict(viscous_friction_Nms_per_rad=[float(v[0]), float(v[1])],
+                coulomb_friction_Nm=[[float(v[2]), float(v[3])], [float(v[4]), float(v[5])]])
+
+
+def joint_side_friction(V, rig) -> np.ndarray:
+    """Joint-side friction rows (6, m) of motor-side friction vectors V (m, 6).
+
+    Parameters
+    ----------
+    V : array_like, shape (m, 6) or (6,)
+        Motor-side friction (:data:`FRICTION_NAMES`).
+    rig : plant.rig.Rig
+        For the gear ratios k.
+
+    Returns
+    -------
+    ndarray, shape (6, m)
+        Rows ``k^2 B`` (2), ``abs(k) Tc+`` (2), ``abs(k) Tc-`` (2).
+    """
+    V = np.atleast_2d(np.asarray(V, dtype=float))
+    if V.shape[1] != 6 or not np.all(np.isfinite(V)):
+        raise ValueError(f"friction must be finite with shape (m, 6), got {V.shape}")
+    k = np.abs(np.asarray(rig.gear_ratio, dtype=float))
+    out = np.empty((6, V.shape[0]))
+    out[0:2] = (k * k)[:, None] * V[:, 0:2].T
+    out[2] = k[0] * V[:, 2]
+    out[3] = k[1] * V[:, 4]
+    out[4] = k[0] * V[:, 3]
+    out[5] = k[1] * V[:, 5]
+    return out
+
+
+@_jit
+def _friction_lane(P, j, c, w2, w3, s2, c2, s3, c3, i2, i3):
+    """Joint accelerations and PD margin of lane ``j`` with the lane's own friction."""
+    tau2 = c.torque_per_amp[0] * i2 + friction_torque(
+        w2, P[_FR_V, j], P[_FR_P, j], P[_FR_N, j], c.ramp_speed[0])
+    tau3 = c.torque_per_amp[1] * i3 + friction_torque(
+        w3, P[_FR_V + 1, j], P[_FR_P + 1, j], P[_FR_N + 1, j], c.ramp_speed[1])
+    f = (P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j], P[6, j], P[7, j], P[8, j])
+    a2, a3, det = joint_acceleration_sc(f, s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
+    return a2, a3, det if P[0, j] > 0.0 else -1.0
+
+
+@_jit
+def rigid_friction_rhs(P, c, X, U, A, K, n):
+    """Right-hand side of the rigid robot with per-lane drive friction.
+
+    As :func:`plant.plants.rigid_rhs`, with the joint-side friction of lane j
+    in ``P[9:15, j]`` (viscous 2, Coulomb for positive rate 2, for negative
+    rate 2) instead of the rig's; the ramp speed is the rig's.
+
+    Parameters
+    ----------
+    P : ndarray, shape (15, lanes)
+        Per-lane parameters.
+    c : plant.rig.RigConstants
+        Rig layout.
+    X : ndarray, shape (4, lanes)
+        Stage state.
+    U : ndarray, shape (2, lanes)
+        Held motor currents (A).
+    A : ndarray, shape (6, lanes)
+        Trigonometric anchors (:mod:`plant.core`).
+    K : ndarray, shape (5, lanes)
+        Output: state derivative and PD margin.
+    n : int
+        Lanes to evaluate.
+    """
+    far = 0
+    for j in range(n):
+        d2 = X[0, j] - A[A_Q2, j]
+        d3 = X[1, j] - A[A_Q3, j]
+        s2, c2 = sincos_offset(d2, A[A_S2, j], A[A_C2, j])
+        s3, c3 = sincos_offset(d3, A[A_S3, j], A[A_C3, j])
+        K[2, j], K[3, j], K[4, j] = _friction_lane(P, j, c, X[2, j], X[3, j],
+                                                   s2, c2, s3, c3, U[0, j], U[1, j])
+        K[0, j] = X[2, j]
+        K[1, j] = X[3, j]
+        far += not (abs(d2) <= SINCOS_RANGE and abs(d3) <= SINCOS_RANGE)
+    if far:
+        for j in range(n):
+            if not (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
+                    and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE):
+                K[2, j], K[3, j], K[4, j] = _friction_lane(
+                    P, j, c, X[2, j], X[3, j], math.sin(X[0, j]), math.cos(X[0, j]),
+                    math.sin(X[1, j]), math.cos(X[1, j]), U[0, j], U[1, j])
+
+
+RIGHT_HAND_SIDES[RigidFrictionKind] = rigid_friction_rhs
+
+
+@dataclass(frozen=True)
+class RigidWithFriction(Plant):
+    """The rigid robot with per-candidate drive friction (see the module docstring).
+
+    State ``(q2, q3, qd2, qd3)``, the encoders read q; per-lane parameters
+    f1..f9 and the joint-side friction (6 rows).  Use the instance
+    :data:`RIGID_FRICTION`.
+
+    Parameters
+    ----------
+    name : str
+        ``"rigid+friction"``.
+    kind : RigidFrictionKind
+        :data:`RIGID_FRICTION_KIND`.
+    n_states : int
+        4.
+    encoder_row : int
+        0.
+    n_parameters : int
+        15.
+    """
+
+    def lane_parameters(self, F, rig, friction=None) -> np.ndarray:
+        """Per-lane parameters (15, m): f and the joint-side friction.
+
+        Parameters
+        ----------
+        F : ndarray, shape (m, 9)
+            Base parameters f1..f9 per candidate.
+        rig : plant.rig.Rig
+            Gear ratios (and the friction when ``friction`` is None).
+        friction : array_like, shape (m, 6) or (6,), optional
+            Motor-side friction per candidate (:data:`FRICTION_NAMES`);
+            default the rig's (:func:`friction_vector`, unknown values 0).
+
+        Returns
+        -------
+        ndarray, shape (15, m)
+
+        Raises
+        ------
+        ValueError
+            On a friction of the wrong shape or not finite.
+        """
+        F = np.atleast_2d(np.asarray(F, dtype=float))
+        m = F.shape[0]
+        V = friction_vector(rig) if friction is None else friction
+        V = np.broadcast_to(np.atleast_2d(np.asarray(V, dtype=float)), (m, 6))
+        P = np.empty((15, m))
+        P[:9] = F.T
+        P[9:] = joint_side_friction(V, rig)
+        return P
+
+
+#: The rigid robot with per-lane friction rows (15 parameters).
+RIGID_FRICTION = RigidWithFriction(name="rigid+friction", kind=RIGID_FRICTION_KIND, n_states=4,
+                                   encoder_row=0, n_parameters=15)

@@ -1,0 +1,108 @@
+"""Flexible-joint identification and the model choice (issue 13, items 1-3)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import plant
+from identification import identify
+from identification.cli import build_parser
+from identification.flexible import (FlexibleParameters, MODELS, apply_model,
+                                     flexible_substeps)
+
+WELL_EXCITED = np.array([1, 2, 4, 6, 7, 9]) - 1
+JM = 200e-6
+
+
+def test_lane_parameters_per_candidate_joints_match_the_constants():
+    rig = plant.load_example().rig
+    f = np.array([1.2, 0.6, 0.0, -0.5, 0.0, -1.2, 4.8, -0.1, 3.8])
+    flex = plant.FlexibleJoints((2e4, 7e3), (3.0, 0.5), (JM, JM))
+    jk = flex.reflected_inertia(rig)
+    a = flex.lane_parameters(f[None], rig)
+    b = flex.lane_parameters(f[None], rig, joints=[[2e4, 7e3, 3.0, 0.5, jk[0], jk[1]]])
+    assert np.allclose(a, b, rtol=1e-15, atol=0)
+    x = np.r_[f, np.log10(2e4), np.log10(7e3), 3.0, 0.5, jk[0] / f[6], jk[1] / f[0]]
+    assert np.allclose(FlexibleParameters.joints(x), [2e4, 7e3, 3.0, 0.5, jk[0], jk[1]])
+
+
+@pytest.fixture(scope="module")
+def short_flexible_log():
+    """A held-out 1.2 s flexible log (stiffness, encoders, gain unlike the development logs)."""
+    base = plant.load_example("paper_rigid")
+    f = np.array([1.2, 0.6, 0.0, -0.5, 0.0, -1.2, 4.8, -0.1, 3.8])
+    rig = dataclasses.replace(base.rig, encoder_ppr=(500, 2048), p_gain_A_per_pulse=(0.12, 0.18))
+    flex = plant.FlexibleJoints((1.5e4, 7e3), (2.0, 1.0), (JM, JM))
+    log = plant.emulate_log(base, f, rig=rig, flexible=flex, duration_s=1.2, name="flex_short")
+    return log, f, flex
+
+
+def test_substeps_rule_converges_at_the_stiff_mode(short_flexible_log):
+    """Doubling the rule's substeps changes the prediction errors by < 0.01 pulse."""
+    log, f, flex = short_flexible_log
+    s = flexible_substeps(log)
+    assert s >= 1
+    space = FlexibleParameters()
+    # the stiffest, lightest corner of the box: the fastest mode the rule covers
+    jb = space.joint_bounds
+    x = np.r_[f, jb[0, 1], jb[1, 1], 1.0, 1.0, jb[4, 0], jb[5, 0]]
+    pp = space.plant_parameters(x[None], log)
+    e1, s1 = plant.prediction_errors(log, f, substeps=s, plant=space.plant(log),
+                                     plant_parameters={k: v[0] for k, v in pp.items()})
+    e2, s2 = plant.prediction_errors(log, f, substeps=2 * s, plant=space.plant(log),
+                                     plant_parameters={k: v[0] for k, v in pp.items()})
+    assert s1 == 0 and s2 == 0
+    assert np.max(np.abs(e1 - e2)) < 0.01
+
+
+def test_model_flexible_recovers_a_held_out_log(short_flexible_log):
+    log, f, flex = short_flexible_log
+    r = identify(log, rng=0, progress=False, model="flexible")
+    assert r.model == "flexible" and r.parameters == "flexible"
+    rel = np.abs(r.f - f)[WELL_EXCITED] / np.abs(f)[WELL_EXCITED]
+    assert np.all(rel < 0.02), rel
+    K = np.asarray(r.joint_stiffness_Nm_per_rad)
+    assert np.all(np.abs(K - flex.stiffness_Nm_per_rad) < 0.1 * np.asarray(
+        flex.stiffness_Nm_per_rad)), K
+    d = r.to_dict()
+    for key in ("joint_stiffness_Nm_per_rad", "joint_damping_Nms_per_rad",
+                "motor_inertia_reflected_kgm2"):
+        assert len(d[key]) == 2
+    assert d["model"] == "flexible" and d["friction_identified"] is False
+
+
+def test_auto_keeps_the_rigid_result_on_a_rigid_log():
+    log = plant.load_example()
+    kw = dict(rng=0, progress=False, ga_options={"n_gen": 3, "n_ind": 6},
+              refine_options={"n_starts": 1, "max_iter": 3})
+    a = identify(log, model="rigid", **kw)
+    b = identify(log, **kw)  # auto
+    assert b.model == "rigid" and "reason" in b.model_choice
+    assert np.max(np.abs(a.f - b.f)) <= 1e-6 and a.fun == b.fun
+
+
+def test_model_argument_checked():
+    log = plant.load_example()
+    with pytest.raises(ValueError, match="unknown model"):
+        identify(log, model="elastic", progress=False)
+    assert MODELS == ("rigid", "flexible", "auto")
+    assert build_parser().parse_args(["x.csv"]).model == "auto"
+    assert build_parser().parse_args(["x.csv", "--model", "flexible"]).model == "flexible"
+    with pytest.raises(ValueError, match="flexible"):
+        apply_model({}, log, "flexible", eligible=False)
+
+
+@pytest.mark.slow
+def test_drill_log_with_no_options(drill_log, truth):
+    """Acceptance: f1 f2 f4 f6 f7 f9 within 2 %, K within 10 % of the emulator's."""
+    t = truth("puma560_paper_drill_flex")
+    r = identify(drill_log, rng=0, progress=False)
+    assert r.model == "flexible", r.model_choice
+    f = np.asarray(t["f_vector"])
+    rel = np.abs(r.f - f) / np.abs(f)
+    assert np.all(rel[WELL_EXCITED] < 0.02), rel
+    K = np.asarray(t["emulator"]["variant"]["flex_stiffness"])
+    assert np.all(np.abs(np.asarray(r.joint_stiffness_Nm_per_rad) - K) < 0.1 * K)
+    assert r.model_choice["ratio"] < 0.5
