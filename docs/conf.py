@@ -16,7 +16,7 @@ author = "puma-ga-ctc contributors"
 copyright = "puma-ga-ctc contributors"
 
 try:  # the version of the installed distribution, if any
-    from importlib.metadata import PackageNotFoundError, version
+    from importlib.metadata import version
 
     release = version("puma-ga-ctc")
 except Exception:  # PackageNotFoundError or no metadata

@@ -68,7 +68,6 @@ import math
 
 import numpy as np
 
-import plant
 from plant.plants import FlexibleJoints
 
 from .parameters import BaseParameters, Parameterisation, check_bounds
@@ -418,6 +417,14 @@ def _flexible_result(rigid, log, fit, model_choice, workers):
                         ga_f=np.asarray(rigid["f"], dtype=float)),
         population=None, population_energies=None)
     res.update(space.extras(x, log))
+    # standard errors of the flexible fit (issue 15), replacing the rigid fit's
+    from .uncertainty import RESULT_KEYS, uncertainty_entries
+
+    for key in RESULT_KEYS:
+        res.pop(key, None)
+    xs = np.asarray(x, dtype=float)
+    res.update(uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
+                                   k=xs.size, names=space.names(log), a3=log.rig.a3_m))
     res["model_choice"] = model_choice
     return res
 

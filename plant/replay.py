@@ -142,7 +142,7 @@ def prediction_errors(
     x0 = plant.initial_state(inputs.constants)
     k0 = inputs.start_index
     law = as_logged_controller(controller, log)
-    i_log = np.ascontiguousarray(log.i_A, dtype=np.float64)
+    i_log = inputs.i_log
 
     def chunk(lo, hi):
         # with X0, the given state at the first logged sample: no simulation before it

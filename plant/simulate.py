@@ -108,12 +108,16 @@ class SimulationInputs(NamedTuple):
         Logged errors (float64 pulses).
     start_index : int
         Index of the log's first sample in its run.
+    i_log : ndarray, shape (n_samples, 2)
+        Logged currents (A), a writable copy (the kernels take one array
+        type, so a read-only log array would compile a second kernel).
     """
 
     constants: RigConstants
     ref_counts: np.ndarray
     e_log: np.ndarray
     start_index: int
+    i_log: np.ndarray
 
 
 def reference_counts(log) -> np.ndarray:
@@ -161,7 +165,8 @@ def simulation_inputs(log) -> SimulationInputs:
             return hit[1]
     inputs = SimulationInputs(
         rig_constants(log.rig), reference_counts(log),
-        np.ascontiguousarray(log.e_pulses, dtype=np.float64), int(log.start_index))
+        np.ascontiguousarray(log.e_pulses, dtype=np.float64), int(log.start_index),
+        np.array(log.i_A, dtype=np.float64, order="C"))
     try:
         ref = weakref.ref(log, lambda _, k=key: _PREPARED.pop(k, None))
     except TypeError:  # an object without weak references: not cached
@@ -635,7 +640,7 @@ def simulate_batch(
     X0 = start_states(log, initial_state, m, plant.n_states)
     k_start = 0 if X0 is None else inputs.start_index
     law = as_logged_controller(controller, log)
-    i_log = np.ascontiguousarray(log.i_A, dtype=np.float64)
+    i_log = inputs.i_log
 
     def chunk(lo, hi):
         lanes = lanes_from(Pall, lo, hi, x0, X0)

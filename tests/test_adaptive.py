@@ -16,6 +16,8 @@ import ctc
 import plant
 
 SUBSTEPS = 8
+#: Identification latency of the acceptance runs (s): the per-window budget.
+LATENCY_S = 0.2
 
 
 @pytest.fixture(scope="module")
@@ -29,13 +31,21 @@ def prior(truth):
     (4.0, (0.15, 0.05), 0.03, 0.8),
 ])
 def test_adaptive_ctc_after_a_pick_up(paper_log, prior, mass_kg, com_m, izz, t_pick):
+    """Acceptance with the identification latency fixed at its 0.2 s budget.
+
+    The measured wall time depends on the machine's load at test time (the
+    model switch is delayed by it, by design); the budget itself is measured
+    by ``benchmarks/bench_online_payload.py``, and the measured-latency path
+    by ``test_measured_latency_delays_the_switch``.
+    """
     a3 = paper_log.rig.a3_m
     f_loaded = plant.add_payload(prior, plant.Payload(mass_kg, com_m, izz), a3)
     schedule = [(t_pick, f_loaded)]
     static = plant.simulate_closed_loop(paper_log, prior,
                                         ctc.ComputedTorqueController.from_log(prior, paper_log),
                                         f_schedule=schedule, substeps=SUBSTEPS)
-    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log,
+                                                             latency_s=LATENCY_S)
     resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
                                       substeps=SUBSTEPS)
     assert resp.success and static.success
@@ -54,10 +64,24 @@ def test_adaptive_ctc_after_a_pick_up(paper_log, prior, mass_kg, com_m, izz, t_p
     for rec in adaptive.identifications:
         assert rec["wall_time_s"] > 0
     starts = [t for t, _ in adaptive.payload_history]
-    ends = [r["window_s"][1] + r["wall_time_s"] for r in adaptive.identifications
-            if r["accepted"]]
+    ends = [r["window_s"][1] + LATENCY_S for r in adaptive.identifications if r["accepted"]]
     for t_eff, t_min in zip(starts, ends):
         assert t_eff >= t_min - ts
+
+
+def test_measured_latency_delays_the_switch(paper_log, prior):
+    """Default: a new model takes effect after the measured wall time of its identification."""
+    a3 = paper_log.rig.a3_m
+    f_loaded = plant.add_payload(prior, plant.Payload(2.0, (0.10, 0.02), 0.01), a3)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=[(1.0, f_loaded)],
+                                      substeps=SUBSTEPS, n_samples=int(2.2 / paper_log.rig.sample_time_s))
+    assert resp.success and adaptive.payload_history
+    ts = paper_log.rig.sample_time_s
+    accepted = [r for r in adaptive.identifications if r["accepted"]]
+    for (t_eff, _), rec in zip(adaptive.payload_history, accepted):
+        assert rec["wall_time_s"] > 0
+        assert t_eff >= rec["window_s"][1] + rec["wall_time_s"] - ts
 
 
 def test_adaptive_ctc_protocol_and_prior_forms(paper_log, prior, tmp_path):
