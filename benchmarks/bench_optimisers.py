@@ -229,7 +229,7 @@ def _with_refinement(runner):
     or to the refinement?  Same refinement as ``identify()``: 4 starts (the
     best distinct points evaluated), refined together, at most 40 batches.
     """
-    from identification.refine import DEFAULT_GAIN, PredictionErrorProblem, refine
+    from identification.refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
     def run(log, bounds, seed, workers):
         t0 = time.perf_counter()
@@ -255,7 +255,7 @@ def run_pem(log, bounds, seed, workers):
     Control experiment: does the refinement need a global search at all?
     Uses only the refinement's own simulations (far below the budget).
     """
-    from identification.refine import DEFAULT_GAIN, PredictionErrorProblem, refine
+    from identification.refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)

@@ -4,20 +4,39 @@ Pipeline position: objective (output error of paper eq. 4, on the plant's
 closed-loop simulator) + optimiser (the paper's multi-population GA, then
 prediction-error refinement) -> :class:`IdentificationResult`.
 """
-from .api import DEFAULT_METHOD, METHODS, identify
-from .distributed import Job, JobResult, identify_many, seed_jobs
-from .filtering import apply_lowpass, lowpass_sos
-from .ga import GAResult, run_ga
-from .objective import IDENTIFICATION_SUBSTEPS, OutputError
-from .parameters import (
-    DEFAULT_PAYLOAD_BOUNDS,
-    BaseParameters,
-    ConsistentBaseParameters,
-    Parameterisation,
-    PayloadParameters,
-)
-from .refine import PredictionErrorProblem, RefineResult, refine
-from .result import IdentificationResult
+import importlib
+
+# Where each public name lives.  The package imports its modules on first
+# use (PEP 562), so that ``import identification`` -- and ``python -m
+# identification`` before the command line takes over -- does not spend a
+# second importing scipy and numba before anything can answer a Ctrl-C.
+_LOCATIONS = {
+    "identify": "api", "METHODS": "api", "DEFAULT_METHOD": "api",
+    "identify_many": "distributed", "Job": "distributed", "JobResult": "distributed",
+    "seed_jobs": "distributed",
+    "apply_lowpass": "filtering", "lowpass_sos": "filtering",
+    "GAResult": "ga", "run_ga": "ga",
+    "IDENTIFICATION_SUBSTEPS": "objective", "OutputError": "objective",
+    "DEFAULT_PAYLOAD_BOUNDS": "parameters", "BaseParameters": "parameters",
+    "ConsistentBaseParameters": "parameters", "Parameterisation": "parameters",
+    "PayloadParameters": "parameters",
+    "PredictionErrorProblem": "refinement", "RefineResult": "refinement", "refine": "refinement",
+    "IdentificationResult": "result",
+}
+
+
+def __getattr__(name):
+    module = _LOCATIONS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'identification' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LOCATIONS))
+
 
 __all__ = [
     "identify",

@@ -21,7 +21,7 @@ from .parameters import (
 from .flexible import MODELS, apply_model
 from .friction import FrictionParameters
 from .models import result_entries
-from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
+from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
 from .uncertainty import uncertainty_entries
 from .window import estimate_initial_state
@@ -111,7 +111,7 @@ def identify(
     the logged integer tracking errors, minimising the output error of eq. 4
     (:class:`~identification.objective.OutputError`).  The default method
     then refines the GA's best individuals together by Levenberg-Marquardt on
-    logged-input prediction errors (:mod:`identification.refine`).
+    logged-input prediction errors (:mod:`identification.refinement`).
 
     Parameters
     ----------

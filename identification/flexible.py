@@ -18,7 +18,7 @@ Procedure (:func:`identify_flexible`, called by ``identify(model=...)``):
 2. a grid over (K2, K3) (:data:`STIFFNESS_GRID`, log-spaced) at the rigid f,
    light damping and r = 1/2, evaluated as one batch of logged-input
    prediction errors (:func:`plant.prediction_errors`);
-3. the batched Levenberg-Marquardt refinement of :mod:`identification.refine`
+3. the batched Levenberg-Marquardt refinement of :mod:`identification.refinement`
    over all 15 components from the grid's best points.
 
 Substeps: RK4 is accurate when ``h w << 1`` for the fastest mode w; the
@@ -71,7 +71,7 @@ import numpy as np
 from plant.plants import FlexibleJoints
 
 from .parameters import BaseParameters, Parameterisation, check_bounds
-from .refine import DEFAULT_GAIN, PredictionErrorProblem, refine
+from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
 __all__ = ["FlexibleParameters", "flexible_substeps", "identify_flexible", "choose_model",
            "apply_model", "held_back_cost",
@@ -294,7 +294,7 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     -------
     dict
         ``x`` (15,), ``f`` (9,), ``cost`` (fitted prediction-error cost),
-        ``refine`` (:class:`~identification.refine.RefineResult`),
+        ``refine`` (:class:`~identification.refinement.RefineResult`),
         ``substeps``, ``space``.
     """
     space = FlexibleParameters() if space is None else space

@@ -1,7 +1,7 @@
 """Standard errors of the identified parameters (the refinement's Jacobian, HAC-corrected).
 
 At the refined point x the prediction errors ``r(x)`` of the logged-input
-replay (:mod:`identification.refine`) are locally linear in x,
+replay (:mod:`identification.refinement`) are locally linear in x,
 ``r(x0 + dx) ~ r(x0) + J dx``, so the least-squares estimate moves with the
 residual at the truth as ``dx = -(J^T J)^-1 J^T r``.  Its covariance is the
 Gauss-Newton *sandwich*

@@ -5,7 +5,7 @@ The P controller's current is known exactly from the logged integer error
 instead of by its own, quantised, feedback.  The replay is the second mode
 of the logged-run driver of the one closed-loop core
 (:func:`plant.simulate._log_chunk`; one compiled kernel for both modes); the
-refinement of :mod:`identification.refine` least-squares its prediction
+refinement of :mod:`identification.refinement` least-squares its prediction
 errors.
 """
 from __future__ import annotations
