@@ -61,7 +61,6 @@ import platform
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -214,11 +213,9 @@ def _commit():
 
 
 def _write_json_atomic(path, data):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(data, fh, indent=2, default=float)
-        fh.write("\n")
-    os.replace(tmp, path)
+    from plant.fileio import write_text_atomic
+
+    write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
 
 
 def main(argv=None):
