@@ -61,4 +61,15 @@ __all__ = [
     "refine",
     "lowpass_sos",
     "apply_lowpass",
+    "design_excitation",
 ]
+
+
+def __getattr__(name):
+    # imported on first use, so ``python -m identification.excitation`` runs the
+    # module without a second copy in sys.modules
+    if name == "design_excitation":
+        from .excitation import design_excitation
+
+        return design_excitation
+    raise AttributeError(f"module 'identification' has no attribute {name!r}")

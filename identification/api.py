@@ -30,7 +30,7 @@ __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS"]
 
 #: Identification methods: the paper's GA alone, and GA + prediction-error
 #: refinement (the default).
-METHODS = ("ga+pem", "paper", "idim-ls")
+METHODS = ("ga+pem", "paper", "idim-ls", "idim-iv")
 DEFAULT_METHOD = "ga+pem"
 
 #: The paper's GA settings (section 4): 4 subpopulations of 20, 40
@@ -118,12 +118,13 @@ def identify(
     log : plant.ExperimentLog or path
         The experiment (CSV + JSON sidecar); rig, trajectory and start state
         come from it.
-    method : {'ga+pem', 'paper', 'idim-ls'}
+    method : {'ga+pem', 'paper', 'idim-ls', 'idim-iv'}
         ``'paper'`` runs the paper's GA alone (binary chromosome, its
         settings); ``'ga+pem'`` (default) runs the same GA on Gray-coded
         chromosomes and then the refinement; ``'idim-ls'`` the classical
         inverse dynamic model by least squares on the logged currents
-        (:mod:`identification.idim`; the base parameters only).
+        (:mod:`identification.idim`; the base parameters only), ``'idim-iv'``
+        the same with the simulated closed loop's regressor as instruments.
     parameters : Parameterisation, optional
         What is searched (:mod:`identification.parameters`):
         :class:`~identification.parameters.BaseParameters` (default),
@@ -212,11 +213,11 @@ def identify(
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     log = _as_log(log)
-    if method == "idim-ls":  # the classical inverse-dynamic model, least squares (issue 15)
+    if method in ("idim-ls", "idim-iv"):  # the classical inverse-dynamic model (issue 15)
         from .idim import identify_idim
 
         return identify_idim(log, substeps=substeps, workers=workers, lowpass_hz=lowpass_hz,
-                             seed=_seed_of(rng))
+                             seed=_seed_of(rng), method=method)
     space = _with_friction(
         _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent), log)
     seed = _seed_of(rng)

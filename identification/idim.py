@@ -34,6 +34,24 @@ sidecar's prior range of the diagonal inertia (f7, f1), clipped to
 ``[2 Hz, f_s / 20]``.  (A peak search in the currents' spectrum was tried
 and was not robust.)  A ``cutoff_hz`` overrides it.
 
+IDIM-IV
+-------
+Least squares is biased when the regressor is noisy: the filtered,
+twice-differentiated quantised positions carry errors correlated with the
+equation error (the P loop feeds the same quantisation into the current).
+The instrumental-variable estimate (M. Gautier, A. Janot, P.-O. Vandanjon,
+"A new closed-loop output error method for parameter identification of
+robot dynamics", IEEE Trans. Control Syst. Technol. 21, 2013; A. Janot,
+P.-O. Vandanjon, M. Gautier, "A generic instrumental variable approach for
+industrial robot identification", IEEE TCST 22, 2014) uses as instruments
+the regressor ``Z`` of the *simulated* closed loop (the rig's P loop, the
+current estimate, the same reference; noise-free positions through the same
+filter and differences): ``f = (Z^T W)^-1 Z^T tau``, started from IDIM-LS
+and iterated ``IV_ITERATIONS`` times (the estimate settles after two; a
+failed simulation keeps the previous estimate).  Standard errors: the IV
+sandwich ``(Z^T W)^-1 S (W^T Z)^-1`` with the Newey-West S of the scores
+``Z_t r_t``.
+
 Standard errors are the same Newey-West sandwich as the output-error
 method's (:func:`identification.uncertainty.sandwich_covariance`, with the
 regressor as the Jacobian and the equation errors as residuals).
@@ -52,7 +70,10 @@ from plant.rig import rig_constants
 
 from .uncertainty import RSE_WARN, poorly_excited, sandwich_covariance
 
-__all__ = ["idim_ls", "idim_cutoff_hz", "identify_idim", "CUTOFF_FACTOR"]
+__all__ = ["idim_ls", "idim_cutoff_hz", "identify_idim", "CUTOFF_FACTOR", "IV_ITERATIONS"]
+
+#: Instrumental-variable iterations of IDIM-IV.
+IV_ITERATIONS = 3
 
 #: Cut-off of the IDIM low-pass as a multiple of the trajectory's highest frequency.
 CUTOFF_FACTOR = 10.0
@@ -100,7 +121,7 @@ def _friction(qd, c):
     return out
 
 
-def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1):
+def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
     """Identify f1..f9 by IDIM-LS (inverse dynamic model, ordinary least squares).
 
     Parameters
@@ -114,6 +135,10 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1):
         Keep every ``decimate``-th sample after filtering (1: all).
     trim_s : float
         Seconds dropped at both ends (filter transients).
+    iv_iterations : int
+        0: ordinary least squares (IDIM-LS); n > 0: IDIM-IV, n iterations of
+        the instrumental-variable estimate with the simulated closed loop's
+        regressor as instruments (module docstring).
 
     Returns
     -------
@@ -121,7 +146,7 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1):
         ``f`` (9,), ``f_std`` (9,), ``f_cov`` (9, 9), ``f_rse`` (9,),
         ``cutoff_hz``, ``n_equations``, ``residual_rms_Nm``,
         ``condition_number`` (of the column-scaled regressor), ``lag``
-        (Newey-West lag).
+        (Newey-West lag), ``iv_iterations`` (IV iterations that ran).
 
     Raises
     ------
@@ -157,17 +182,55 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1):
     scale[scale == 0] = 1.0
     fs_, *_ = np.linalg.lstsq(W / scale, y, rcond=None)
     f = fs_ / scale
+    done = 0
+    for _ in range(int(iv_iterations)):
+        Zk = _instruments(log, f, sos, sl, c)
+        if Zk is None:
+            break
+        Z = Zk
+        f = np.linalg.solve(Z.T @ W, Z.T @ y)
+        done += 1
     r = W @ f - y
-    cov, info = sandwich_covariance(W, r, n_channels=2)
+    if done:
+        A = np.linalg.inv(Z.T @ W)
+        # the IV sandwich: (Z^T W)^-1 S (W^T Z)^-1 with S of the scores Z_t r_t;
+        # sandwich_covariance(Z, r) returns (Z^T Z)^-1 S (Z^T Z)^-1
+        cz, info = sandwich_covariance(Z, r, n_channels=2)
+        ZZ = Z.T @ Z
+        cov = A @ ZZ @ cz @ ZZ @ A.T
+    else:
+        cov, info = sandwich_covariance(W, r, n_channels=2)
     f_std = np.sqrt(np.maximum(np.diag(cov), 0))
     sv = np.linalg.svd(W / scale, compute_uv=False)
     return dict(f=f, f_std=f_std, f_cov=cov, f_rse=f_std / np.abs(f), cutoff_hz=fc,
                 n_equations=int(y.size), residual_rms_Nm=float(np.sqrt(np.mean(r * r))),
-                condition_number=float(sv[0] / sv[-1]), lag=info["lag"])
+                condition_number=float(sv[0] / sv[-1]), lag=info["lag"], iv_iterations=done)
 
 
-def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None):
-    """``identify(log, method='idim-ls')``: IDIM-LS as an IdentificationResult.
+def _instruments(log, f, sos, sl, c):
+    """Regressor of the simulated P loop at f (IDIM-IV instruments), or None if it fails."""
+    from plant.synthetic import EMULATION_SUBSTEPS, _CardP
+
+    rig = log.rig
+    ts = rig.sample_time_s
+    try:
+        resp = plant.simulate_closed_loop(rig, f, _CardP(rig.p_gain_A_per_pulse),
+                                          trajectory=log.trajectory, n_samples=log.n_total,
+                                          substeps=EMULATION_SUBSTEPS // 8,
+                                          label="IDIM-IV instruments")
+    except ValueError:
+        return None
+    if not resp.success or resp.q.shape[0] < log.n_total:
+        return None
+    qs = signal.sosfiltfilt(sos, resp.q[log.start_index:], axis=0)
+    qds = np.gradient(qs, ts, axis=0)
+    qdds = np.gradient(qds, ts, axis=0)
+    return regressor(qs[sl], qds[sl], qdds[sl], c.gravity).reshape(-1, 9)
+
+
+def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
+                  method="idim-ls"):
+    """``identify(log, method='idim-ls' | 'idim-iv')``: IDIM as an IdentificationResult.
 
     Parameters
     ----------
@@ -181,11 +244,13 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None):
         the IDIM filter itself follows :func:`idim_cutoff_hz`.
     seed : int, optional
         Recorded only (the method is deterministic).
+    method : {'idim-ls', 'idim-iv'}
+        Least squares, or instrumental variables (:data:`IV_ITERATIONS`).
 
     Returns
     -------
     IdentificationResult
-        ``method='idim-ls'``, ``f``, ``f_std``, ``f_rse``, ``f_correlation``,
+        ``method``, ``f``, ``f_std``, ``f_rse``, ``f_correlation``,
         ``poorly_excited``, ``idim`` (cut-off, equations, residual, condition
         number), ``fun`` (output error of eq. 4 at f).
     """
@@ -199,7 +264,8 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None):
 
     compile_s = plant.warm_up(closed_loop=False)
     t0 = time.perf_counter()
-    res = idim_ls(log)
+    iv = IV_ITERATIONS if method == "idim-iv" else 0
+    res = idim_ls(log, iv_iterations=iv)
     f = res["f"]
     fun = float(OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz,
                             workers=workers)(f[None])[0])
@@ -209,18 +275,21 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None):
     wall = time.perf_counter() - t0
     return IdentificationResult(
         x=f.copy(), f=f, fun=fun, nfev=1, nit=1, success=True,
-        message=f"IDIM-LS: {res['n_equations']} equations, low-pass {res['cutoff_hz']:.3g} Hz",
-        population=None, population_energies=None, method="idim-ls", seed=seed,
+        message=f"{method.upper()}: {res['n_equations']} equations, low-pass "
+                f"{res['cutoff_hz']:.3g} Hz" + (f", {res['iv_iterations']} IV iterations"
+                                                 if iv else ""),
+        population=None, population_energies=None, method=method, seed=seed,
         history={"generation": np.arange(1), "best": np.array([fun]), "mean": np.array([fun]),
                  "nfev": np.array([1])},
         refinement=None, wall_time_s=wall, compile_time_s=compile_s, interrupted=False,
         log_name=log.name, log=log, bounds=log.rig.bounds, x_names=list(F_NAMES),
         parameters="base",
         settings=dict(substeps=int(substeps), lowpass_hz=lowpass_hz,
-                      idim=dict(cutoff_hz=res["cutoff_hz"], filter_order=IDIM_FILTER_ORDER)),
+                      idim=dict(cutoff_hz=res["cutoff_hz"], filter_order=IDIM_FILTER_ORDER,
+                                iv_iterations=iv)),
         f_std=res["f_std"], f_rse=res["f_rse"], f_correlation=_correlation(res["f_cov"]),
         x_std=res["f_std"], poorly_excited=bad,
-        uncertainty=dict(method="OLS sandwich, Newey-West (Bartlett) HAC", lag=res["lag"],
+        uncertainty=dict(method=("IV" if iv else "OLS") + " sandwich, Newey-West (Bartlett) HAC", lag=res["lag"],
                          rse_threshold=RSE_WARN),
         idim=dict(cutoff_hz=res["cutoff_hz"], n_equations=res["n_equations"],
                   residual_rms_Nm=res["residual_rms_Nm"],
