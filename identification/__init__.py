@@ -22,6 +22,8 @@ _LOCATIONS = {
     "PayloadParameters": "parameters",
     "PredictionErrorProblem": "refinement", "RefineResult": "refinement", "refine": "refinement",
     "IdentificationResult": "result",
+    # python -m identification.excitation runs that module without a second copy
+    "design_excitation": "excitation",
 }
 
 
@@ -64,12 +66,3 @@ __all__ = [
     "design_excitation",
 ]
 
-
-def __getattr__(name):
-    # imported on first use, so ``python -m identification.excitation`` runs the
-    # module without a second copy in sys.modules
-    if name == "design_excitation":
-        from .excitation import design_excitation
-
-        return design_excitation
-    raise AttributeError(f"module 'identification' has no attribute {name!r}")

@@ -35,7 +35,7 @@ Criterion and why
 -----------------
 The predicted standard errors of the default identification are those of
 its refinement: the Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` of the
-logged-input prediction errors (:mod:`identification.refine`), ``J`` their
+logged-input prediction errors (:mod:`identification.refinement`), ``J`` their
 sensitivity to f, ``sigma^2 = 1/12`` pulse^2 (encoder quantisation).  That
 needs an emulated log and 10 replays per candidate (~0.5 s); the search
 instead minimises the same criterion computed from the information matrix of
@@ -264,7 +264,7 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
 
     Emulates the P experiment (:func:`plant.emulate_log`, optionally on
     flexible joints) at ``f``, then forms the forward-difference Jacobian of
-    the refinement's prediction errors (:class:`~identification.refine.PredictionErrorProblem`,
+    the refinement's prediction errors (:class:`~identification.refinement.PredictionErrorProblem`,
     the identification's substeps) at ``f`` and returns
     ``sqrt(diag(sigma^2 (J^T J)^-1))`` with ``sigma^2`` the mean square
     prediction error at ``f`` (quantisation: ~1/12 pulse^2 on a rigid plant).
@@ -295,7 +295,7 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
         Predicted standard errors of f1..f9.
     """
     from .objective import IDENTIFICATION_SUBSTEPS
-    from .refine import FD_STEP, PredictionErrorProblem
+    from .refinement import FD_STEP, PredictionErrorProblem
 
     f = np.asarray(f, dtype=float).reshape(9)
     base = _template(rig) if base is None else base
