@@ -91,8 +91,11 @@ def test_flexible_result_builds_the_flexible_ctc(held_out):
     assert isinstance(c, FlexibleJointComputedTorqueController)
     np.testing.assert_allclose(c.link_f, flex.link_parameters(f, log.rig))
     assert c.flexible_parameters.stiffness == flex.stiffness_Nm_per_rad
-    # the motor loop is the rigid CTC's (same gains, rig layout, options)
-    assert c.flexible_parameters.ctc == ComputedTorqueController.from_log(f, log).parameters
+    # the motor loop is the rigid CTC's (same gains, rig layout, options); only the
+    # observer gains differ: the motor-and-link observer's
+    rigid = ComputedTorqueController.from_log(f, log).parameters
+    assert c.flexible_parameters.ctc._replace(observer_q=rigid.observer_q,
+                                              observer_w=rigid.observer_w) == rigid
 
 
 def test_flexible_ctc_tracks_a_held_out_flexible_robot_to_a_pulse(held_out):
@@ -115,6 +118,38 @@ def test_flexible_ctc_tracks_a_held_out_flexible_robot_to_a_pulse(held_out):
     ts = log.rig.sample_time_s
     q_next = r.q[-1] + ts * r.qd[-1]
     assert np.all(np.abs(c.link_estimate()[:2] - q_next) < 1e-4)
+
+
+def test_link_observer_places_the_error_poles(held_out):
+    """eig(Phi - L C Phi) of the per-joint two-mass model = the requested poles."""
+    from scipy.linalg import expm
+
+    from ctc.flexible import link_observer_gains
+    from plant.model import inertia_matrix
+
+    log, f, flex = held_out
+    c = ComputedTorqueController.from_result(
+        result_of(f, model="flexible", joints=(flex.stiffness_Nm_per_rad,
+                                               flex.damping_Nms_per_rad,
+                                               flex.reflected_inertia(log.rig))), log)
+    L = link_observer_gains(c.link_f, c.flexible_parameters.stiffness,
+                            c.flexible_parameters.damping, c.flexible_parameters.motor_inertia,
+                            c.gains, 0.5)
+    ts = log.rig.sample_time_s
+    jl = np.diag(inertia_matrix(c.link_f, np.zeros(2)))
+    for j in range(2):
+        K, D, jm = flex.stiffness_Nm_per_rad[j], flex.damping_Nms_per_rad[j], c.motor_inertia_reflected[j]
+        a = np.array([[0, 1, 0, 0], [-K / jm, -D / jm, K / jm, D / jm], [0, 0, 0, 1],
+                      [K / jl[j], D / jl[j], -K / jl[j], -D / jl[j]]])
+        phi = expm(a * ts)
+        C = np.array([[1.0, 0, 0, 0]])
+        z = np.linalg.eigvals(phi - L[j][:, None] @ C @ phi)
+        s = np.log(z) / ts
+        wl = np.sqrt(K / jl[j])
+        link = s[np.argsort(np.abs(np.abs(s) - wl))[:2]]
+        np.testing.assert_allclose(np.abs(link), wl, rtol=1e-3)
+        np.testing.assert_allclose(-link.real / np.abs(link), 0.5, rtol=1e-3)
+    assert c.flexible_parameters.link_gain_q == (L[0, 2], L[1, 2])
 
 
 def test_link_substeps_converged(held_out):
@@ -200,3 +235,16 @@ def test_ctc_from_identified_drill_result_tracks_to_a_pulse(drill_log, truth, dr
     rigid = plant.simulate_closed_loop(drill_log, f, ComputedTorqueController.from_log(f, drill_log),
                                        flexible=flex)
     assert np.max(max_error_after(rigid)) > 1
+
+
+@pytest.mark.parametrize("k_factor, d_factor", [(1.005, 2.6), (0.995, 0.4)])
+def test_flexible_ctc_tolerates_joint_errors(held_out, k_factor, d_factor):
+    """K off by 0.5 % and D by a factor 2.5 (D is the least identifiable): still <= 1 pulse
+    (the measurement-corrected link estimate cannot drift out of phase)."""
+    log, f, flex = held_out
+    c = FlexibleJointComputedTorqueController.from_log(
+        f, log, stiffness_Nm_per_rad=np.array(flex.stiffness_Nm_per_rad) * k_factor,
+        damping_Nms_per_rad=np.array(flex.damping_Nms_per_rad) * d_factor,
+        motor_inertia_reflected_kgm2=flex.reflected_inertia(log.rig))
+    r = plant.simulate_closed_loop(log, f, c, flexible=flex)
+    assert np.all(max_error_after(r) <= 1), max_error_after(r)
