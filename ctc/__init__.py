@@ -3,6 +3,10 @@
 * :mod:`ctc.protocol` -- the sampled-controller protocol and the paper's
   :class:`PController`;
 * :mod:`ctc.computed_torque` -- :class:`ComputedTorqueController`;
+* :mod:`ctc.flexible` -- :class:`FlexibleJointComputedTorqueController`
+  (motor-side computed torque of a flexible-joint robot; what
+  :meth:`ComputedTorqueController.from_result` builds from a flexible
+  identification);
 * :mod:`ctc.adaptive` -- :class:`AdaptiveComputedTorqueController` (on-line
   payload identification and adaptation);
 * :mod:`ctc.design` -- gain design and analysis with python-control
@@ -16,6 +20,7 @@ Run a controller against the model robot with
 from .adaptive import AdaptiveComputedTorqueController
 from .computed_torque import ComputedTorqueController
 from .design import GainDesign, design_gains
+from .flexible import FlexibleJointComputedTorqueController
 from .protocol import PController, SampledController
 
 __all__ = [
@@ -23,6 +28,7 @@ __all__ = [
     "PController",
     "ComputedTorqueController",
     "AdaptiveComputedTorqueController",
+    "FlexibleJointComputedTorqueController",
     "GainDesign",
     "design_gains",
     "evaluate_ctc",

@@ -266,8 +266,9 @@ def _reference_table(trajectory, t):
 class ComputedTorqueController:
     """Computed-torque controller following the sampled-controller protocol.
 
-    Build it with :meth:`from_log`.  Calling it returns the motor currents
-    (2,) A for sample ``k``; see the module docstring for the law.
+    Build it with :meth:`from_log` or :meth:`from_result`.  Calling it
+    returns the motor currents (2,) A for sample ``k``; see the module
+    docstring for the law.
 
     Parameters
     ----------
@@ -399,6 +400,57 @@ class ComputedTorqueController:
             n_samples=log.n_total if n_samples is None else n_samples,
             nonlinear_velocity=nonlinear_velocity, friction=friction, cell_centre=cell_centre,
         )
+
+    @classmethod
+    def from_result(cls, result, log, **options):
+        """Build the CTC from everything an identification found.
+
+        * ``f``: the identified base parameters (rigid-equivalent for a
+          flexible result);
+        * friction: the identified one when ``friction_identified`` is true
+          (the log's rig with its friction replaced), otherwise the log's;
+        * joints: for a result with ``model == "flexible"``, the identified
+          stiffness K, damping D and reflected motor inertia ``Jm k^2`` go
+          into the motor-side computed torque of
+          :class:`ctc.flexible.FlexibleJointComputedTorqueController`
+          (a subclass: the motor follows the reference, the spring torque
+          comes from a link model in the controller; see :mod:`ctc.flexible`
+          for the design and the measurements that chose it).
+
+        A rigid result with the sidecar's friction gives exactly
+        ``ComputedTorqueController.from_log(result.f, log, **options)``.
+
+        Parameters
+        ----------
+        result : identification.IdentificationResult, dict or path
+            The result, its :meth:`~identification.IdentificationResult.to_dict`,
+            or a JSON file written by ``save_json`` / the CLI's ``--output``
+            (read with :meth:`~identification.IdentificationResult.load_json`).
+        log : plant.ExperimentLog
+            Source of the rig constants and of the reference trajectory.
+        **options
+            Keyword arguments of :meth:`from_log` (``gains``,
+            ``nonlinear_velocity``, ``friction``, ``cell_centre``,
+            ``n_samples`` and the gain-design keywords); for a flexible
+            result also ``link_substeps``.
+
+        Returns
+        -------
+        ComputedTorqueController
+            A :class:`ctc.flexible.FlexibleJointComputedTorqueController`
+            for a flexible result.
+
+        Raises
+        ------
+        ValueError
+            A result that is not a dict or a readable result file
+            (:class:`identification.result.ResultFileError`), an unknown
+            ``model``, a flexible result without its joints, malformed
+            friction, or anything :meth:`from_log` refuses.
+        """
+        from .flexible import controller_from_result
+
+        return controller_from_result(result, log, **options)
 
     # ------------------------------------------------------------ protocol
     def reset(self) -> None:

@@ -7,7 +7,13 @@ The tutorial script of ``docs/tutorial_real_rigs.rst``.  It
    ``puma560_paper_drill_flex``: 1.5 kg drill, compliant gearboxes, noisy
    currents), which shows the ~30 Hz mode and the lowered loop resonance, and
    takes the suggested low-pass cut-off (``spectrum.png``);
-2. identifies f1..f9 of that log unfiltered and with the suggested cut-off;
+2. identifies that log with the default ``identify`` (``model="auto"``: the
+   two-mass flexible model is chosen on held-back samples), prints the model
+   choice, the rigid-equivalent f and the joints (K, D, Jm k^2), and builds
+   the computed-torque controller from the result
+   (``ComputedTorqueController.from_result``), run on the two-mass robot
+   (the truth's emulator constants with ``--truth``, else the identified
+   ones) against the rigid CTC with the same f;
 3. identifies the *unloaded* robot on the bundled paper log (the prior);
 4. cuts the window [1.0, 1.2) s out of the loaded run, saves it as a log
    whose sidecar does not know the payload (``"payload": {"mass_kg": null}``),
@@ -60,7 +66,7 @@ def parse_args(argv=None):
     p.add_argument("--window", type=float, nargs=2, default=(1.0, 1.2), metavar=("T0", "T1"))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--skip-full", action="store_true",
-                   help="skip the two full identifications of the drill log (step 2)")
+                   help="skip the identification of the drill log and its CTC (step 2)")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: skip step 2, 2 GA generations for the prior, one window")
     p.add_argument("--out", type=Path, default=Path("out") / "real_rigs")
@@ -110,19 +116,50 @@ def main(argv=None):
     cutoff = spec.cutoff_hz
     out["cutoff_hz"] = cutoff
 
-    # 2. identify the flexible log with and without the filter
+    # 2. identify the flexible log (model="auto": the flexible model is chosen on held-back
+    # samples) and build the computed-torque controller from the result
     if not (args.skip_full or args.quick):
-        print(f"\nidentify {drill.name} (default method, seed {args.seed}):")
+        print(f"\nidentify {drill.name} (default: model auto, seed {args.seed}):")
+        res = identification.identify(drill, rng=args.seed, progress=False)
+        res.save_json(args.out / "drill_result.json")
+        print(f"  model {res.model}: {(res.model_choice or {}).get('reason', '')}")
         print(f"  {'':<22s}" + " ".join(f"{'f' + str(i + 1):>9s}" for i in range(9)))
         if f_drill_true is not None:
             print_f("truth (rigid-equiv.)", f_drill_true)
-        for label, lp, cons in (("unfiltered", None, False),
-                                (f"low-pass {cutoff:.1f} Hz", cutoff, False),
-                                ("+ eq. 3 structure", cutoff, True)):
-            res = identification.identify(drill, rng=args.seed, lowpass_hz=lp, progress=False,
-                                          consistent=cons)
-            print_f(label, res.f, f_drill_true)
-            out[f"drill_f_{label}"] = [float(v) for v in res.f]
+        print_f("identified", res.f, f_drill_true)
+        if res.model == "flexible":
+            print(f"  K {np.round(res.joint_stiffness_Nm_per_rad, 1).tolist()} N m/rad, "
+                  f"D {np.round(res.joint_damping_Nms_per_rad, 3).tolist()} N m s/rad, "
+                  f"Jm k^2 {np.round(res.motor_inertia_reflected_kgm2, 4).tolist()} kg m^2")
+        out.update(drill_model=res.model, drill_f=[float(v) for v in res.f],
+                   drill_K=res.joint_stiffness_Nm_per_rad, drill_D=res.joint_damping_Nms_per_rad,
+                   drill_Jk2=res.motor_inertia_reflected_kgm2)
+        from ctc import ComputedTorqueController
+
+        ctl = ComputedTorqueController.from_result(args.out / "drill_result.json", drill)
+        print(f"  controller: {ctl}")
+        if res.model == "flexible":
+            # the robot: the truth's emulator constants if given, else the identified ones
+            robot_f, robot = res.f, None
+            if args.truth is not None:
+                tr = json.loads(Path(args.truth).read_text())
+                v = (tr.get("emulator") or {}).get("variant") or {}
+                if "flex_stiffness" in v:
+                    robot_f = f_drill_true
+                    robot = plant.FlexibleJoints(tuple(v["flex_stiffness"]),
+                                                 tuple(v["flex_damping"]), 200e-6)
+            if robot is None:
+                jk = np.asarray(res.motor_inertia_reflected_kgm2)
+                robot = plant.FlexibleJoints(res.joint_stiffness_Nm_per_rad,
+                                             res.joint_damping_Nms_per_rad,
+                                             jk / np.asarray(drill.rig.gear_ratio) ** 2)
+            for name, c in (("rigid CTC, same f", ComputedTorqueController.from_log(res.f, drill)),
+                            ("CTC from_result", ctl)):
+                run = plant.simulate_closed_loop(drill, robot_f, c, flexible=robot)
+                e = np.abs(run.e_pulses[run.t >= 0.1]).max(axis=0)
+                print(f"  {name:<20s} on the two-mass robot: max |e| after 0.1 s "
+                      f"{int(e[0])} / {int(e[1])} pulses")
+                out[f"ctc_max_e_{name}"] = [int(v) for v in e]
 
     # 3. the prior: the unloaded robot, identified on its own log
     prior_log = plant.load_log(args.prior_log)

@@ -18,7 +18,7 @@ log applied, ``T = max |Kt i|`` (per joint), so ``0 <= Tc <= T`` and
 ``0 <= B <= T / w`` with ``w`` the largest motor speed of the reference
 (``|k| max |qd_ref|``).  The Coulomb ramp speed is the rig's (from
 ``coulomb_ramp_speed_rad_per_s``, the ``coulomb_friction_note`` or a
-documented default, :func:`plant.rig_from_sidecar`).
+documented default, :func:`plant.sidecar.rig_from_sidecar`).
 """
 from __future__ import annotations
 

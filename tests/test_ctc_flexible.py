@@ -1,0 +1,250 @@
+"""ctc.ComputedTorqueController.from_result and the flexible-joint CTC (issue 13, item 5)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import plant
+from ctc import ComputedTorqueController, FlexibleJointComputedTorqueController
+from identification.result import IdentificationResult
+from plant.plants import FlexibleJoints
+
+JM = 200e-6
+AFTER_S = 0.1
+
+
+def max_error_after(resp, t0=AFTER_S):
+    k = resp.t >= t0
+    return np.abs(resp.e_pulses[k]).max(axis=0)
+
+
+def result_of(f, *, model="rigid", joints=None, friction=None):
+    """An IdentificationResult built from known values (no identification run)."""
+    f = np.asarray(f, dtype=float)
+    d = dict(x=f.copy(), f=f, fun=0.0, nfev=1, nit=1, success=True, message="known values",
+             method="ga+pem", model=model, joint_stiffness_Nm_per_rad=None,
+             joint_damping_Nms_per_rad=None, motor_inertia_reflected_kgm2=None,
+             friction_identified=False, model_choice=None)
+    if joints is not None:
+        K, D, jk = joints
+        d.update(joint_stiffness_Nm_per_rad=list(K), joint_damping_Nms_per_rad=list(D),
+                 motor_inertia_reflected_kgm2=list(jk))
+    if friction is not None:
+        d.update(viscous_friction_Nms_per_rad=list(friction[0]),
+                 coulomb_friction_Nm=[list(r) for r in friction[1]], friction_identified=True)
+    return IdentificationResult(d)
+
+
+@pytest.fixture(scope="module")
+def held_out(paper_log):
+    """A flexible robot unlike the drill log's: other joints, payload, encoders."""
+    f_unloaded = np.array([1.15, 0.58, 0.0, -0.52, 0.0, -1.2, 4.75, -0.1, 3.8])
+    rig = dataclasses.replace(paper_log.rig, encoder_ppr=(2000, 500))
+    f = plant.add_payload(f_unloaded, plant.Payload(2.5, (0.05, 0.0), 0.005), rig.a3_m)
+    flex = FlexibleJoints((1.2e4, 2.5e4), (2.0, 1.0), JM)
+    log = paper_log.replace(rig=rig)
+    return log, f, flex
+
+
+def test_rigid_result_gives_the_from_log_controller(paper_log, truth, tmp_path):
+    """A rigid result (object, dict, JSON path) builds exactly from_log(result.f, log)."""
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    res = result_of(f)
+    path = tmp_path / "rigid.json"
+    res.save_json(path)
+    ref = ComputedTorqueController.from_log(f, paper_log)
+    q = paper_log.trajectory.position(np.arange(40) * paper_log.rig.sample_time_s)
+    expected = np.array([ref(k, 0.0, q[k], np.zeros(2)) for k in range(40)])
+    for src in (res, res.to_dict(), path, str(path)):
+        c = ComputedTorqueController.from_result(src, paper_log)
+        assert type(c) is ComputedTorqueController
+        assert c.parameters == ref.parameters
+        np.testing.assert_array_equal(c.f, ref.f)
+        c.reset()
+        got = np.array([c(k, 0.0, q[k], np.zeros(2)) for k in range(40)])
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_identified_friction_replaces_the_sidecar_friction(paper_log, truth):
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    visc, coul = (0.01, 0.02), ((0.1, 0.2), (0.3, 0.4))
+    c = ComputedTorqueController.from_result(result_of(f, friction=(visc, coul)), paper_log)
+    k = np.asarray(paper_log.rig.gear_ratio)
+    np.testing.assert_allclose(c.parameters.rig.viscous, k * k * np.array(visc))
+    np.testing.assert_allclose(c.parameters.rig.coulomb_pos, np.abs(k) * np.array([0.1, 0.3]))
+    np.testing.assert_allclose(c.parameters.rig.coulomb_neg, np.abs(k) * np.array([0.2, 0.4]))
+    # not identified: the log's friction, even if the result echoes other numbers
+    d = result_of(f, friction=(visc, coul))
+    d["friction_identified"] = False
+    c = ComputedTorqueController.from_result(d, paper_log)
+    assert c.parameters == ComputedTorqueController.from_log(f, paper_log).parameters
+
+
+def test_flexible_result_builds_the_flexible_ctc(held_out):
+    log, f, flex = held_out
+    jk = flex.reflected_inertia(log.rig)
+    res = result_of(f, model="flexible",
+                    joints=(flex.stiffness_Nm_per_rad, flex.damping_Nms_per_rad, jk))
+    c = ComputedTorqueController.from_result(res.to_dict(), log)
+    assert isinstance(c, FlexibleJointComputedTorqueController)
+    np.testing.assert_allclose(c.link_f, flex.link_parameters(f, log.rig))
+    assert c.flexible_parameters.stiffness == flex.stiffness_Nm_per_rad
+    # the motor loop is the rigid CTC's (same gains, rig layout, options); only the
+    # observer gains differ: the motor-and-link observer's
+    rigid = ComputedTorqueController.from_log(f, log).parameters
+    assert c.flexible_parameters.ctc._replace(observer_q=rigid.observer_q,
+                                              observer_w=rigid.observer_w) == rigid
+
+
+def test_flexible_ctc_tracks_a_held_out_flexible_robot_to_a_pulse(held_out):
+    """On a flexible robot with other joints, payload and encoders: <= 1 pulse after 0.1 s;
+    the rigid CTC with the true rigid-equivalent f does not get there."""
+    log, f, flex = held_out
+    jk = flex.reflected_inertia(log.rig)
+    res = result_of(f, model="flexible",
+                    joints=(flex.stiffness_Nm_per_rad, flex.damping_Nms_per_rad, jk))
+    n = 2000
+    c = ComputedTorqueController.from_result(res, log)
+    r = plant.simulate_closed_loop(log, f, c, flexible=flex, n_samples=n)
+    assert r.success
+    assert np.all(max_error_after(r) <= 1), max_error_after(r)
+    rigid = plant.simulate_closed_loop(log, f, ComputedTorqueController.from_log(f, log),
+                                       flexible=flex, n_samples=n)
+    assert np.max(max_error_after(rigid)) > 1
+    # the controller's link model (at the next sample) follows the robot's link to well
+    # within a pulse (joint 3: 2.3e-4 rad)
+    ts = log.rig.sample_time_s
+    q_next = r.q[-1] + ts * r.qd[-1]
+    assert np.all(np.abs(c.link_estimate()[:2] - q_next) < 1e-4)
+
+
+def test_link_observer_places_the_error_poles(held_out):
+    """eig(Phi - L C Phi) of the per-joint two-mass model = the requested poles."""
+    from scipy.linalg import expm
+
+    from ctc.flexible import link_observer_gains
+    from plant.model import inertia_matrix
+
+    log, f, flex = held_out
+    c = ComputedTorqueController.from_result(
+        result_of(f, model="flexible", joints=(flex.stiffness_Nm_per_rad,
+                                               flex.damping_Nms_per_rad,
+                                               flex.reflected_inertia(log.rig))), log)
+    L = link_observer_gains(c.link_f, c.flexible_parameters.stiffness,
+                            c.flexible_parameters.damping, c.flexible_parameters.motor_inertia,
+                            c.gains, 0.5)
+    ts = log.rig.sample_time_s
+    jl = np.diag(inertia_matrix(c.link_f, np.zeros(2)))
+    for j in range(2):
+        K, D, jm = flex.stiffness_Nm_per_rad[j], flex.damping_Nms_per_rad[j], c.motor_inertia_reflected[j]
+        a = np.array([[0, 1, 0, 0], [-K / jm, -D / jm, K / jm, D / jm], [0, 0, 0, 1],
+                      [K / jl[j], D / jl[j], -K / jl[j], -D / jl[j]]])
+        phi = expm(a * ts)
+        C = np.array([[1.0, 0, 0, 0]])
+        z = np.linalg.eigvals(phi - L[j][:, None] @ C @ phi)
+        s = np.log(z) / ts
+        wl = np.sqrt(K / jl[j])
+        link = s[np.argsort(np.abs(np.abs(s) - wl))[:2]]
+        np.testing.assert_allclose(np.abs(link), wl, rtol=1e-3)
+        np.testing.assert_allclose(-link.real / np.abs(link), 0.5, rtol=1e-3)
+    assert c.flexible_parameters.link_gain_q == (L[0, 2], L[1, 2])
+
+
+def test_link_substeps_converged(held_out):
+    """Two RK4 steps of the link model per sample give the currents of eight (to 1e-4 A)."""
+    log, f, flex = held_out
+    jk = flex.reflected_inertia(log.rig)
+    kw = dict(stiffness_Nm_per_rad=flex.stiffness_Nm_per_rad,
+              damping_Nms_per_rad=flex.damping_Nms_per_rad, motor_inertia_reflected_kgm2=jk)
+    n = 1500
+    q = log.trajectory.position(np.arange(n) * log.rig.sample_time_s)
+    s = np.asarray(log.rig.gear_ratio) * np.asarray(log.rig.encoder_ppr) / (2 * np.pi)
+    qm = np.trunc(q * s) / s
+    out = []
+    for ns in (2, 8):
+        c = FlexibleJointComputedTorqueController.from_log(f, log, link_substeps=ns, **kw)
+        out.append(np.array([c(k, 0.0, qm[k], np.zeros(2)) for k in range(n)]))
+    assert np.max(np.abs(out[0] - out[1])) < 1e-4
+
+
+def test_flexible_ctc_law_in_the_logged_driver_equals_the_python_loop(held_out):
+    """The compiled law in the logged-run driver reproduces simulate_closed_loop."""
+    log, f, flex = held_out
+    jk = flex.reflected_inertia(log.rig)
+    c = FlexibleJointComputedTorqueController.from_log(
+        f, log, stiffness_Nm_per_rad=flex.stiffness_Nm_per_rad,
+        damping_Nms_per_rad=flex.damping_Nms_per_rad, motor_inertia_reflected_kgm2=jk)
+    n = 500
+    resp = plant.simulate_closed_loop(log, f, c, n_samples=n, substeps=8, flexible=flex)
+    run = plant.emulate_log(log, f, duration_s=(n - 1) * log.rig.sample_time_s)
+    run = run.replace(e_pulses=resp.e_pulses, i_A=resp.i_A)
+    sim = plant.simulate_batch(run, f[None], substeps=8, controller=c, plant=flex)
+    np.testing.assert_array_equal(sim.e_pulses[0], resp.e_pulses)
+
+
+def test_from_result_refuses_bad_input(paper_log, tmp_path, truth):
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    with pytest.raises(ValueError, match="unknown model"):
+        ComputedTorqueController.from_result(dict(f=f, model="elastic"), paper_log)
+    with pytest.raises(ValueError, match="joint_stiffness_Nm_per_rad"):
+        ComputedTorqueController.from_result(dict(f=f, model="flexible"), paper_log)
+    with pytest.raises(ValueError, match="result must be"):
+        ComputedTorqueController.from_result(42, paper_log)
+    with pytest.raises(ValueError, match="not found"):
+        ComputedTorqueController.from_result(tmp_path / "missing.json", paper_log)
+    with pytest.raises(ValueError, match="no 'f'"):
+        ComputedTorqueController.from_result({}, paper_log)
+    bad = dict(f=f, model="flexible", joint_stiffness_Nm_per_rad=[3e4, 6e3],
+               joint_damping_Nms_per_rad=[1.0, 1.0], motor_inertia_reflected_kgm2=[50.0, 0.5])
+    with pytest.raises(ValueError, match="positive definite"):
+        ComputedTorqueController.from_result(bad, paper_log)
+    bad["motor_inertia_reflected_kgm2"] = [0.0, 0.5]
+    with pytest.raises(ValueError, match="motor_inertia_reflected_kgm2"):
+        ComputedTorqueController.from_result(bad, paper_log)
+
+
+@pytest.fixture(scope="module")
+def drill_result(drill_log, tmp_path_factory):
+    """The drill/flex log identified once with no options (about 30-45 s), saved as JSON."""
+    from identification import identify
+
+    res = identify(drill_log, rng=0, progress=False)
+    path = tmp_path_factory.mktemp("drill") / "drill_result.json"
+    res.save_json(path)
+    return res, path
+
+
+@pytest.mark.slow
+def test_ctc_from_identified_drill_result_tracks_to_a_pulse(drill_log, truth, drill_result):
+    """Acceptance: the CTC from the identified flexible result on the two-mass drill robot,
+    paper trajectory: max abs(e) <= 1 pulse on both joints after 0.1 s."""
+    res, path = drill_result
+    assert res.model == "flexible"
+    tr = truth("puma560_paper_drill_flex")
+    v = tr["emulator"]["variant"]
+    f = np.asarray(tr["f_vector"])
+    flex = FlexibleJoints(tuple(v["flex_stiffness"]), tuple(v["flex_damping"]), JM)
+    c = ComputedTorqueController.from_result(path, drill_log)
+    assert isinstance(c, FlexibleJointComputedTorqueController)
+    r = plant.simulate_closed_loop(drill_log, f, c, flexible=flex)
+    assert r.success
+    assert np.all(max_error_after(r) <= 1), max_error_after(r)
+    # the rigid CTC of the true rigid-equivalent f: more than a pulse
+    rigid = plant.simulate_closed_loop(drill_log, f, ComputedTorqueController.from_log(f, drill_log),
+                                       flexible=flex)
+    assert np.max(max_error_after(rigid)) > 1
+
+
+@pytest.mark.parametrize("k_factor, d_factor", [(1.005, 2.6), (0.995, 0.4)])
+def test_flexible_ctc_tolerates_joint_errors(held_out, k_factor, d_factor):
+    """K off by 0.5 % and D by a factor 2.5 (D is the least identifiable): still <= 1 pulse
+    (the measurement-corrected link estimate cannot drift out of phase)."""
+    log, f, flex = held_out
+    c = FlexibleJointComputedTorqueController.from_log(
+        f, log, stiffness_Nm_per_rad=np.array(flex.stiffness_Nm_per_rad) * k_factor,
+        damping_Nms_per_rad=np.array(flex.damping_Nms_per_rad) * d_factor,
+        motor_inertia_reflected_kgm2=flex.reflected_inertia(log.rig))
+    r = plant.simulate_closed_loop(log, f, c, flexible=flex)
+    assert np.all(max_error_after(r) <= 1), max_error_after(r)
