@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ from .friction import FrictionParameters
 from .models import result_entries
 from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 from .result import IdentificationResult
-from .uncertainty import uncertainty_entries
+from .uncertainty import PoorExcitationWarning, uncertainty_entries, warning_text
 from .window import estimate_initial_state
 
 __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS"]
@@ -242,7 +243,11 @@ def identify(
                 and controller is None and log.rig.q0_rad is not None
                 and not res.interrupted and (model == "flexible" or (
                     ga_options is None and refine_options is None)))
-    return apply_model(res, log, model, workers=workers, eligible=eligible)
+    res = apply_model(res, log, model, workers=workers, eligible=eligible)
+    if res.get("poorly_excited"):
+        warnings.warn(warning_text(res["poorly_excited"], res["f_rse"]), PoorExcitationWarning,
+                      stacklevel=2)
+    return res
 
 
 def _user_callback(callback, stage, nfev):
@@ -338,8 +343,9 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
             refinement["ga_f"] = space.to_f(ga.x, log)
         if state is not None:
             refinement["initial_state"] = ref.x[k:]
+        # warned about once, for the final result (identify(), after the model choice)
         unc = uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
-                                  k=k, names=space.names(log), a3=log.rig.a3_m)
+                                  k=k, names=space.names(log), a3=log.rig.a3_m, warn=False)
 
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here

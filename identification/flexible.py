@@ -424,7 +424,8 @@ def _flexible_result(rigid, log, fit, model_choice, workers):
         res.pop(key, None)
     xs = np.asarray(x, dtype=float)
     res.update(uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
-                                   k=xs.size, names=space.names(log), a3=log.rig.a3_m))
+                                   k=xs.size, names=space.names(log), a3=log.rig.a3_m,
+                                   warn=False))
     res["model_choice"] = model_choice
     return res
 

@@ -120,6 +120,12 @@ def dev_results(dev_log_paths):
             r = identification.identify(plant.load_log(dev_log_paths[stem]), rng=0,
                                         progress=False)
         out[stem] = (r, [x for x in w if issubclass(x.category, PoorExcitationWarning)])
+    # the drill log through the rigid model (the auto choice takes the flexible one)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        r = identification.identify(plant.load_log(dev_log_paths[DRILL_FLEX]), rng=0,
+                                    progress=False, model="rigid")
+    out["drill_rigid"] = (r, [x for x in w if issubclass(x.category, PoorExcitationWarning)])
     return out
 
 
@@ -134,17 +140,19 @@ def test_dev_logs_truth_within_three_standard_errors(dev_results, truth, stem):
 
 
 def test_poorly_excited_parameters_are_warned_and_listed(dev_results):
-    r, w = dev_results[DRILL_FLEX]
+    r, w = dev_results["drill_rigid"]
     bad = poorly_excited(r.f_rse)
     assert bad == r.poorly_excited and "f8" in bad
     assert len(w) == 1 and all(n in str(w[0].message) for n in bad)
+    flex, w_flex = dev_results[DRILL_FLEX]  # one warning at most, about the final result
+    assert flex.model == "flexible" and len(w_flex) == (1 if flex.poorly_excited else 0)
     assert "poorly excited by this trajectory" in str(w[0].message)
     rigid, w_rigid = dev_results["puma560_paper_rigid"]
     assert np.all(rigid.f_rse <= RSE_WARN) and not rigid.poorly_excited and not w_rigid
 
 
 def test_json_and_table_carry_the_standard_errors(dev_results, tmp_path):
-    r, _ = dev_results[DRILL_FLEX]
+    r, _ = dev_results["drill_rigid"]
     d = r.to_dict()
     assert len(d["f_std"]) == 9 and np.shape(d["f_correlation"]) == (9, 9)
     assert d["poorly_excited"] == r.poorly_excited
