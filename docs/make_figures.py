@@ -39,6 +39,21 @@ it in ``optimisers``):
 ``optimisers``
     ``benchmarks/bench_optimisers.py``: GA, GA + refinement, DE, CMA-ES on one
     budget; the convergence image.
+``flexible``
+    ``benchmarks/bench_flexible.py --drill``: rigid vs flexible model vs
+    IDIM-LS on held-out flexible logs and the drill log, and the CTC of each.
+``methods``
+    ``benchmarks/bench_methods.py``: the methods comparison table (GA, GA +
+    refinement, DE, CMA-ES, IDIM-LS, IDIM-IV) on development and generated logs.
+``coverage``
+    ``benchmarks/bench_coverage.py``: coverage of f +- 1.96 f_std over
+    generated logs.
+``excitation``
+    ``benchmarks/bench_excitation.py``: a designed 1.5 s excitation against
+    the paper trajectory.
+``online_payload``
+    ``benchmarks/bench_online_payload.py``: the wall time of one payload
+    identification on a 200 ms window.
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -69,7 +84,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "alteration", "ctc", "real_rigs", "speed",
-            "optimisers")
+            "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -201,6 +216,39 @@ def optimisers(ctx):
     _run(["benchmarks/bench_optimisers.py", *q, "--out", ctx["raw"] / "bench_optimisers.json",
           "--plot", ctx["images"] / "optimisers_convergence.png"], ctx["raw"], "bench_optimisers")
     return json.loads((ctx["raw"] / "bench_optimisers.json").read_text())
+
+
+def flexible(ctx):
+    q = ["--quick"] if ctx["quick"] else ["--drill"]
+    text, wall = _run(["benchmarks/bench_flexible.py", *q, "--json", ctx["raw"] / "bench_flexible.json"],
+                      ctx["raw"], "bench_flexible")
+    return {"printed": text.splitlines(), "wall_s": wall}
+
+
+def methods(ctx):
+    q = ["--quick"] if ctx["quick"] else []
+    text, wall = _run(["benchmarks/bench_methods.py", *q, "--out", ctx["raw"] / "bench_methods.json"],
+                      ctx["raw"], "bench_methods")
+    return {"printed": text.splitlines(), "wall_s": wall}
+
+
+def coverage(ctx):
+    q = ["--quick"] if ctx["quick"] else []
+    text, wall = _run(["benchmarks/bench_coverage.py", *q, "--out", ctx["raw"] / "bench_coverage.json"],
+                      ctx["raw"], "bench_coverage")
+    return {"printed": text.splitlines(), "wall_s": wall}
+
+
+def excitation(ctx):
+    q = [] if ctx["quick"] else ["--agreement", "12"]
+    text, wall = _run(["benchmarks/bench_excitation.py", *q, "--out", ctx["raw"] / "bench_excitation.json"],
+                      ctx["raw"], "bench_excitation")
+    return {"printed": text.splitlines(), "wall_s": wall}
+
+
+def online_payload(ctx):
+    text, wall = _run(["benchmarks/bench_online_payload.py"], ctx["raw"], "bench_online_payload")
+    return {"printed": text.splitlines(), "wall_s": wall}
 
 
 # -------------------------------------------------------------------------------- main

@@ -55,7 +55,7 @@ import numba
 import numpy as np
 
 from ._errors import SimulationError
-from .anchors import N_ANCHOR_ROWS, REANCHOR
+from .anchors import REANCHOR
 from .core import (
     STATUS_DIVERGED,
     STATUS_MESSAGES,
@@ -64,10 +64,17 @@ from .core import (
     advance_sample,
     cell_centre,
     encoder_read,
-    new_workspace,
     padded_lanes,
 )
 from .controllers import P_LAW, as_logged_controller, control_law
+from .lanes import (  # noqa: F401 (Lanes, new_lanes re-exported for the other drivers)
+    Lanes,
+    final_objective,
+    lanes_from,
+    new_lanes,
+    retire_lane,
+    start_states,
+)
 from .parallel import as_float_array, check_workers, run_chunks
 from .plants import RIGID
 from .rig import RigConstants, rig_constants
@@ -199,154 +206,6 @@ _kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 _jit = numba.njit(nogil=True, error_model="numpy")
 
 
-class Lanes(NamedTuple):
-    """The arrays of one chunk of lanes (one column per candidate).
-
-    Allocated in Python (numpy), so that no allocation is compiled.
-
-    Attributes
-    ----------
-    P : ndarray, shape (n_par, lanes)
-        Plant parameters.
-    X : ndarray, shape (n_x, lanes)
-        State (the start state in every column).
-    U : ndarray, shape (2, lanes)
-        Held motor currents (A).
-    A : ndarray, shape (6, lanes)
-        Trigonometric anchors (:mod:`plant.anchors`).
-    S : ndarray, shape (lanes,), int64
-        Status per lane.
-    E : ndarray, shape (lanes,)
-        Running sum of squares per lane (pulses^2).
-    idx : ndarray, shape (lanes,), int64
-        Candidate index of each lane.
-    W : tuple of ndarray
-        Scratch of :func:`plant.core.advance_sample`: K1..K4 (n_x + 1,
-        lanes), XS (n_x, lanes).
-    """
-
-    P: np.ndarray
-    X: np.ndarray
-    U: np.ndarray
-    A: np.ndarray
-    S: np.ndarray
-    E: np.ndarray
-    idx: np.ndarray
-    W: tuple
-
-
-def new_lanes(Pall, lo, hi, x0) -> Lanes:
-    """Lane arrays of candidates ``lo:hi`` of ``Pall`` (n_par, m).
-
-    Columns beyond ``hi - lo`` (SIMD padding, :func:`plant.core.padded_lanes`)
-    are copies of the first candidate.
-
-    Parameters
-    ----------
-    Pall : ndarray, shape (n_par, m)
-        Plant parameters of all candidates.
-    lo, hi : int
-        The chunk's candidates.
-    x0 : ndarray, shape (n_x,)
-        Start state.
-
-    Returns
-    -------
-    Lanes
-    """
-    lanes = int(padded_lanes(hi - lo))
-    idx = np.arange(lo, lo + lanes, dtype=np.int64)
-    idx[hi - lo:] = lo
-    nx = x0.shape[0]
-    return Lanes(np.ascontiguousarray(Pall[:, idx]), np.ascontiguousarray(np.tile(x0[:, None], (1, lanes))),
-                 np.zeros((2, lanes)), np.zeros((N_ANCHOR_ROWS, lanes)),
-                 np.zeros(lanes, dtype=np.int64), np.zeros(lanes), idx,
-                 new_workspace(nx, lanes))
-
-
-def start_states(log, initial_state, m, nx):
-    """Per-candidate states at a log's first sample, or None (start at t = 0).
-
-    Parameters
-    ----------
-    log : plant.ExperimentLog
-    initial_state : array_like, shape (m, nx) or (nx,), or None
-        State at the log's first sample (rad, rad/s).
-    m, nx : int
-        Candidates and state components.
-
-    Returns
-    -------
-    ndarray, shape (m, nx), or None
-
-    Raises
-    ------
-    ValueError
-        On a wrong shape or NaN/inf, or no ``initial_state`` for a window
-        log without a start state.
-    """
-    if initial_state is None:
-        if log.rig.q0_rad is None or log.rig.qd0_rad_per_s is None:
-            raise ValueError(f"{getattr(log, 'name', 'log')} is a window without a start state: "
-                             "give initial_state= (the state at its first sample)")
-        return None
-    x = np.asarray(initial_state, dtype=float)
-    if x.shape not in ((nx,), (m, nx)):
-        raise ValueError(f"initial_state must have shape ({nx},) or ({m}, {nx}), got {x.shape}")
-    return as_float_array(np.broadcast_to(x, (m, nx)), "initial_state")
-
-
-def lanes_from(Pall, lo, hi, x0, X0):
-    """:func:`new_lanes`, each lane started from its candidate's row of ``X0`` if given."""
-    lanes = new_lanes(Pall, lo, hi, x0)
-    if X0 is not None:
-        lanes.X[:] = X0[lanes.idx].T
-    return lanes
-
-
-@_jit
-def _move_lane(P, X, U, A, S, E, idx, CS, dst, src):
-    for i in range(CS.shape[0]):
-        CS[i, dst] = CS[i, src]
-    for i in range(P.shape[0]):
-        P[i, dst] = P[i, src]
-    for i in range(X.shape[0]):
-        X[i, dst] = X[i, src]
-    for i in range(2):
-        U[i, dst] = U[i, src]
-    for i in range(A.shape[0]):
-        A[i, dst] = A[i, src]
-    S[dst] = S[src]
-    E[dst] = E[src]
-    idx[dst] = idx[src]
-
-
-@_jit
-def retire_lane(P, X, U, A, S, E, idx, CS, j, act):
-    """Retire lane ``j``: the last active lane moves into it; returns the new count.
-
-    The vacated column becomes padding, a copy of a running lane (lane 0), so
-    the SIMD loops never compute on a failed state.  ``CS`` holds the lanes'
-    controller states (:mod:`plant.controllers`).
-    """
-    last = act - 1
-    if j != last:
-        _move_lane(P, X, U, A, S, E, idx, CS, j, last)
-    if last > 0:
-        _move_lane(P, X, U, A, S, E, idx, CS, last, np.int64(0))
-    return last
-
-
-@_jit
-def _final_objective(sse, status, compared, n, bound):
-    """Output error of a finished candidate, with the module docstring's penalties."""
-    if status == STATUS_OK:
-        return sse
-    if status == STATUS_STOPPED:
-        return sse * n / compared  # extrapolated to the whole log (> cap)
-    return sse + 2.0 * bound * bound * (n - compared)
-
-
 # ----------------------------------------------------------------------------
 # The P-control experiment driver
 # ----------------------------------------------------------------------------
@@ -354,7 +213,7 @@ def _final_objective(sse, status, compared, n, bound):
 def _finish(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, out, fill_from):
     """Record lane ``j``'s result (status ``code``); a failed replay lane's errors := bound."""
     c_ = idx[j]
-    obj[c_] = _final_objective(E[j], code, cmp, n, bound)
+    obj[c_] = final_objective(E[j], code, cmp, n, bound)
     status[c_] = code
     compared[c_] = cmp
     if replay and code != STATUS_OK:
