@@ -61,7 +61,7 @@ def sincos_offset(d, sb, cb):
     return sb * cd + cb * sd, cb * cd - sb * sd
 
 
-@_jit
+@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.core)
 def update_anchors(X, A, n, reanchor):
     """Move the anchors of lanes ``0..n-1`` to the sample's start angles (rows 0, 1 of X).
 

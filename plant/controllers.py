@@ -57,7 +57,7 @@ class PLawKind(NamedTuple):
 _jit = numba.njit(nogil=True, error_model="numpy")
 
 
-@_jit
+@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop (no array passed per lane)
 def p_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
     """The rig's P law ``i = P e`` with the rig's gains (``lp`` unused).
 
@@ -105,7 +105,7 @@ def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     raise NotImplementedError("control_law is called from compiled code only")
 
 
-@overload(control_law, jit_options=dict(nogil=True, error_model="numpy"))
+@overload(control_law, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
 def _control_law_overload(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     law = CONTROL_LAWS.get(getattr(kind, "instance_class", None))
     if not isinstance(kind, types.BaseNamedTuple) or law is None:

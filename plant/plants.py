@@ -149,7 +149,7 @@ def _rigid_lane(P, j, c, q2, q3, w2, w3, s2, c2, s3, c3, i2, i3):
     return a2, a3, det if P[0, j] > 0.0 else -1.0
 
 
-@_jit
+@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.core)
 def rigid_rhs(P, c, X, U, A, K, n):
     """Right-hand side of the rigid robot (paper eq. 2) for lanes ``0..n-1``.
 
