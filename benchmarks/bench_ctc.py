@@ -66,7 +66,9 @@ def main():
     ctc.reset()
     dt = min(per_call(lambda k: ctc(k % n_ref, 0.0, q, e), n) for _ in range(3))
     rows.append(("CTC __call__ (public, per sample)", dt * 1e6, "us"))
-    args = (ctc.f, ctc._p, ctc._ref, ctc._state)
+    state = ctc.estimator_state().copy() if hasattr(ctc, "estimator_state") else None
+    state = np.zeros((9, 1)) if state is None else np.asarray(state, dtype=float).reshape(-1, 1)
+    args = (ctc.f, ctc.parameters, ctc.reference_table, state)
     dt = min(per_call(lambda k: _ctc_step(k % n_ref, q, *args), n) for _ in range(3))
     rows.append(("CTC compiled step alone", dt * 1e6, "us"))
     dt = min(per_call(lambda k: p(k, 0.0, q, e), n) for _ in range(3))

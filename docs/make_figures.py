@@ -58,7 +58,7 @@ it in ``optimisers``):
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
 
-    NUMBA_NUM_THREADS=2 python docs/make_figures.py
+    python docs/make_figures.py
     python docs/make_figures.py --sections identification,ctc
     python docs/make_figures.py --quick            # smoke run of the script itself
 
