@@ -45,8 +45,19 @@ def check_workers(workers) -> int:
     return w
 
 
+#: Fewest candidates per chunk (thread).  A chunk pays a fixed cost per
+#: sample (the set-up of every loop over its lanes) that its lanes share, so
+#: splitting a batch over threads pays only from about this many lanes per
+#: chunk on (``benchmarks/bench_simulate.py``: 76 candidates cost 0.196 ms
+#: each on one thread and 0.246 ms on two; 256 candidates 0.38 and 0.24 ms).
+MIN_LANES_PER_CHUNK = 64
+
+
 def chunk_ranges(m: int, workers: int) -> list:
     """Split ``m`` candidates into at most ``workers`` contiguous chunks ``(lo, hi)``.
+
+    At least :data:`plant.parallel.MIN_LANES_PER_CHUNK` candidates go to a
+    chunk (one chunk for a smaller batch).
 
     Parameters
     ----------
@@ -60,7 +71,7 @@ def chunk_ranges(m: int, workers: int) -> list:
     list of (int, int)
         Non-empty half-open ranges covering ``0..m-1`` in order.
     """
-    n = max(1, min(m, workers))
+    n = max(1, min(m // MIN_LANES_PER_CHUNK, workers))
     size = -(-m // n)
     return [(lo, min(m, lo + size)) for lo in range(0, m, size)]
 

@@ -28,8 +28,9 @@ def log_and_f(request, data_dir):
     return log, f
 
 
-def test_lane_single_and_controller_drivers_give_identical_pulses(log_and_f):
+def test_lane_single_and_controller_drivers_give_identical_pulses(log_and_f, monkeypatch):
     log, f = log_and_f
+    monkeypatch.setattr(plant.parallel, "MIN_LANES_PER_CHUNK", 1)  # 2 threads even for 16
     rng = np.random.default_rng(0)
     F = np.vstack([f, f * (1 + 0.01 * rng.standard_normal((15, 9)))])
     lanes = plant.simulate_batch(log, F, substeps=SUBSTEPS, workers=2)  # 2 chunks of 8 lanes
@@ -68,6 +69,15 @@ def test_rig_layout_is_named_and_joint_side(paper_log):
     assert moved.q0 == (0.1, -0.2) and moved.qd0 == c.qd0
     with pytest.raises(ValueError, match="q0"):
         rig_constants(rig, q0=(np.nan, 0.0))
+
+
+def test_chunks_have_enough_lanes():
+    from plant.parallel import MIN_LANES_PER_CHUNK, chunk_ranges
+
+    assert chunk_ranges(76, 2) == [(0, 76)]  # one thread: splitting would cost more
+    big = chunk_ranges(4 * MIN_LANES_PER_CHUNK, 2)
+    assert big == [(0, 2 * MIN_LANES_PER_CHUNK), (2 * MIN_LANES_PER_CHUNK, 4 * MIN_LANES_PER_CHUNK)]
+    assert chunk_ranges(5, 8) == [(0, 5)]
 
 
 def test_simulation_leaves_no_state_behind(paper_log):
