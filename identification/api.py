@@ -289,13 +289,17 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
     objective = OutputError(log, substeps=substeps, lowpass_hz=lowpass_hz, workers=workers,
                             initial_state=state[0] if unknown_start else None,
                             controller=controller, plant=sim_plant)
-    if controller is not None or sim_plant is not plant.RIGID:
+    if controller is not None or (sim_plant is not None
+                                  and type(sim_plant.kind) is not type(plant.RIGID.kind)):
         # compile (or load) the kernel of this plant and control law before the
         # clock starts, as plant.warm_up does for the rigid plant and the P law
         t_c = time.perf_counter()
         x_mid = xb.mean(axis=1)
         extra = space.plant_parameters(x_mid[None], log)
-        objective(space.to_f(x_mid[None], log), plant_parameters=extra)
+        if extra is None:
+            objective(space.to_f(x_mid[None], log))
+        else:
+            objective(space.to_f(x_mid[None], log), plant_parameters=extra)
         objective.nfev = 0
         compile_s += time.perf_counter() - t_c
         t0 = time.perf_counter()

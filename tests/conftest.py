@@ -165,11 +165,11 @@ def ctrl_c_at_objective_call(monkeypatch):
     def arm(n):
         calls = {"n": 0}
 
-        def interrupted(self, F, cap=None):
+        def interrupted(self, F, cap=None, **kwargs):
             calls["n"] += 1
             if calls["n"] == n:
                 raise KeyboardInterrupt
-            return real_call(self, F, cap=cap)
+            return real_call(self, F, cap=cap, **kwargs)
 
         monkeypatch.setattr(OutputError, "__call__", interrupted)
 
