@@ -71,7 +71,7 @@ from plant.model import (
 from plant.controllers import CONTROL_LAWS, LoggedController
 from plant.rig import RigConstants, rig_constants
 
-from .design import ESTIMATORS, GainDesign, design_gains
+from .design import ESTIMATORS, GainDesign, gains_for
 
 __all__ = ["ComputedTorqueController", "CTCParameters", "CTCLaw", "CTCLawKind", "ctc_law"]
 
@@ -391,10 +391,7 @@ class ComputedTorqueController:
             See the class docstring; also for ``gains`` given together with
             design keywords.
         """
-        if gains is None:
-            gains = design_gains(log.rig, **design)
-        elif design:
-            raise ValueError(f"give either gains or design keywords, not both ({sorted(design)})")
+        gains = gains_for(log.rig, gains, **design)
         return cls(
             f, log.rig, log.trajectory, gains,
             n_samples=log.n_total if n_samples is None else n_samples,

@@ -77,7 +77,7 @@ from dataclasses import dataclass, field
 import control
 import numpy as np
 
-__all__ = ["ESTIMATORS", "GainDesign", "design_gains", "double_integrator"]
+__all__ = ["ESTIMATORS", "GainDesign", "design_gains", "gains_for", "double_integrator"]
 
 #: Velocity estimators understood by :func:`design_gains` and the controller.
 ESTIMATORS = ("observer", "difference")
@@ -450,3 +450,32 @@ def design_gains(
         gain_margin=gm, phase_margin_deg=pm, stability_margin=sm,
         crossover_hz=wg, phase_crossover_hz=wp,
     )
+
+
+def gains_for(rig, gains=None, **design):
+    """Ready-made gains, or a design for the rig from keywords (not both).
+
+    Parameters
+    ----------
+    rig : plant.rig.Rig
+        The rig the gains are designed for.
+    gains : GainDesign, optional
+        Ready-made gains, returned as they are.
+    **design
+        Keyword arguments of :func:`design_gains` (when ``gains`` is None).
+
+    Returns
+    -------
+    GainDesign
+
+    Raises
+    ------
+    ValueError
+        If ``gains`` and design keywords are both given, or as
+        :func:`design_gains`.
+    """
+    if gains is None:
+        return design_gains(rig, **design)
+    if design:
+        raise ValueError(f"give either gains or design keywords, not both ({sorted(design)})")
+    return gains

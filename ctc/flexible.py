@@ -496,12 +496,9 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
             See the class docstring; also for ``gains`` given together with
             design keywords.
         """
-        from .design import design_gains
+        from .design import gains_for
 
-        if gains is None:
-            gains = design_gains(log.rig, **design)
-        elif design:
-            raise ValueError(f"give either gains or design keywords, not both ({sorted(design)})")
+        gains = gains_for(log.rig, gains, **design)
         return cls(f, log.rig, log.trajectory, gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
                    damping_Nms_per_rad=damping_Nms_per_rad,
                    motor_inertia_reflected_kgm2=motor_inertia_reflected_kgm2,

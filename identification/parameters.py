@@ -260,7 +260,7 @@ class BaseParameters(Parameterisation):
 CONSISTENT_F = (0, 1, 4, 5, 6, 7, 8)
 
 
-class ConsistentBaseParameters(Parameterisation):
+class ConsistentBaseParameters(BaseParameters):
     """The base parameters with eq. 3's structure ``f3 = a3 f5``, ``f4 = a3 f6``.
 
     Both pairs are ``m3 x3 a3`` and ``m3 y3 a3``; ``a3`` comes from the
@@ -281,9 +281,6 @@ class ConsistentBaseParameters(Parameterisation):
 
     name = "consistent"
 
-    def __init__(self, bounds=None):
-        self._bounds = None if bounds is None else check_bounds(bounds, 9)
-
     def names(self, log) -> list:
         """``['f1', 'f2', 'f5', 'f6', 'f7', 'f8', 'f9']``.
 
@@ -300,8 +297,7 @@ class ConsistentBaseParameters(Parameterisation):
         ----------
         log : plant.ExperimentLog
         """
-        b = check_bounds(log.rig.bounds if self._bounds is None else self._bounds, 9)
-        return b[list(CONSISTENT_F)]
+        return BaseParameters.bounds(self, log)[list(CONSISTENT_F)]
 
     def to_f(self, x, log) -> np.ndarray:
         """f with f3 = a3 f5 and f4 = a3 f6.

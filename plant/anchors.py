@@ -16,7 +16,8 @@ import math
 import numba
 
 __all__ = ["SINCOS_RANGE", "REANCHOR", "A_Q2", "A_S2", "A_C2", "A_Q3", "A_S3", "A_C3",
-           "N_ANCHOR_ROWS", "sincos_offset", "update_anchors"]
+           "N_ANCHOR_ROWS", "sincos_offset", "update_anchors", "stage_sincos", "near_anchors",
+           "libm_sincos"]
 
 #: Largest angle change (rad) from the anchor for which the stages take
 #: sin/cos by angle addition; beyond it (a lane moving > 50 rad/s) libm.
@@ -95,3 +96,73 @@ def update_anchors(X, A, n, reanchor):
     for j in range(n):
         A[A_Q2, j] = X[0, j]
         A[A_Q3, j] = X[1, j]
+
+
+@_inline
+def near_anchors(X, A, j):
+    """Whether lane ``j``'s link angles (rows 0, 1 of X) lie within :data:`SINCOS_RANGE` of its anchors.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n_x, lanes)
+        Stage state.
+    A : ndarray, shape (6, lanes)
+        Anchors.
+    j : int
+        Lane.
+
+    Returns
+    -------
+    bool
+    """
+    return (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
+            and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE)
+
+
+@_inline
+def stage_sincos(X, A, j):
+    """sin and cos of lane ``j``'s link angles at a stage, by angle addition from its anchors.
+
+    The one place the right-hand sides of :mod:`plant.plants` take their
+    trigonometry; exact to rounding while :func:`near_anchors` holds (the
+    caller recomputes the other lanes with :func:`libm_sincos`).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n_x, lanes)
+        Stage state (rows 0, 1: q2, q3).
+    A : ndarray, shape (6, lanes)
+        Anchors.
+    j : int
+        Lane.
+
+    Returns
+    -------
+    (float, float, float, float, bool)
+        sin q2, cos q2, sin q3, cos q3, and whether the lane is near its anchors.
+    """
+    d2 = X[0, j] - A[A_Q2, j]
+    d3 = X[1, j] - A[A_Q3, j]
+    s2, c2 = sincos_offset(d2, A[A_S2, j], A[A_C2, j])
+    s3, c3 = sincos_offset(d3, A[A_S3, j], A[A_C3, j])
+    return s2, c2, s3, c3, abs(d2) <= SINCOS_RANGE and abs(d3) <= SINCOS_RANGE
+
+
+@_inline
+def libm_sincos(X, j):
+    """sin and cos of lane ``j``'s link angles from libm (lanes far from their anchors).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n_x, lanes)
+        Stage state (rows 0, 1: q2, q3).
+    j : int
+        Lane.
+
+    Returns
+    -------
+    (float, float, float, float)
+        sin q2, cos q2, sin q3, cos q3.
+    """
+    return math.sin(X[0, j]), math.cos(X[0, j]), math.sin(X[1, j]), math.cos(X[1, j])
+

@@ -24,14 +24,13 @@ the rig's (:attr:`plant.rig.Rig.coulomb_ramp_speed_rad_per_s`).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numba
 import numpy as np
 
-from .anchors import A_C2, A_C3, A_Q2, A_Q3, A_S2, A_S3, SINCOS_RANGE, sincos_offset
+from .anchors import libm_sincos, near_anchors, stage_sincos
 from .model import friction_torque, joint_acceleration_sc
 from .plants import RIGHT_HAND_SIDES, Plant
 
@@ -170,22 +169,18 @@ def rigid_friction_rhs(P, c, X, U, A, K, n):
     """
     far = 0
     for j in range(n):
-        d2 = X[0, j] - A[A_Q2, j]
-        d3 = X[1, j] - A[A_Q3, j]
-        s2, c2 = sincos_offset(d2, A[A_S2, j], A[A_C2, j])
-        s3, c3 = sincos_offset(d3, A[A_S3, j], A[A_C3, j])
+        s2, c2, s3, c3, near = stage_sincos(X, A, j)
         K[2, j], K[3, j], K[4, j] = _friction_lane(P, j, c, X[2, j], X[3, j],
                                                    s2, c2, s3, c3, U[0, j], U[1, j])
         K[0, j] = X[2, j]
         K[1, j] = X[3, j]
-        far += not (abs(d2) <= SINCOS_RANGE and abs(d3) <= SINCOS_RANGE)
+        far += not near
     if far:
         for j in range(n):
-            if not (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
-                    and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE):
-                K[2, j], K[3, j], K[4, j] = _friction_lane(
-                    P, j, c, X[2, j], X[3, j], math.sin(X[0, j]), math.cos(X[0, j]),
-                    math.sin(X[1, j]), math.cos(X[1, j]), U[0, j], U[1, j])
+            if not near_anchors(X, A, j):
+                s2, c2, s3, c3 = libm_sincos(X, j)
+                K[2, j], K[3, j], K[4, j] = _friction_lane(P, j, c, X[2, j], X[3, j], s2, c2, s3,
+                                                           c3, U[0, j], U[1, j])
 
 
 RIGHT_HAND_SIDES[RigidFrictionKind] = rigid_friction_rhs

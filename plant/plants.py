@@ -27,14 +27,13 @@ P rows.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numba
 import numpy as np
 
-from .anchors import A_C2, A_C3, A_Q2, A_Q3, A_S2, A_S3, SINCOS_RANGE, sincos_offset
+from .anchors import libm_sincos, near_anchors, stage_sincos
 from .model import friction_torque, joint_acceleration_sc
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "flexible_rhs", "RigidKind",
@@ -176,22 +175,18 @@ def rigid_rhs(P, c, X, U, A, K, n):
     """
     far = 0
     for j in range(n):
-        d2 = X[0, j] - A[A_Q2, j]
-        d3 = X[1, j] - A[A_Q3, j]
-        s2, c2 = sincos_offset(d2, A[A_S2, j], A[A_C2, j])
-        s3, c3 = sincos_offset(d3, A[A_S3, j], A[A_C3, j])
+        s2, c2, s3, c3, near = stage_sincos(X, A, j)
         K[2, j], K[3, j], K[4, j] = _rigid_lane(P, j, c, X[0, j], X[1, j], X[2, j], X[3, j],
                                                 s2, c2, s3, c3, U[0, j], U[1, j])
         K[0, j] = X[2, j]
         K[1, j] = X[3, j]
-        far += not (abs(d2) <= SINCOS_RANGE and abs(d3) <= SINCOS_RANGE)
+        far += not near
     if far:  # lanes that moved too far from the anchors: libm (rare)
         for j in range(n):
-            if not (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
-                    and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE):
-                K[2, j], K[3, j], K[4, j] = _rigid_lane(
-                    P, j, c, X[0, j], X[1, j], X[2, j], X[3, j], math.sin(X[0, j]),
-                    math.cos(X[0, j]), math.sin(X[1, j]), math.cos(X[1, j]), U[0, j], U[1, j])
+            if not near_anchors(X, A, j):
+                s2, c2, s3, c3 = libm_sincos(X, j)
+                K[2, j], K[3, j], K[4, j] = _rigid_lane(P, j, c, X[0, j], X[1, j], X[2, j],
+                                                        X[3, j], s2, c2, s3, c3, U[0, j], U[1, j])
 
 
 #: Registry of the core: plant kind class -> right-hand side (:func:`plant.core.plant_rhs`).
@@ -250,10 +245,7 @@ def flexible_rhs(P, c, X, U, A, K, n):
     """
     far = 0
     for j in range(n):
-        d2 = X[0, j] - A[A_Q2, j]
-        d3 = X[1, j] - A[A_Q3, j]
-        s2, c2 = sincos_offset(d2, A[A_S2, j], A[A_C2, j])
-        s3, c3 = sincos_offset(d3, A[A_S3, j], A[A_C3, j])
+        s2, c2, s3, c3, near = stage_sincos(X, A, j)
         K[2, j], K[3, j], K[6, j], K[7, j], K[8, j] = _flexible_lane(
             P, j, c, X[0, j], X[1, j], X[2, j], X[3, j], X[4, j], X[5, j], X[6, j], X[7, j],
             s2, c2, s3, c3, U[0, j], U[1, j])
@@ -261,15 +253,14 @@ def flexible_rhs(P, c, X, U, A, K, n):
         K[1, j] = X[3, j]
         K[4, j] = X[6, j]
         K[5, j] = X[7, j]
-        far += not (abs(d2) <= SINCOS_RANGE and abs(d3) <= SINCOS_RANGE)
+        far += not near
     if far:
         for j in range(n):
-            if not (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
-                    and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE):
+            if not near_anchors(X, A, j):
+                s2, c2, s3, c3 = libm_sincos(X, j)
                 K[2, j], K[3, j], K[6, j], K[7, j], K[8, j] = _flexible_lane(
                     P, j, c, X[0, j], X[1, j], X[2, j], X[3, j], X[4, j], X[5, j], X[6, j],
-                    X[7, j], math.sin(X[0, j]), math.cos(X[0, j]), math.sin(X[1, j]),
-                    math.cos(X[1, j]), U[0, j], U[1, j])
+                    X[7, j], s2, c2, s3, c3, U[0, j], U[1, j])
 
 
 RIGHT_HAND_SIDES[FlexibleKind] = flexible_rhs
