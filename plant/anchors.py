@@ -16,8 +16,7 @@ import math
 import numba
 
 __all__ = ["SINCOS_RANGE", "REANCHOR", "A_Q2", "A_S2", "A_C2", "A_Q3", "A_S3", "A_C3",
-           "N_ANCHOR_ROWS", "sincos_offset", "update_anchors", "stage_sincos", "near_anchors",
-           "libm_sincos"]
+           "N_ANCHOR_ROWS", "sincos_offset", "update_anchors", "lane_sincos"]
 
 #: Largest angle change (rad) from the anchor for which the stages take
 #: sin/cos by angle addition; beyond it (a lane moving > 50 rad/s) libm.
@@ -99,70 +98,33 @@ def update_anchors(X, A, n, reanchor):
 
 
 @_inline
-def near_anchors(X, A, j):
-    """Whether lane ``j``'s link angles (rows 0, 1 of X) lie within :data:`SINCOS_RANGE` of its anchors.
+def lane_sincos(q2, q3, a, exact):
+    """sin and cos of a lane's link angles at a stage, by angle addition from its anchors.
+
+    The one place the stages of the core take their trigonometry: exact to
+    rounding while the angles lie within :data:`SINCOS_RANGE` of the anchors;
+    beyond it the result is reported as not near, and with ``exact`` taken
+    from libm instead.
 
     Parameters
     ----------
-    X : ndarray, shape (n_x, lanes)
-        Stage state.
-    A : ndarray, shape (6, lanes)
-        Anchors.
-    j : int
-        Lane.
-
-    Returns
-    -------
-    bool
-    """
-    return (abs(X[0, j] - A[A_Q2, j]) <= SINCOS_RANGE
-            and abs(X[1, j] - A[A_Q3, j]) <= SINCOS_RANGE)
-
-
-@_inline
-def stage_sincos(X, A, j):
-    """sin and cos of lane ``j``'s link angles at a stage, by angle addition from its anchors.
-
-    The one place the right-hand sides of :mod:`plant.plants` take their
-    trigonometry; exact to rounding while :func:`near_anchors` holds (the
-    caller recomputes the other lanes with :func:`libm_sincos`).
-
-    Parameters
-    ----------
-    X : ndarray, shape (n_x, lanes)
-        Stage state (rows 0, 1: q2, q3).
-    A : ndarray, shape (6, lanes)
-        Anchors.
-    j : int
-        Lane.
+    q2, q3 : float
+        Stage link angles (rad).
+    a : tuple of 6 float
+        The lane's anchors (q2, sin q2, cos q2, q3, sin q3, cos q3).
+    exact : bool
+        Take sin/cos from libm when the angles are not near the anchors.
 
     Returns
     -------
     (float, float, float, float, bool)
-        sin q2, cos q2, sin q3, cos q3, and whether the lane is near its anchors.
+        sin q2, cos q2, sin q3, cos q3, and whether the angles are near the anchors.
     """
-    d2 = X[0, j] - A[A_Q2, j]
-    d3 = X[1, j] - A[A_Q3, j]
-    s2, c2 = sincos_offset(d2, A[A_S2, j], A[A_C2, j])
-    s3, c3 = sincos_offset(d3, A[A_S3, j], A[A_C3, j])
-    return s2, c2, s3, c3, abs(d2) <= SINCOS_RANGE and abs(d3) <= SINCOS_RANGE
-
-
-@_inline
-def libm_sincos(X, j):
-    """sin and cos of lane ``j``'s link angles from libm (lanes far from their anchors).
-
-    Parameters
-    ----------
-    X : ndarray, shape (n_x, lanes)
-        Stage state (rows 0, 1: q2, q3).
-    j : int
-        Lane.
-
-    Returns
-    -------
-    (float, float, float, float)
-        sin q2, cos q2, sin q3, cos q3.
-    """
-    return math.sin(X[0, j]), math.cos(X[0, j]), math.sin(X[1, j]), math.cos(X[1, j])
-
+    d2 = q2 - a[A_Q2]
+    d3 = q3 - a[A_Q3]
+    s2, c2 = sincos_offset(d2, a[A_S2], a[A_C2])
+    s3, c3 = sincos_offset(d3, a[A_S3], a[A_C3])
+    near = (abs(d2) <= SINCOS_RANGE) & (abs(d3) <= SINCOS_RANGE)
+    if exact and not near:
+        s2, c2, s3, c3 = math.sin(q2), math.cos(q2), math.sin(q3), math.cos(q3)
+    return s2, c2, s3, c3, near

@@ -86,7 +86,7 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
-from .anchors import update_anchors
+from .anchors import lane_sincos, update_anchors
 from .plants import RIGHT_HAND_SIDES
 
 __all__ = [
@@ -197,34 +197,167 @@ def padded_lanes(n):
 
 
 def new_workspace(nx, lanes):
-    """Scratch arrays of :func:`advance_sample` for ``nx`` states and ``lanes`` lanes.
+    """Scratch of :func:`advance_sample` for ``lanes`` lanes.
 
     Parameters
     ----------
     nx : int
-        State components.
+        State components (unused: the per-lane state lives in registers).
     lanes : int
         Lanes (columns).
 
     Returns
     -------
-    tuple of ndarray
-        ``(K1, K2, K3, K4, XS)``: the four stage derivatives (nx + 1, lanes)
-        and the stage state (nx, lanes).
+    ndarray, shape (lanes,), int64
+        Per-lane outcome of a step (:data:`LANE_FAR`, :data:`LANE_NOT_PD`).
     """
-    return tuple(np.zeros((nx + 1, lanes)) for _ in range(4)) + (np.zeros((nx, lanes)),)
+    return np.zeros(lanes, dtype=np.int64)
 
 
-@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined: no call in the sample loop
-def _stage_state(X, K, c, XS, nx, n):
-    """Next stage's state ``XS = X + c K`` (rows 0..nx-1)."""
-    for i in range(nx):
-        for j in range(n):
-            XS[i, j] = X[i, j] + c * K[i, j]
+#: Outcomes of one lane's step in the SIMD loop of :func:`advance_sample`.
+LANE_DONE, LANE_NOT_PD, LANE_FAR = 0, 1, 2
 
 
-def plant_rhs(kind, P, c, X, U, A, K, n):
-    """The right-hand side of plant ``kind``: the one place a kind becomes its function.
+# ----------------------------------------------------------------------------
+# Per-lane tuples: code generated once per state size
+# ----------------------------------------------------------------------------
+def _generated(name, params, lines):
+    """A Python function ``name(params)`` with the body ``lines`` (overload impls)."""
+    src = f"def {name}({params}):\n" + "".join(f"    {line}\n" for line in lines)
+    scope = {"math": math}
+    exec(compile(src, f"<plant.core.{name}>", "exec"), scope)  # noqa: S102 - fixed templates
+    return scope[name]
+
+
+def _n_states(kind):
+    entry = RIGHT_HAND_SIDES.get(getattr(kind, "instance_class", None))
+    if not isinstance(kind, types.BaseNamedTuple) or entry is None:
+        raise TypingError(f"unknown plant kind {kind}; register it with plant.plants.register_plant")
+    return entry
+
+
+def lane_state(kind, X, j):
+    """Lane ``j``'s state as a tuple ``(X[0, j], ..., X[n_x - 1, j])`` (compiled code only).
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A plant kind (its registered state size gives ``n_x``).
+    X : ndarray, shape (n_x, lanes)
+        States.
+    j : int
+        Lane.
+
+    Returns
+    -------
+    tuple of n_x float
+    """
+    raise NotImplementedError("lane_state is called from compiled code only")
+
+
+@overload(lane_state, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _lane_state_overload(kind, X, j):
+    n = _n_states(kind).n_states
+    return _generated("impl", "kind, X, j",
+                      ["return (" + "".join(f"X[{i}, j], " for i in range(n)) + ")"])
+
+
+def lane_parameters(kind, P, j):
+    """Lane ``j``'s plant parameters as a tuple ``(P[0, j], ..., P[n_par - 1, j])`` (compiled code only).
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A plant kind (its registered parameter count gives ``n_par``).
+    P : ndarray, shape (n_par, lanes)
+        Per-lane parameters.
+    j : int
+        Lane.
+
+    Returns
+    -------
+    tuple of n_par float
+    """
+    raise NotImplementedError("lane_parameters is called from compiled code only")
+
+
+@overload(lane_parameters, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _lane_parameters_overload(kind, P, j):
+    n = _n_states(kind).n_parameters
+    return _generated("impl", "kind, P, j",
+                      ["return (" + "".join(f"P[{i}, j], " for i in range(n)) + ")"])
+
+
+def store_lane_state(X, j, x):
+    """``X[:, j] = x`` for a state tuple ``x`` (compiled code only).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n_x, lanes)
+    j : int
+    x : tuple of n_x float
+    """
+    raise NotImplementedError("store_lane_state is called from compiled code only")
+
+
+@overload(store_lane_state, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _store_lane_state_overload(X, j, x):
+    return _generated("impl", "X, j, x", [f"X[{i}, j] = x[{i}]" for i in range(len(x))]
+                      + ["return None"])
+
+
+def _tuple_impl(params, n, element):
+    """Implementation returning the tuple ``(element(0), ..., element(n - 1))``."""
+    return _generated("impl", params,
+                      ["return (" + "".join(element(i) + ", " for i in range(n)) + ")"])
+
+
+def _axpy(x, a, k):
+    """``x + a k`` elementwise for tuples (RK4 stage state; compiled code only)."""
+    raise NotImplementedError("called from compiled code only")
+
+
+@overload(_axpy, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _axpy_overload(x, a, k):
+    return _tuple_impl("x, a, k", len(x), lambda i: f"x[{i}] + a * k[{i}]")
+
+
+def _rk4_sum(x, h6, k1, k2, k3, k4):
+    """``x + h6 (k1 + 2 k2 + 2 k3 + k4)`` elementwise (RK4 step; compiled code only)."""
+    raise NotImplementedError("called from compiled code only")
+
+
+@overload(_rk4_sum, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _rk4_sum_overload(x, h6, k1, k2, k3, k4):
+    return _tuple_impl("x, h6, k1, k2, k3, k4", len(x),
+                       lambda i: f"x[{i}] + h6 * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])")
+
+
+def _select(keep, a, x):
+    """``a if keep else x`` elementwise for tuples (a select, no branch; compiled code only)."""
+    raise NotImplementedError("called from compiled code only")
+
+
+@overload(_select, jit_options=dict(nogil=True, error_model="numpy"))
+def _select_overload(keep, a, x):
+    return _tuple_impl("keep, a, x", len(x), lambda i: f"a[{i}] if keep else x[{i}]")
+
+
+def _all_finite(x):
+    raise NotImplementedError("called from compiled code only")
+
+
+@overload(_all_finite, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _all_finite_overload(x):
+    return _generated("impl", "x", ["return " + " & ".join(f"math.isfinite(x[{i}])"
+                                                           for i in range(len(x)))])
+
+
+# ----------------------------------------------------------------------------
+# The right-hand side of a plant kind, and one RK4 step of one lane
+# ----------------------------------------------------------------------------
+def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
+    """The right-hand side of plant ``kind`` for lane ``j``: the one place a kind becomes its function.
 
     Compiled code only: the *type* of ``kind`` selects the function at
     compile time (:data:`plant.plants.RIGHT_HAND_SIDES` maps kind classes to
@@ -233,10 +366,15 @@ def plant_rhs(kind, P, c, X, U, A, K, n):
 
     Parameters
     ----------
-    kind : plant.plants.RigidKind or plant.plants.FlexibleKind
+    kind : NamedTuple
         A plant's :attr:`~plant.plants.Plant.kind`.
-    P, c, X, U, A, K, n
-        As the right-hand sides of :mod:`plant.plants`.
+    p, c, x, u2, u3, s2, c2, s3, c3
+        As the right-hand sides of :mod:`plant.plants` (module docstring).
+
+    Returns
+    -------
+    (tuple of n_x float, float)
+        The state derivative and the positive-definiteness margin.
 
     Raises
     ------
@@ -246,16 +384,73 @@ def plant_rhs(kind, P, c, X, U, A, K, n):
     raise NotImplementedError("plant_rhs is called from compiled code only")
 
 
-@overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
-def _plant_rhs_overload(kind, P, c, X, U, A, K, n):
-    rhs = RIGHT_HAND_SIDES.get(getattr(kind, "instance_class", None))
-    if not isinstance(kind, types.BaseNamedTuple) or rhs is None:
-        raise TypingError(f"unknown plant kind {kind}; register it in plant.plants.RIGHT_HAND_SIDES")
+@overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"))
+def _plant_rhs_overload(kind, p, c, x, u2, u3, s2, c2, s3, c3):
+    rhs = _n_states(kind).function
 
-    def impl(kind, P, c, X, U, A, K, n):
-        rhs(P, c, X, U, A, K, n)
+    def impl(kind, p, c, x, u2, u3, s2, c2, s3, c3):
+        return rhs(p, c, x, u2, u3, s2, c2, s3, c3)
 
     return impl
+
+
+@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop
+def rk4_lane(kind, p, c, x, u2, u3, a, hh, h, h6, exact):
+    """One classical RK4 step of lane ``j`` from state ``x`` with held currents (u2, u3).
+
+    The stages take sin/cos of the link angles by angle addition from the
+    lane's anchors ``a`` (:func:`plant.anchors.lane_sincos`); with ``exact``
+    a stage further than :data:`~plant.anchors.SINCOS_RANGE` from the anchors
+    takes them from libm instead.
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        Plant kind.
+    p : tuple of n_par float
+        The lane's plant parameters (:func:`lane_parameters`).
+    c : plant.rig.RigConstants
+        Rig layout.
+    x : tuple of n_x float
+        State at the step's start.
+    u2, u3 : float
+        Held motor currents (A).
+    a : tuple of 6 float
+        The lane's anchors (q2, sin q2, cos q2, q3, sin q3, cos q3).
+    hh, h, h6 : float
+        Half step, step and step / 6 (s).
+    exact : bool
+        Use libm for stages far from the anchors (else report them).
+
+    Returns
+    -------
+    x_next : tuple of n_x float
+        State after the step.
+    ok : bool
+        D(q) positive definite at all four stages.
+    near : bool
+        All four stages within range of the anchors (always reported, also
+        with ``exact``).
+    """
+    s2, c2, s3, c3, n1 = lane_sincos(x[0], x[1], a, exact)
+    k1, m1 = plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3)
+    x2 = _axpy(x, hh, k1)
+    s2, c2, s3, c3, n2 = lane_sincos(x2[0], x2[1], a, exact)
+    k2, m2 = plant_rhs(kind, p, c, x2, u2, u3, s2, c2, s3, c3)
+    x3 = _axpy(x, hh, k2)
+    s2, c2, s3, c3, n3 = lane_sincos(x3[0], x3[1], a, exact)
+    k3, m3 = plant_rhs(kind, p, c, x3, u2, u3, s2, c2, s3, c3)
+    x4 = _axpy(x, h, k3)
+    s2, c2, s3, c3, n4 = lane_sincos(x4[0], x4[1], a, exact)
+    k4, m4 = plant_rhs(kind, p, c, x4, u2, u3, s2, c2, s3, c3)
+    ok = (m1 > 0.0) & (m2 > 0.0) & (m3 > 0.0) & (m4 > 0.0)
+    return _rk4_sum(x, h6, k1, k2, k3, k4), ok, n1 & n2 & n3 & n4
+
+
+@_jit
+def _rk4_lane_exact(kind, p, c, x, u2, u3, a, hh, h, h6):
+    """:func:`rk4_lane` with libm for far stages (a compiled call: rare lanes only)."""
+    return rk4_lane(kind, p, c, x, u2, u3, a, hh, h, h6, True)
 
 
 @numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.core)
@@ -263,13 +458,17 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     """Advance lanes ``0..n-1`` over one sample with the held currents ``U``.
 
     Classical 4th-order Runge-Kutta with ``substeps`` equal steps over
-    ``Ts = c.sample_time_s`` of the plant's right-hand side ``rhs`` (see the
-    module docstring for its signature); the currents are held constant over
-    the sample (zero-order hold, as the rig's amplifiers do).
+    ``Ts = c.sample_time_s`` of the plant's right-hand side (see the module
+    docstring for its signature); the currents are held constant over the
+    sample (zero-order hold, as the rig's amplifiers do).  Each step is one
+    loop over the lanes (SIMD) with the lane's state in registers
+    (:func:`rk4_lane`); a lane whose stages moved further than
+    :data:`~plant.anchors.SINCOS_RANGE` from its anchors is left untouched
+    there and stepped again with libm sin/cos (rare).
 
     Parameters
     ----------
-    kind : plant.plants.RigidKind or plant.plants.FlexibleKind
+    kind : NamedTuple
         The plant (:attr:`plant.plants.Plant.kind`); its right-hand side is
         chosen by :func:`plant_rhs`.
     P : ndarray, shape (n_par, lanes)
@@ -283,10 +482,10 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     A : ndarray, shape (6, lanes)
         Trigonometric anchors (see the module docstring); updated in place.
     S : ndarray, shape (lanes,), int64
-        Status per lane: set to :data:`STATUS_NOT_PD` or
-        :data:`STATUS_NONFINITE` on failure (a lane already failed keeps its
-        code).
-    W : tuple of ndarray
+        Status per lane: set to :data:`STATUS_NOT_PD` (the lane keeps the
+        state of the step's start) or :data:`STATUS_NONFINITE` on failure (a
+        lane already failed keeps its code).
+    W : ndarray, shape (lanes,), int64
         Scratch from :func:`new_workspace`.
     n : int
         Number of lanes to advance (columns ``0..n-1``).
@@ -295,35 +494,34 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     reanchor : bool
         Take the anchors' sin/cos from libm at this sample.
     """
-    K1, K2, K3, K4, XS = W
-    nx = X.shape[0]
     h = c.sample_time_s / substeps
     hh = 0.5 * h
     h6 = h * (1.0 / 6.0)
     update_anchors(X, A, n, reanchor)
-    stages = (K1, K2, K3, K4)
-    steps = (hh, hh, h, h)
     for _ in range(substeps):
-        for s in range(4):
-            # one (inlined) right-hand side for the four stages: a call per
-            # stage would cost atomic reference-count updates of its arrays
-            K = stages[s]
-            plant_rhs(kind, P, c, X if s == 0 else XS, U, A, K, n)
-            if s < 3:
-                _stage_state(X, K, steps[s], XS, nx, n)
-        for i in range(nx):
+        far = 0
+        for j in range(n):  # SIMD over the lanes
+            x = lane_state(kind, X, j)
+            a = (A[0, j], A[1, j], A[2, j], A[3, j], A[4, j], A[5, j])
+            xn, ok, near = rk4_lane(kind, lane_parameters(kind, P, j), c, x, U[0, j], U[1, j], a, hh, h,
+                                       h6, False)
+            store_lane_state(X, j, _select(ok & near, xn, x))
+            W[j] = LANE_DONE if ok else LANE_NOT_PD
+            if not near:
+                W[j] = LANE_FAR
+            far += not near
+        if far:  # lanes whose stages left the anchors' range: again, with libm (rare)
             for j in range(n):
-                ok = K1[nx, j] > 0.0 and K2[nx, j] > 0.0 and K3[nx, j] > 0.0 and K4[nx, j] > 0.0
-                x = X[i, j]
-                X[i, j] = (x + h6 * (K1[i, j] + 2.0 * K2[i, j] + 2.0 * K3[i, j] + K4[i, j])
-                           if ok else x)
+                if W[j] == LANE_FAR:
+                    x = lane_state(kind, X, j)
+                    a = (A[0, j], A[1, j], A[2, j], A[3, j], A[4, j], A[5, j])
+                    xn, ok, _ = _rk4_lane_exact(kind, lane_parameters(kind, P, j), c, x, U[0, j],
+                                                   U[1, j], a, hh, h, h6)
+                    store_lane_state(X, j, _select(ok, xn, x))
+                    W[j] = LANE_DONE if ok else LANE_NOT_PD
         for j in range(n):
-            if not (K1[nx, j] > 0.0 and K2[nx, j] > 0.0 and K3[nx, j] > 0.0
-                    and K4[nx, j] > 0.0) and S[j] == STATUS_OK:
+            if W[j] == LANE_NOT_PD and S[j] == STATUS_OK:
                 S[j] = STATUS_NOT_PD
     for j in range(n):
-        if S[j] == STATUS_OK:
-            for i in range(nx):
-                if not math.isfinite(X[i, j]):
-                    S[j] = STATUS_NONFINITE
-                    break
+        if S[j] == STATUS_OK and not _all_finite(lane_state(kind, X, j)):
+            S[j] = STATUS_NONFINITE

@@ -30,9 +30,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .anchors import libm_sincos, near_anchors, stage_sincos
 from .model import friction_torque, joint_acceleration_sc
-from .plants import RIGHT_HAND_SIDES, Plant
+from .plants import Plant, register_plant
 
 __all__ = ["RigidFrictionKind", "RIGID_FRICTION_KIND", "RigidWithFriction", "RIGID_FRICTION",
            "rigid_friction_rhs", "FRICTION_NAMES", "friction_vector", "friction_fields",
@@ -131,59 +130,44 @@ def joint_side_friction(V, rig) -> np.ndarray:
 
 
 @_jit
-def _friction_lane(P, j, c, w2, w3, s2, c2, s3, c3, i2, i3):
-    """Joint accelerations and PD margin of lane ``j`` with the lane's own friction."""
-    tau2 = c.torque_per_amp[0] * i2 + friction_torque(
-        w2, P[_FR_V, j], P[_FR_P, j], P[_FR_N, j], c.ramp_speed[0])
-    tau3 = c.torque_per_amp[1] * i3 + friction_torque(
-        w3, P[_FR_V + 1, j], P[_FR_P + 1, j], P[_FR_N + 1, j], c.ramp_speed[1])
-    f = (P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j], P[6, j], P[7, j], P[8, j])
-    a2, a3, det = joint_acceleration_sc(f, s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
-    return a2, a3, det if P[0, j] > 0.0 else -1.0
-
-
-@_jit
-def rigid_friction_rhs(P, c, X, U, A, K, n):
+def rigid_friction_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
     """Right-hand side of the rigid robot with per-lane drive friction.
 
-    As :func:`plant.plants.rigid_rhs`, with the joint-side friction of lane j
-    in ``P[9:15, j]`` (viscous 2, Coulomb for positive rate 2, for negative
+    As :func:`plant.plants.rigid_rhs`, with the lane's joint-side friction
+    in ``p[9:15]`` (viscous 2, Coulomb for positive rate 2, for negative
     rate 2) instead of the rig's; the ramp speed is the rig's.
 
     Parameters
     ----------
-    P : ndarray, shape (15, lanes)
-        Per-lane parameters.
+    p : tuple of 15 float
+        The lane's f1..f9 and friction.
     c : plant.rig.RigConstants
         Rig layout.
-    X : ndarray, shape (4, lanes)
-        Stage state.
-    U : ndarray, shape (2, lanes)
+    x : tuple of 4 float
+        Stage state (q2, q3, qd2, qd3).
+    u2, u3 : float
         Held motor currents (A).
-    A : ndarray, shape (6, lanes)
-        Trigonometric anchors (:mod:`plant.core`).
-    K : ndarray, shape (5, lanes)
-        Output: state derivative and PD margin.
-    n : int
-        Lanes to evaluate.
+    s2, c2, s3, c3 : float
+        sin and cos of the stage's q2 and q3.
+
+    Returns
+    -------
+    xdot : tuple of 4 float
+        (qd2, qd3, qdd2, qdd3).
+    margin : float
+        det D(q), or -1 where f1 <= 0.
     """
-    far = 0
-    for j in range(n):
-        s2, c2, s3, c3, near = stage_sincos(X, A, j)
-        K[2, j], K[3, j], K[4, j] = _friction_lane(P, j, c, X[2, j], X[3, j],
-                                                   s2, c2, s3, c3, U[0, j], U[1, j])
-        K[0, j] = X[2, j]
-        K[1, j] = X[3, j]
-        far += not near
-    if far:
-        for j in range(n):
-            if not near_anchors(X, A, j):
-                s2, c2, s3, c3 = libm_sincos(X, j)
-                K[2, j], K[3, j], K[4, j] = _friction_lane(P, j, c, X[2, j], X[3, j], s2, c2, s3,
-                                                           c3, U[0, j], U[1, j])
+    w2 = x[2]
+    w3 = x[3]
+    tau2 = c.torque_per_amp[0] * u2 + friction_torque(
+        w2, p[_FR_V], p[_FR_P], p[_FR_N], c.ramp_speed[0])
+    tau3 = c.torque_per_amp[1] * u3 + friction_torque(
+        w3, p[_FR_V + 1], p[_FR_P + 1], p[_FR_N + 1], c.ramp_speed[1])
+    a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
+    return (w2, w3, a2, a3), (det if p[0] > 0.0 else -1.0)
 
 
-RIGHT_HAND_SIDES[RigidFrictionKind] = rigid_friction_rhs
+register_plant(RigidFrictionKind, rigid_friction_rhs, 4, 15)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ left alone), so nothing needs restoring afterwards.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -48,9 +49,9 @@ def check_workers(workers) -> int:
 #: Fewest candidates per chunk (thread).  A chunk pays a fixed cost per
 #: sample (the set-up of every loop over its lanes) that its lanes share, so
 #: splitting a batch over threads pays only from about this many lanes per
-#: chunk on (``benchmarks/bench_simulate.py``: 76 candidates cost 0.196 ms
-#: each on one thread and 0.246 ms on two; 256 candidates 0.38 and 0.24 ms).
-MIN_LANES_PER_CHUNK = 64
+#: chunk on (``benchmarks/bench_simulate.py`` prints the cost per candidate
+#: against lanes and threads).
+MIN_LANES_PER_CHUNK = 16
 
 
 def chunk_ranges(m: int, workers: int) -> list:
@@ -122,10 +123,39 @@ def run_chunks(chunk_fn, m: int, workers) -> None:
     if len(chunks) == 1:
         call_kernel(chunk_fn, *chunks[0])
         return
-    with ThreadPoolExecutor(max_workers=len(chunks)) as pool:
-        futures = [pool.submit(call_kernel, chunk_fn, lo, hi) for lo, hi in chunks]
+    # the first chunk runs in this thread, the others in the pool's threads
+    pool = _pool(len(chunks) - 1)
+    futures = [pool.submit(call_kernel, chunk_fn, lo, hi) for lo, hi in chunks[1:]]
+    try:
+        call_kernel(chunk_fn, *chunks[0])
+    finally:
         for fut in futures:
             fut.result()
+
+
+# Worker threads kept between calls (a GA calls the batch drivers once per
+# generation; starting threads each time cost about 1 % of the paper's GA).
+# They hold no state of a call, and a forked child starts with none.
+_POOLS: dict = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    with _POOLS_LOCK:
+        pool = _POOLS.get(n)
+        if pool is None:
+            pool = _POOLS[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="plant-chunk")
+        return pool
+
+
+def _forget_pools() -> None:
+    global _POOLS_LOCK
+    _POOLS.clear()
+    _POOLS_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pools)
 
 
 def kernels_cached() -> bool:

@@ -28,16 +28,16 @@ P rows.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numba
 import numpy as np
 
-from .anchors import libm_sincos, near_anchors, stage_sincos
 from .model import friction_torque, joint_acceleration_sc
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "flexible_rhs", "RigidKind",
-           "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RIGHT_HAND_SIDES"]
+           "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RightHandSide", "RIGHT_HAND_SIDES",
+           "register_plant"]
 
 
 class RigidKind(NamedTuple):
@@ -137,60 +137,93 @@ class Plant:
 
 
 @_jit
-def _rigid_lane(P, j, c, q2, q3, w2, w3, s2, c2, s3, c3, i2, i3):
-    """Joint accelerations and PD margin of rigid lane ``j`` (scalars in and out)."""
-    tau2 = c.torque_per_amp[0] * i2 + friction_torque(
-        w2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
-    tau3 = c.torque_per_amp[1] * i3 + friction_torque(
-        w3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
-    f = (P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j], P[6, j], P[7, j], P[8, j])
-    a2, a3, det = joint_acceleration_sc(f, s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
-    return a2, a3, det if P[0, j] > 0.0 else -1.0
+def rigid_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
+    """Right-hand side of the rigid robot (paper eq. 2) for one lane.
 
-
-@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.core)
-def rigid_rhs(P, c, X, U, A, K, n):
-    """Right-hand side of the rigid robot (paper eq. 2) for lanes ``0..n-1``.
-
-    State ``X`` rows (q2, q3, qd2, qd3); parameters ``P`` rows f1..f9;
-    ``K`` rows (qd2, qd3, qdd2, qdd3, det D) (det D replaced by -1 where
-    f1 <= 0).  See :mod:`plant.core` for the protocol.
+    State ``x = (q2, q3, qd2, qd3)``; parameters ``p = (f1, ..., f9)``.  See
+    :mod:`plant.core` for the protocol.
 
     Parameters
     ----------
-    P : ndarray, shape (n_par, lanes)
-        Per-lane parameters.
+    p : tuple of 9 float
+        The lane's base parameters f1..f9.
     c : plant.rig.RigConstants
         Rig layout.
-    X : ndarray, shape (n_x, lanes)
-        Stage state.
-    U : ndarray, shape (2, lanes)
+    x : tuple of 4 float
+        Stage state (rad, rad/s).
+    u2, u3 : float
         Held motor currents (A).
-    A : ndarray, shape (6, lanes)
-        Trigonometric anchors (:mod:`plant.core`).
-    K : ndarray, shape (n_x + 1, lanes)
-        Output: state derivative and PD margin.
-    n : int
-        Lanes to evaluate.
+    s2, c2, s3, c3 : float
+        sin and cos of the stage's q2 and q3.
+
+    Returns
+    -------
+    xdot : tuple of 4 float
+        (qd2, qd3, qdd2, qdd3).
+    margin : float
+        det D(q), or -1 where f1 <= 0.
     """
-    far = 0
-    for j in range(n):
-        s2, c2, s3, c3, near = stage_sincos(X, A, j)
-        K[2, j], K[3, j], K[4, j] = _rigid_lane(P, j, c, X[0, j], X[1, j], X[2, j], X[3, j],
-                                                s2, c2, s3, c3, U[0, j], U[1, j])
-        K[0, j] = X[2, j]
-        K[1, j] = X[3, j]
-        far += not near
-    if far:  # lanes that moved too far from the anchors: libm (rare)
-        for j in range(n):
-            if not near_anchors(X, A, j):
-                s2, c2, s3, c3 = libm_sincos(X, j)
-                K[2, j], K[3, j], K[4, j] = _rigid_lane(P, j, c, X[0, j], X[1, j], X[2, j],
-                                                        X[3, j], s2, c2, s3, c3, U[0, j], U[1, j])
+    w2 = x[2]
+    w3 = x[3]
+    tau2 = c.torque_per_amp[0] * u2 + friction_torque(
+        w2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
+    tau3 = c.torque_per_amp[1] * u3 + friction_torque(
+        w3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
+    a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
+    return (w2, w3, a2, a3), (det if p[0] > 0.0 else -1.0)
 
 
-#: Registry of the core: plant kind class -> right-hand side (:func:`plant.core.plant_rhs`).
-RIGHT_HAND_SIDES = {RigidKind: rigid_rhs}
+class RightHandSide(NamedTuple):
+    """A registered right-hand side of the core and its state size.
+
+    Attributes
+    ----------
+    function : callable
+        The compiled right-hand side (protocol of :mod:`plant.core`).
+    n_states : int
+        Length of the state tuple it takes and returns.
+    n_parameters : int
+        Length of the per-lane parameter tuple it takes.
+    """
+
+    function: Callable
+    n_states: int
+    n_parameters: int
+
+
+#: Registry of the core: plant kind class -> :class:`RightHandSide`
+#: (:func:`plant.core.plant_rhs`).
+RIGHT_HAND_SIDES: dict = {}
+
+
+def register_plant(kind_class, rhs, n_states: int, n_parameters: int) -> None:
+    """Register a right-hand side under a plant kind class (see the module docstring).
+
+    Parameters
+    ----------
+    kind_class : type
+        A ``NamedTuple`` class whose instances are the plant's kind.
+    rhs : numba dispatcher
+        The compiled right-hand side ``rhs(p, c, x, u2, u3, s2, c2, s3, c3)
+        -> (xdot, margin)`` with ``x`` and ``xdot`` tuples of ``n_states``
+        floats and ``p`` a tuple of ``n_parameters`` floats.
+    n_states : int
+        State components; rows 0, 1 are the link angles q2, q3.
+    n_parameters : int
+        Per-lane parameters (rows of the plant's P).
+
+    Raises
+    ------
+    ValueError
+        If ``n_states < 2`` or ``n_parameters < 1``.
+    """
+    if int(n_states) < 2 or int(n_parameters) < 1:
+        raise ValueError("a plant has at least the two link angles as states and one parameter, "
+                         f"got n_states={n_states}, n_parameters={n_parameters}")
+    RIGHT_HAND_SIDES[kind_class] = RightHandSide(rhs, int(n_states), int(n_parameters))
+
+
+register_plant(RigidKind, rigid_rhs, 4, 9)
 
 #: The rigid robot of :mod:`plant.model`: state (q2, q3, qd2, qd3), the
 #: encoders read q, parameters f1..f9.
@@ -205,65 +238,45 @@ _FX_K, _FX_D, _FX_J = 9, 11, 13
 
 
 @_jit
-def _flexible_lane(P, j, c, q2, q3, w2, w3, th2, th3, v2, v3, s2, c2, s3, c3, i2, i3):
-    """Link and motor accelerations and PD margin of flexible lane ``j``."""
-    ts2 = P[_FX_K, j] * (th2 - q2) + P[_FX_D, j] * (v2 - w2)
-    ts3 = P[_FX_K + 1, j] * (th3 - q3) + P[_FX_D + 1, j] * (v3 - w3)
-    f = (P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j], P[6, j], P[7, j], P[8, j])
-    a2, a3, det = joint_acceleration_sc(f, s2, c2, s3, c3, w2, w3, ts2, ts3, c.gravity)
-    fr2 = friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
-    fr3 = friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
-    b2 = (c.torque_per_amp[0] * i2 + fr2 - ts2) / P[_FX_J, j]
-    b3 = (c.torque_per_amp[1] * i3 + fr3 - ts3) / P[_FX_J + 1, j]
-    return a2, a3, b2, b3, det if P[0, j] > 0.0 else -1.0
+def flexible_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
+    """Right-hand side of the two-mass flexible-joint robot for one lane.
 
-
-@_jit
-def flexible_rhs(P, c, X, U, A, K, n):
-    """Right-hand side of the two-mass flexible-joint robot for lanes ``0..n-1``.
-
-    State rows (q2, q3, qd2, qd3, th2, th3, thd2, thd3); parameters rows
+    State ``x = (q2, q3, qd2, qd3, th2, th3, thd2, thd3)``; parameters ``p``:
     link f1..f9, stiffness K (2), damping D (2), reflected motor inertia
-    Jm k^2 (2); ``K`` rows: the derivative (8) and det D_link.
+    Jm k^2 (2).  See :mod:`plant.core` for the protocol.
 
     Parameters
     ----------
-    P : ndarray, shape (n_par, lanes)
-        Per-lane parameters.
+    p : tuple of 15 float
+        The lane's parameters.
     c : plant.rig.RigConstants
         Rig layout.
-    X : ndarray, shape (n_x, lanes)
-        Stage state.
-    U : ndarray, shape (2, lanes)
+    x : tuple of 8 float
+        Stage state (rad, rad/s).
+    u2, u3 : float
         Held motor currents (A).
-    A : ndarray, shape (6, lanes)
-        Trigonometric anchors (:mod:`plant.core`).
-    K : ndarray, shape (n_x + 1, lanes)
-        Output: state derivative and PD margin.
-    n : int
-        Lanes to evaluate.
+    s2, c2, s3, c3 : float
+        sin and cos of the stage's link angles q2 and q3.
+
+    Returns
+    -------
+    xdot : tuple of 8 float
+        The state derivative.
+    margin : float
+        det D_link(q), or -1 where the link f1 <= 0.
     """
-    far = 0
-    for j in range(n):
-        s2, c2, s3, c3, near = stage_sincos(X, A, j)
-        K[2, j], K[3, j], K[6, j], K[7, j], K[8, j] = _flexible_lane(
-            P, j, c, X[0, j], X[1, j], X[2, j], X[3, j], X[4, j], X[5, j], X[6, j], X[7, j],
-            s2, c2, s3, c3, U[0, j], U[1, j])
-        K[0, j] = X[2, j]
-        K[1, j] = X[3, j]
-        K[4, j] = X[6, j]
-        K[5, j] = X[7, j]
-        far += not near
-    if far:
-        for j in range(n):
-            if not near_anchors(X, A, j):
-                s2, c2, s3, c3 = libm_sincos(X, j)
-                K[2, j], K[3, j], K[6, j], K[7, j], K[8, j] = _flexible_lane(
-                    P, j, c, X[0, j], X[1, j], X[2, j], X[3, j], X[4, j], X[5, j], X[6, j],
-                    X[7, j], s2, c2, s3, c3, U[0, j], U[1, j])
+    q2, q3, w2, w3, th2, th3, v2, v3 = x
+    ts2 = p[_FX_K] * (th2 - q2) + p[_FX_D] * (v2 - w2)
+    ts3 = p[_FX_K + 1] * (th3 - q3) + p[_FX_D + 1] * (v3 - w3)
+    a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, ts2, ts3, c.gravity)
+    fr2 = friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
+    fr3 = friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
+    b2 = (c.torque_per_amp[0] * u2 + fr2 - ts2) / p[_FX_J]
+    b3 = (c.torque_per_amp[1] * u3 + fr3 - ts3) / p[_FX_J + 1]
+    return (w2, w3, a2, a3, v2, v3, b2, b3), (det if p[0] > 0.0 else -1.0)
 
 
-RIGHT_HAND_SIDES[FlexibleKind] = flexible_rhs
+register_plant(FlexibleKind, flexible_rhs, 8, 15)
 
 
 @dataclass(frozen=True)

@@ -74,7 +74,9 @@ def test_rig_layout_is_named_and_joint_side(paper_log):
 def test_chunks_have_enough_lanes():
     from plant.parallel import MIN_LANES_PER_CHUNK, chunk_ranges
 
-    assert chunk_ranges(76, 2) == [(0, 76)]  # one thread: splitting would cost more
+    small = 2 * MIN_LANES_PER_CHUNK - 1
+    assert chunk_ranges(small, 2) == [(0, small)]  # one thread: splitting would cost more
+    assert chunk_ranges(76, 2) == [(0, 38), (38, 76)]  # a paper GA generation: two threads
     big = chunk_ranges(4 * MIN_LANES_PER_CHUNK, 2)
     assert big == [(0, 2 * MIN_LANES_PER_CHUNK), (2 * MIN_LANES_PER_CHUNK, 4 * MIN_LANES_PER_CHUNK)]
     assert chunk_ranges(5, 8) == [(0, 5)]
