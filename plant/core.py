@@ -32,35 +32,39 @@ functions of this module and nothing else::
   from its on-disk cache in a new process, so they would compile at every
   run.)
 
-A plant's right-hand side has the signature ``rhs(P, c, X, U, A, K, n)``:
-per-lane parameters ``P`` (n_par, lanes), the rig layout ``c``
-(:class:`plant.rig.RigConstants`), the stage state ``X`` (n_x, lanes), the
-held currents ``U`` (2, lanes), the trigonometric anchors ``A`` (6, lanes;
-:mod:`plant.anchors`) and the output ``K`` (n_x + 1, lanes): rows
-``0..n_x-1`` the state derivative, row ``n_x`` a positive-definiteness
-margin (det D(q); a stage with a margin <= 0 is rejected).  Rows 0 and 1 of
-every plant's state are the link angles q2, q3 (the only angles whose sine
-and cosine the dynamics need).
+A plant's right-hand side is a function of one lane with the signature
+``rhs(p, c, x, u2, u3, s2, c2, s3, c3) -> (xdot, margin)``: the lane's
+parameters ``p`` (a tuple of n_par floats, :func:`lane_parameters`), the rig
+layout ``c`` (:class:`plant.rig.RigConstants`), the stage state ``x`` (a
+tuple of n_x floats), the held motor currents ``u2, u3`` (A) and the sine
+and cosine of the stage's link angles; it returns the state derivative (a
+tuple of n_x floats) and a positive-definiteness margin (det D(q); a stage
+with a margin <= 0 is rejected).  ``x[0]`` and ``x[1]`` of every plant's
+state are the link angles q2, q3 (the only angles whose sine and cosine the
+dynamics need).  No arrays cross the right-hand side, so nothing is
+reference-counted inside the loops.
 
 Lanes
 -----
 One RK4 stage is a dependent chain (trigonometry -> D, h, g -> 2x2 solve ->
 next stage), so a single candidate leaves the CPU waiting on latencies.
-The core keeps one column per candidate and runs every step as a loop over
-the lanes with no calls that stay calls and no data-dependent control flow,
-so that LLVM turns them into SIMD instructions over several candidates at
-once.  A loop writes one array and reads others, which keeps LLVM's run-time
-overlap checks few enough for it to vectorise.  Per lane the floating-point
-operations are the same whatever the number of lanes, so a lane's result
-does not depend on its neighbours (tested): one candidate is one lane.
+The core keeps one column per candidate and advances all of them with *one
+loop over the lanes per RK4 step* (:func:`rk4_lane`): the lane's state, its
+parameters and its four stages stay in registers, the loop body has no
+calls that stay calls and no data-dependent control flow, so LLVM turns it
+into SIMD instructions over 8 candidates at once (AVX-512).  Per lane the
+floating-point operations are the same whatever the number of lanes, so a
+lane's result does not depend on its neighbours (tested): one candidate is
+one lane.  (An earlier layout ran a loop over the lanes per stage and per
+state row, about 30 loops a sample, writing the stages to arrays; one loop
+per step halved the fixed cost per sample and took a tenth off the cost per
+lane: ``benchmarks/bench_simulate.py``.)
 
-The sample step and the right-hand side are inlined in numba's IR into the
-driver that calls them (``inline="always"``), and :func:`advance_sample`
-calls the right-hand side at one place, in a loop over the four RK4 stages:
-a compiled call that passes arrays costs atomic reference-count updates per
-array, which per stage and sample took more time than the arithmetic of 40
-lanes (measured: the paper's GA budget 0.83 s with calls, 0.69 s inlined),
-and one inlined copy keeps the compile time down.
+:func:`rk4_lane` and :func:`advance_sample` are inlined in numba's IR into
+the driver that calls them (``inline="always"``) so that the switch
+``exact`` folds away in the SIMD loop; the right-hand side stays a compiled
+function that LLVM inlines (an IR-inlined function that takes an array
+leaves reference-count updates in the loop, which stops vectorisation).
 
 Trigonometry
 ------------
@@ -99,6 +103,10 @@ __all__ = [
     "encoder_read",
     "cell_centre",
     "plant_rhs",
+    "rk4_lane",
+    "lane_state",
+    "lane_parameters",
+    "store_lane_state",
     "advance_sample",
     "new_workspace",
     "padded_lanes",
@@ -209,13 +217,14 @@ def new_workspace(nx, lanes):
     Returns
     -------
     ndarray, shape (lanes,), int64
-        Per-lane outcome of a step (:data:`LANE_FAR`, :data:`LANE_NOT_PD`).
+        Per-lane outcome of a step inside :func:`advance_sample` (done, D(q)
+        not positive definite, or too far from the anchors).
     """
     return np.zeros(lanes, dtype=np.int64)
 
 
-#: Outcomes of one lane's step in the SIMD loop of :func:`advance_sample`.
-LANE_DONE, LANE_NOT_PD, LANE_FAR = 0, 1, 2
+# Outcomes of one lane's step in the SIMD loop of advance_sample (its scratch W).
+_LANE_DONE, _LANE_NOT_PD, _LANE_FAR = 0, 1, 2
 
 
 # ----------------------------------------------------------------------------
@@ -229,7 +238,8 @@ def _generated(name, params, lines):
     return scope[name]
 
 
-def _n_states(kind):
+def _registered(kind):
+    """The :class:`plant.plants.RightHandSide` of a plant kind's numba type (typing time)."""
     entry = RIGHT_HAND_SIDES.get(getattr(kind, "instance_class", None))
     if not isinstance(kind, types.BaseNamedTuple) or entry is None:
         raise TypingError(f"unknown plant kind {kind}; register it with plant.plants.register_plant")
@@ -257,7 +267,7 @@ def lane_state(kind, X, j):
 
 @overload(lane_state, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
 def _lane_state_overload(kind, X, j):
-    n = _n_states(kind).n_states
+    n = _registered(kind).n_states
     return _generated("impl", "kind, X, j",
                       ["return (" + "".join(f"X[{i}, j], " for i in range(n)) + ")"])
 
@@ -283,7 +293,7 @@ def lane_parameters(kind, P, j):
 
 @overload(lane_parameters, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
 def _lane_parameters_overload(kind, P, j):
-    n = _n_states(kind).n_parameters
+    n = _registered(kind).n_parameters
     return _generated("impl", "kind, P, j",
                       ["return (" + "".join(f"P[{i}, j], " for i in range(n)) + ")"])
 
@@ -386,7 +396,7 @@ def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
 
 @overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"))
 def _plant_rhs_overload(kind, p, c, x, u2, u3, s2, c2, s3, c3):
-    rhs = _n_states(kind).function
+    rhs = _registered(kind).function
 
     def impl(kind, p, c, x, u2, u3, s2, c2, s3, c3):
         return rhs(p, c, x, u2, u3, s2, c2, s3, c3)
@@ -506,21 +516,21 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
             xn, ok, near = rk4_lane(kind, lane_parameters(kind, P, j), c, x, U[0, j], U[1, j], a, hh, h,
                                        h6, False)
             store_lane_state(X, j, _select(ok & near, xn, x))
-            W[j] = LANE_DONE if ok else LANE_NOT_PD
+            W[j] = _LANE_DONE if ok else _LANE_NOT_PD
             if not near:
-                W[j] = LANE_FAR
+                W[j] = _LANE_FAR
             far += not near
         if far:  # lanes whose stages left the anchors' range: again, with libm (rare)
             for j in range(n):
-                if W[j] == LANE_FAR:
+                if W[j] == _LANE_FAR:
                     x = lane_state(kind, X, j)
                     a = (A[0, j], A[1, j], A[2, j], A[3, j], A[4, j], A[5, j])
                     xn, ok, _ = _rk4_lane_exact(kind, lane_parameters(kind, P, j), c, x, U[0, j],
                                                    U[1, j], a, hh, h, h6)
                     store_lane_state(X, j, _select(ok, xn, x))
-                    W[j] = LANE_DONE if ok else LANE_NOT_PD
+                    W[j] = _LANE_DONE if ok else _LANE_NOT_PD
         for j in range(n):
-            if W[j] == LANE_NOT_PD and S[j] == STATUS_OK:
+            if W[j] == _LANE_NOT_PD and S[j] == STATUS_OK:
                 S[j] = STATUS_NOT_PD
     for j in range(n):
         if S[j] == STATUS_OK and not _all_finite(lane_state(kind, X, j)):

@@ -9,7 +9,8 @@ f, so every candidate carries its own: :data:`RIGID_FRICTION` is the rigid
 robot of :data:`plant.plants.RIGID` with six more rows in its per-lane
 parameters P, the joint-side viscous coefficients and asymmetric Coulomb
 levels.  Its right-hand side :func:`rigid_friction_rhs` is registered in
-:data:`plant.plants.RIGHT_HAND_SIDES` under :class:`RigidFrictionKind`, so every
+:data:`plant.plants.RIGHT_HAND_SIDES` under :class:`RigidFrictionKind`
+(:func:`plant.plants.register_plant`), so every
 driver of the core (:func:`plant.simulate_batch`, :func:`plant.prediction_errors`)
 simulates it with ``plant=RIGID_FRICTION, plant_parameters={"friction": ...}``.
 It costs more per candidate than the rigid plant (the friction is no longer

@@ -1,11 +1,12 @@
 """Plants of the closed-loop core: the robot's right-hand side, rigid or flexible.
 
-A plant is a right-hand side ``rhs(P, c, X, U, A, K, n)`` of the core
-(:mod:`plant.core`, where the signature is described), registered under a
-kind (a type tag) in :data:`RIGHT_HAND_SIDES`, together with its state
+A plant is a right-hand side of one lane, ``rhs(p, c, x, u2, u3, s2, c2,
+s3, c3) -> (xdot, margin)``, of the core (:mod:`plant.core`, where the
+signature is described), registered under a kind (a type tag) by
+:func:`register_plant` in :data:`RIGHT_HAND_SIDES`, together with its state
 layout (:class:`Plant`): which rows the motor encoders read, how many
-per-lane parameters it takes and how its start state follows from the rig's.  Two
-plants are defined here:
+per-lane parameters it takes and how its start state follows from the
+rig's.  Two plants are defined here:
 
 * :data:`RIGID` -- the rigid model of :mod:`plant.model` (paper eq. 2),
   state ``(q2, q3, qd2, qd3)``, parameters f1..f9, the encoders read q;
@@ -17,13 +18,12 @@ Both add the joint-side drive friction of the rig (motor side: viscous and
 asymmetric Coulomb with a linear ramp; :func:`plant.model.friction_torque`)
 and turn the held motor current into joint torque ``k Kt i``.  To add a
 plant (another friction law, a third joint), write its right-hand side with
-the same signature, register it under a new kind in
-:data:`RIGHT_HAND_SIDES` and describe it by a :class:`Plant`; every driver
-of the core then simulates it.  The drive friction is the rig's
-(:class:`plant.rig.RigConstants`, shared by all lanes: per-lane friction
-rows in P cost the lane loops their vectorisation, measured 0.30 -> 0.84 ms
-per candidate); a plant that identifies friction would carry it in its own
-P rows.
+the same signature, register it under a new kind with :func:`register_plant`
+and describe it by a :class:`Plant`; every driver of the core then
+simulates it.  The drive friction is the rig's
+(:class:`plant.rig.RigConstants`, shared by all lanes); a plant that
+identifies friction carries it in its own per-lane parameters
+(:data:`plant.friction.RIGID_FRICTION`).
 """
 from __future__ import annotations
 
