@@ -33,7 +33,7 @@ N_ANCHOR_ROWS = 6
 _jit = numba.njit(nogil=True, error_model="numpy")
 #: Small helpers inlined in numba IR into their callers: they compile with
 #: the caller instead of as separate functions (each costs ~0.15 s to compile).
-_inline = numba.njit(nogil=True, error_model="numpy", inline="always")
+_inline = numba.njit(nogil=True, error_model="numpy")
 
 
 @_inline

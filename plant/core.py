@@ -327,7 +327,7 @@ def _axpy(x, a, k):
     raise NotImplementedError("called from compiled code only")
 
 
-@overload(_axpy, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+@overload(_axpy, jit_options=dict(nogil=True, error_model="numpy"))
 def _axpy_overload(x, a, k):
     return _tuple_impl("x, a, k", len(x), lambda i: f"x[{i}] + a * k[{i}]")
 
@@ -337,7 +337,7 @@ def _rk4_sum(x, h6, k1, k2, k3, k4):
     raise NotImplementedError("called from compiled code only")
 
 
-@overload(_rk4_sum, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+@overload(_rk4_sum, jit_options=dict(nogil=True, error_model="numpy"))
 def _rk4_sum_overload(x, h6, k1, k2, k3, k4):
     return _tuple_impl("x, h6, k1, k2, k3, k4", len(x),
                        lambda i: f"x[{i}] + h6 * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])")

@@ -257,7 +257,7 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
     sc2, sc3 = c.pulses_per_rad
     p2, p3 = c.p_gain
     act = n_act
-    cmp = 0
+    cmp = np.int64(0)  # not a literal: one signature of _finish
     for k in range(k_start, n_total):
         r2 = ref[k, 0]
         r3 = ref[k, 1]
