@@ -4,7 +4,10 @@ Prints (asserts nothing):
 
 1. Compile time: the first compile of the kernels in a fresh process with an
    empty numba cache, and the load from the cache in a second fresh process
-   (both in subprocesses, so this process's state does not matter).
+   (both in subprocesses, so this process's state does not matter); then the
+   README's main job (``python -m identification --example``) timed whole,
+   Python start-up included: first run with an empty numba cache, second
+   run from the cache (three pairs, medians).
 2. Exactness against the log's own integration: fraction of samples identical
    and within +-1 pulse for the true f, against the RK4 substeps.
 3. One simulation of the paper log (5215 samples, one lane): ms per run at the
@@ -84,6 +87,20 @@ def compile_times():
     return out
 
 
+def main_job_times(pairs=3):
+    """Wall times (s) of the README main job: lists of first (empty cache) and second runs."""
+    first, second = [], []
+    for _ in range(pairs):
+        with tempfile.TemporaryDirectory() as tmp:
+            env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+            for runs in (first, second):
+                t = time.perf_counter()
+                subprocess.run([sys.executable, "-m", "identification", "--example"],
+                               cwd=ROOT, env=env, capture_output=True, check=True)
+                runs.append(time.perf_counter() - t)
+    return first, second
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plot", help="write the scaling figure to this PNG")
@@ -96,6 +113,12 @@ def main(argv=None):
         print(f"{label:>10}: import plant {imp:.2f} s, kernels cached: {cached}, "
               f"logged-run kernel (P experiment + replay) {run_s:.2f} s, "
               f"any-controller step {cl_s:.2f} s")
+    first, second = main_job_times(1 if args.quick else 3)
+    print(f"README main job (python -m identification --example, wall incl. start-up): "
+          f"first run (empty cache) median {np.median(first):.1f} s "
+          f"[{', '.join(f'{v:.1f}' for v in first)}], "
+          f"second run median {np.median(second):.1f} s "
+          f"[{', '.join(f'{v:.1f}' for v in second)}]")
 
     import plant
     from plant import DEFAULT_SUBSTEPS, simulate_batch
