@@ -126,9 +126,10 @@ STATUS_MESSAGES = {
     STATUS_STOPPED: "output error passed the early-termination cap",
 }
 
-#: Lane loops run over a multiple of this many lanes from this many on (AVX2:
+#: Lane loops run over a multiple of this many lanes from two lanes on (AVX2:
 #: 4 doubles per vector, twice that for AVX-512), so that no lane falls into
-#: a scalar remainder loop; the extra columns are padding copies.
+#: a scalar remainder loop; the extra columns are padding copies
+#: (:func:`padded_lanes`).
 LANE_PAD = 8
 
 # Helpers compiled into the kernels that call them (whose cache holds their code):
@@ -186,9 +187,10 @@ def cell_centre(count):
 def padded_lanes(n):
     """Lanes a SIMD loop runs over for ``n`` active lanes.
 
-    A multiple of :data:`LANE_PAD` from ``LANE_PAD`` lanes on; fewer lanes
-    are not padded (they run in the loops' scalar remainder instead of paying
-    for a whole vector of copies).
+    A multiple of :data:`LANE_PAD` from two lanes on (a whole vector with
+    copies in the spare lanes costs less than two or more lanes in the loop's
+    scalar remainder: ``benchmarks/bench_simulate.py``); one lane is not
+    padded.
 
     Parameters
     ----------
@@ -199,7 +201,7 @@ def padded_lanes(n):
     -------
     int
     """
-    if n < LANE_PAD:
+    if n < 2:
         return n
     return (n + LANE_PAD - 1) // LANE_PAD * LANE_PAD
 
