@@ -1,8 +1,7 @@
 """A rigid plant whose drive friction is a per-lane parameter (friction unknown).
 
 The plants of :mod:`plant.plants` take the drive friction from the rig
-(:class:`plant.rig.RigConstants`, shared by all lanes), which keeps their lane
-loops vectorised.  When the sidecar does not know the friction
+(:class:`plant.rig.RigConstants`, shared by all lanes).  When the sidecar does not know the friction
 (``"viscous_friction_Nms_per_rad": null`` and/or ``"coulomb_friction_Nm":
 null``; :attr:`plant.rig.Rig.unknown_friction`) it has to be identified with
 f, so every candidate carries its own: :data:`RIGID_FRICTION` is the rigid
@@ -13,9 +12,9 @@ levels.  Its right-hand side :func:`rigid_friction_rhs` is registered in
 (:func:`plant.plants.register_plant`), so every
 driver of the core (:func:`plant.simulate_batch`, :func:`plant.prediction_errors`)
 simulates it with ``plant=RIGID_FRICTION, plant_parameters={"friction": ...}``.
-It costs more per candidate than the rigid plant (the friction is no longer
-a constant of the loop: measured 0.30 -> 0.84 ms per candidate), which is
-why the default rigid plant does not carry it.
+With the core's per-lane parameter tuples it costs about as much per
+candidate as the rigid plant; the default rigid plant still takes the
+friction from the rig, where the sidecar knows it.
 
 Friction vectors are given motor side, in the sidecar's units and order
 (:data:`FRICTION_NAMES`): ``B2, B3`` (N m s/rad) and ``Tc2+, Tc2-, Tc3+,
