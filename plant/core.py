@@ -57,8 +57,8 @@ floating-point operations are the same whatever the number of lanes, so a
 lane's result does not depend on its neighbours (tested): one candidate is
 one lane.  (An earlier layout ran a loop over the lanes per stage and per
 state row, about 30 loops a sample, writing the stages to arrays; one loop
-per step halved the fixed cost per sample and took a tenth off the cost per
-lane: ``benchmarks/bench_simulate.py``.)
+per step removed most of the fixed cost per sample and part of the cost per
+lane: ``benchmarks/bench_versus.py``, ``docs/speed.rst``.)
 
 :func:`rk4_lane` and :func:`advance_sample` are inlined in numba's IR into
 the driver that calls them (``inline="always"``) so that the switch

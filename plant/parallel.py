@@ -1,8 +1,10 @@
 """Threads over candidate chunks, Ctrl-C inside kernels, and kernel warm-up.
 
-The batch drivers split their candidates into one chunk per worker thread;
-each chunk runs in a compiled kernel that releases the GIL (``nogil``), so
-Python threads run the chunks in parallel.  The number of threads is an
+The batch drivers split their candidates into one chunk per thread; each
+chunk runs in a compiled kernel that releases the GIL (``nogil``), so Python
+threads run the chunks in parallel: the first chunk in the calling thread,
+the others in worker threads that are kept between calls (idle between
+them; a forked child starts with none).  The number of threads is an
 argument of each call: nothing global is set (numba's own thread count is
 left alone), so nothing needs restoring afterwards.
 """
