@@ -30,13 +30,12 @@ N_ANCHOR_ROWS = 6
 
 # Helpers compiled into the kernels that call them (whose cache holds their code):
 # not cached on their own, which saves a cache file and its write per helper.
+# Scalar-only helpers are plain compiled functions that LLVM inlines into the
+# SIMD loops (inlining them in numba's IR made the kernels slower to compile).
 _jit = numba.njit(nogil=True, error_model="numpy")
-#: Small helpers inlined in numba IR into their callers: they compile with
-#: the caller instead of as separate functions (each costs ~0.15 s to compile).
-_inline = numba.njit(nogil=True, error_model="numpy")
 
 
-@_inline
+@_jit
 def sincos_offset(d, sb, cb):
     """sin and cos of ``qb + d`` from ``sb = sin qb`` and ``cb = cos qb``.
 
@@ -97,7 +96,7 @@ def update_anchors(X, A, n, reanchor):
         A[A_Q3, j] = X[1, j]
 
 
-@_inline
+@_jit
 def lane_sincos(q2, q3, a, exact):
     """sin and cos of a lane's link angles at a stage, by angle addition from its anchors.
 
