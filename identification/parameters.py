@@ -19,6 +19,8 @@ Pass one as ``identification.identify(log, parameters=...)``.
 """
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 from plant.payload import payload_delta_matrix, payload_from_vector
@@ -74,10 +76,11 @@ def check_bounds(bounds, n: int) -> np.ndarray:
     return b
 
 
-class Parameterisation:
+class Parameterisation(ABC):
     """Base class: the searched vector x, its bounds and names, and its map to f.
 
-    Subclasses implement :meth:`names`, :meth:`bounds` and :meth:`to_f`;
+    Subclasses implement :meth:`names`, :meth:`bounds` and :meth:`to_f`
+    (abstract: a subclass without them cannot be instantiated);
     :meth:`extras`, :meth:`refine_starts` and :meth:`initial_state` have
     defaults (nothing extra, starts from the GA, no nuisance state).
 
@@ -89,6 +92,7 @@ class Parameterisation:
 
     name = "custom"
 
+    @abstractmethod
     def names(self, log) -> list:
         """Names of the components of x.
 
@@ -100,8 +104,8 @@ class Parameterisation:
         -------
         list of str, length k
         """
-        raise NotImplementedError
 
+    @abstractmethod
     def bounds(self, log) -> np.ndarray:
         """Search box of x.
 
@@ -113,8 +117,8 @@ class Parameterisation:
         -------
         ndarray, shape (k, 2)
         """
-        raise NotImplementedError
 
+    @abstractmethod
     def to_f(self, x, log) -> np.ndarray:
         """Base parameters f1..f9 of x.
 
@@ -127,7 +131,6 @@ class Parameterisation:
         -------
         ndarray, shape (9,) or (m, 9)
         """
-        raise NotImplementedError
 
     def extras(self, x, log) -> dict:
         """Extra entries of the result for the identified x (default none).

@@ -88,7 +88,9 @@ CONTROL_LAWS = {PLawKind: p_law}
 def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     """The control law of ``kind``: the one place a law kind becomes its function.
 
-    Compiled code only (the pattern of ``plant.core.plant_rhs``).
+    In compiled code the kind's type selects the law at compile time (the
+    pattern of ``plant.core.plant_rhs``); called from Python it looks the law
+    up in :data:`CONTROL_LAWS` (a ``KeyError`` for an unregistered kind).
 
     Parameters
     ----------
@@ -102,7 +104,7 @@ def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     numba.core.errors.TypingError
         At compile time, for a kind that is not registered.
     """
-    raise NotImplementedError("control_law is called from compiled code only")
+    return CONTROL_LAWS[type(kind)](lp, c, k, q2m, q3m, e2, e3, CS, j)
 
 
 @overload(control_law, jit_options=dict(nogil=True, error_model="numpy"), inline="always")

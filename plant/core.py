@@ -249,7 +249,7 @@ def _registered(kind):
 
 
 def lane_state(kind, X, j):
-    """Lane ``j``'s state as a tuple ``(X[0, j], ..., X[n_x - 1, j])`` (compiled code only).
+    """Lane ``j``'s state as a tuple ``(X[0, j], ..., X[n_x - 1, j])``.
 
     Parameters
     ----------
@@ -264,18 +264,16 @@ def lane_state(kind, X, j):
     -------
     tuple of n_x float
     """
-    raise NotImplementedError("lane_state is called from compiled code only")
+    return tuple(float(v) for v in X[:RIGHT_HAND_SIDES[type(kind)].n_states, j])
 
 
 @overload(lane_state, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
 def _lane_state_overload(kind, X, j):
-    n = _registered(kind).n_states
-    return _generated("impl", "kind, X, j",
-                      ["return (" + "".join(f"X[{i}, j], " for i in range(n)) + ")"])
+    return _tuple_impl("kind, X, j", _registered(kind).n_states, lambda i: f"X[{i}, j]")
 
 
 def lane_parameters(kind, P, j):
-    """Lane ``j``'s plant parameters as a tuple ``(P[0, j], ..., P[n_par - 1, j])`` (compiled code only).
+    """Lane ``j``'s plant parameters as a tuple ``(P[0, j], ..., P[n_par - 1, j])``.
 
     Parameters
     ----------
@@ -290,18 +288,16 @@ def lane_parameters(kind, P, j):
     -------
     tuple of n_par float
     """
-    raise NotImplementedError("lane_parameters is called from compiled code only")
+    return tuple(float(v) for v in P[:RIGHT_HAND_SIDES[type(kind)].n_parameters, j])
 
 
 @overload(lane_parameters, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
 def _lane_parameters_overload(kind, P, j):
-    n = _registered(kind).n_parameters
-    return _generated("impl", "kind, P, j",
-                      ["return (" + "".join(f"P[{i}, j], " for i in range(n)) + ")"])
+    return _tuple_impl("kind, P, j", _registered(kind).n_parameters, lambda i: f"P[{i}, j]")
 
 
 def store_lane_state(X, j, x):
-    """``X[:, j] = x`` for a state tuple ``x`` (compiled code only).
+    """``X[:, j] = x`` for a state tuple ``x``.
 
     Parameters
     ----------
@@ -309,7 +305,7 @@ def store_lane_state(X, j, x):
     j : int
     x : tuple of n_x float
     """
-    raise NotImplementedError("store_lane_state is called from compiled code only")
+    X[:len(x), j] = x
 
 
 @overload(store_lane_state, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
@@ -325,8 +321,8 @@ def _tuple_impl(params, n, element):
 
 
 def _axpy(x, a, k):
-    """``x + a k`` elementwise for tuples (RK4 stage state; compiled code only)."""
-    raise NotImplementedError("called from compiled code only")
+    """``x + a k`` elementwise for tuples (RK4 stage state)."""
+    return tuple(xi + a * ki for xi, ki in zip(x, k))
 
 
 @overload(_axpy, jit_options=dict(nogil=True, error_model="numpy"))
@@ -335,8 +331,8 @@ def _axpy_overload(x, a, k):
 
 
 def _rk4_sum(x, h6, k1, k2, k3, k4):
-    """``x + h6 (k1 + 2 k2 + 2 k3 + k4)`` elementwise (RK4 step; compiled code only)."""
-    raise NotImplementedError("called from compiled code only")
+    """``x + h6 (k1 + 2 k2 + 2 k3 + k4)`` elementwise (RK4 step)."""
+    return tuple(xi + h6 * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4))
 
 
 @overload(_rk4_sum, jit_options=dict(nogil=True, error_model="numpy"))
@@ -346,8 +342,8 @@ def _rk4_sum_overload(x, h6, k1, k2, k3, k4):
 
 
 def _select(keep, a, x):
-    """``a if keep else x`` elementwise for tuples (a select, no branch; compiled code only)."""
-    raise NotImplementedError("called from compiled code only")
+    """``a if keep else x`` elementwise for tuples (compiled: a select, no branch)."""
+    return tuple(a) if keep else tuple(x)
 
 
 @overload(_select, jit_options=dict(nogil=True, error_model="numpy"))
@@ -356,7 +352,8 @@ def _select_overload(keep, a, x):
 
 
 def _all_finite(x):
-    raise NotImplementedError("called from compiled code only")
+    """Whether every element of the tuple ``x`` is finite."""
+    return all(math.isfinite(v) for v in x)
 
 
 @overload(_all_finite, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
@@ -371,7 +368,7 @@ def _all_finite_overload(x):
 def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
     """The right-hand side of plant ``kind`` for lane ``j``: the one place a kind becomes its function.
 
-    Compiled code only: the *type* of ``kind`` selects the function at
+    In compiled code the *type* of ``kind`` selects the function at
     compile time (:data:`plant.plants.RIGHT_HAND_SIDES` maps kind classes to
     functions), so that a kernel compiles the right-hand side of its own
     plant and no other.
@@ -392,8 +389,10 @@ def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
     ------
     numba.core.errors.TypingError
         At compile time, for a kind that is not registered.
+    KeyError
+        Called from Python, for a kind that is not registered.
     """
-    raise NotImplementedError("plant_rhs is called from compiled code only")
+    return RIGHT_HAND_SIDES[type(kind)].function(p, c, x, u2, u3, s2, c2, s3, c3)
 
 
 @overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"))

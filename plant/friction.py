@@ -30,8 +30,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .model import friction_torque, joint_acceleration_sc
-from .plants import Plant, register_plant
+from .plants import Plant, register_plant, rigid_derivative
 
 __all__ = ["RigidFrictionKind", "RIGID_FRICTION_KIND", "RigidWithFriction", "RIGID_FRICTION",
            "rigid_friction_rhs", "FRICTION_NAMES", "friction_vector", "friction_fields",
@@ -157,14 +156,8 @@ def rigid_friction_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
     margin : float
         det D(q), or -1 where f1 <= 0.
     """
-    w2 = x[2]
-    w3 = x[3]
-    tau2 = c.torque_per_amp[0] * u2 + friction_torque(
-        w2, p[_FR_V], p[_FR_P], p[_FR_N], c.ramp_speed[0])
-    tau3 = c.torque_per_amp[1] * u3 + friction_torque(
-        w3, p[_FR_V + 1], p[_FR_P + 1], p[_FR_N + 1], c.ramp_speed[1])
-    a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
-    return (w2, w3, a2, a3), (det if p[0] > 0.0 else -1.0)
+    return rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, (p[_FR_V], p[_FR_V + 1]),
+                            (p[_FR_P], p[_FR_P + 1]), (p[_FR_N], p[_FR_N + 1]))
 
 
 register_plant(RigidFrictionKind, rigid_friction_rhs, 4, 15)

@@ -35,7 +35,7 @@ import numpy as np
 
 from .model import friction_torque, joint_acceleration_sc
 
-__all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "flexible_rhs", "RigidKind",
+__all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "rigid_derivative", "flexible_rhs", "RigidKind",
            "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RightHandSide", "RIGHT_HAND_SIDES",
            "register_plant"]
 
@@ -163,12 +163,39 @@ def rigid_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
     margin : float
         det D(q), or -1 where f1 <= 0.
     """
+    return rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, c.viscous, c.coulomb_pos,
+                            c.coulomb_neg)
+
+
+@_jit
+def rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, viscous, coulomb_pos, coulomb_neg):
+    """The rigid robot's state derivative with the given joint-side friction.
+
+    The one copy of the rigid right-hand side: :func:`rigid_rhs` passes the
+    rig's friction, :func:`plant.friction.rigid_friction_rhs` the lane's.
+
+    Parameters
+    ----------
+    p, c, x, u2, u3, s2, c2, s3, c3
+        As :func:`rigid_rhs` (only ``p[0:9]`` is read).
+    viscous, coulomb_pos, coulomb_neg : tuple of 2 float
+        Joint-side viscous coefficients (N m s/rad) and Coulomb levels for
+        positive / non-positive rate (N m), joints 2 and 3; the ramp speed is
+        the rig's.
+
+    Returns
+    -------
+    xdot : tuple of 4 float
+        (qd2, qd3, qdd2, qdd3).
+    margin : float
+        det D(q), or -1 where f1 <= 0.
+    """
     w2 = x[2]
     w3 = x[3]
     tau2 = c.torque_per_amp[0] * u2 + friction_torque(
-        w2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
+        w2, viscous[0], coulomb_pos[0], coulomb_neg[0], c.ramp_speed[0])
     tau3 = c.torque_per_amp[1] * u3 + friction_torque(
-        w3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
+        w3, viscous[1], coulomb_pos[1], coulomb_neg[1], c.ramp_speed[1])
     a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, tau2, tau3, c.gravity)
     return (w2, w3, a2, a3), (det if p[0] > 0.0 else -1.0)
 

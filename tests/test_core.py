@@ -7,6 +7,7 @@ pulses bit for bit on every development log.
 """
 import dataclasses
 import json
+import math
 
 import numba
 import numpy as np
@@ -103,3 +104,32 @@ def test_a_new_plant_kind_must_be_registered(paper_log):
     f = np.array([0.9, 0.35, 0.01, -0.4, 0.03, -0.9, 4.5, -0.1, 3.8])
     with pytest.raises(Exception, match="unknown plant kind"):
         plant.simulate_batch(paper_log.window(0.0, 0.01), f[None], plant=bogus)
+
+
+def test_core_helpers_python_reference_matches_compiled(paper_log):
+    """The helpers' Python bodies (the overloads' reference) give the compiled RK4 step bit for bit."""
+    from plant.core import (_all_finite, lane_parameters, lane_state, plant_rhs, rk4_lane,
+                            store_lane_state)
+    from plant.friction import RIGID_FRICTION
+    from plant.plants import RIGID, FlexibleJoints
+
+    c = rig_constants(paper_log.rig)
+    f = np.array([0.94, 0.36, 0.011, -0.39, 0.025, -0.89, 4.43, -0.10, 3.80])
+    flex = FlexibleJoints((6e4, 1.5e4), (6.0, 1.0), 2e-4)
+    for pl, P in ((RIGID, RIGID.lane_parameters(f[None], paper_log.rig)),
+                  (RIGID_FRICTION, RIGID_FRICTION.lane_parameters(f[None], paper_log.rig)),
+                  (flex, flex.lane_parameters(f[None], paper_log.rig))):
+        X = np.tile(pl.initial_state(c)[:, None], (1, 1)) + 0.01
+        x = lane_state(pl.kind, X, 0)
+        p = lane_parameters(pl.kind, P, 0)
+        assert len(x) == pl.n_states and len(p) == pl.n_parameters
+        a = (0.3, math.sin(0.3), math.cos(0.3), -0.2, math.sin(-0.2), math.cos(-0.2))
+        args = (pl.kind, p, c, x, 1.5, -0.7, a, 0.5e-3, 1e-3, 1e-3 / 6)
+        for exact in (False, True):
+            compiled = rk4_lane(*args, exact)
+            python = rk4_lane.py_func(*args, exact)
+            assert compiled == python
+        xd, m = plant_rhs(pl.kind, p, c, x, 1.5, -0.7, *a[1:3], *a[4:6])
+        assert len(xd) == pl.n_states and m > 0 and _all_finite(xd)
+        store_lane_state(X, 0, compiled[0])
+        assert lane_state(pl.kind, X, 0) == compiled[0]
