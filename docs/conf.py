@@ -58,6 +58,7 @@ root_doc = "index"
 nitpicky = True
 _EXTERNAL = {
     "py:class": [
+        "abc.ABC",
         "casadi.Function",
         "concurrent.futures.Executor",
         "concurrent.futures.ProcessPoolExecutor",
