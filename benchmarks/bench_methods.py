@@ -21,6 +21,7 @@ wall time.  ``--quick`` runs the development logs only.
 Usage (from the repository root)::
 
     PYTHONPATH=. python benchmarks/bench_methods.py [--quick] [--methods ...] [--out F.json]
+        [--rst TABLE.rst]
 """
 from __future__ import annotations
 
@@ -106,12 +107,43 @@ def run(method, log, seed, opt):
     return np.asarray(f), time.perf_counter() - t0
 
 
+WELL = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9: well excited by the paper trajectory
+
+
+def rst_table(rows):
+    """The docs' list-table of the comparison (``docs/figures/methods_table.rst``).
+
+    Each cell: max abs(error) (%) over the well-excited f / over all nine f;
+    validation output error relative to the true f's; wall time (s).
+    """
+    logs_ = list(dict.fromkeys(r["log"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    cell = {(r["log"], r["method"]): r for r in rows}
+    out = [".. list-table:: Methods side by side (bench_methods.py, seed 0)",
+           "   :header-rows: 1", "", "   * - log"]
+    out += [f"     - {m}" for m in methods]
+    for lg in logs_:
+        out.append(f"   * - {lg.replace('puma560_', '')}")
+        for m in methods:
+            r = cell.get((lg, m))
+            if r is None:
+                out.append("     -")
+                continue
+            e = np.abs(np.asarray(r["error_pct"]))
+            v = r["validation_ratio"]
+            vs = f"{v:.2f}" if v < 1e3 else f"{v:.0e}"
+            out.append(f"     - {e[list(WELL)].max():.1f} / {e.max():.0f}; {vs}; "
+                       f"{r['wall_time_s']:.1f}")
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="development logs only")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="write the figures as JSON")
+    ap.add_argument("--rst", help="write the docs' list-table (reStructuredText) to this file")
     args = ap.parse_args(argv)
     opt = _optimisers()
     plant.warm_up(closed_loop=True)
@@ -132,6 +164,9 @@ def main(argv=None):
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(rows, indent=1))
+    if args.rst:
+        Path(args.rst).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.rst).write_text(rst_table(rows))
 
 
 if __name__ == "__main__":

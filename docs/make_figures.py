@@ -227,8 +227,8 @@ def flexible(ctx):
 
 def methods(ctx):
     q = ["--quick"] if ctx["quick"] else []
-    text, wall = _run(["benchmarks/bench_methods.py", *q, "--out", ctx["raw"] / "bench_methods.json"],
-                      ctx["raw"], "bench_methods")
+    text, wall = _run(["benchmarks/bench_methods.py", *q, "--out", ctx["raw"] / "bench_methods.json",
+                       "--rst", ctx["raw"] / "methods_table.rst"], ctx["raw"], "bench_methods")
     return {"printed": text.splitlines(), "wall_s": wall}
 
 

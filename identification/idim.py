@@ -16,23 +16,44 @@ the paper's closed-loop output-error GA:
    the motion, :func:`plant.model.friction_torque`), filtered by the *same*
    low-pass (parallel filtering: both sides of ``Y f = tau`` see the same
    filter);
-4. optional decimation, then ordinary least squares ``Y(q, qd, qdd) f = tau``
+4. the equations of a joint near its velocity reversals are dropped
+   (below);
+5. optional decimation, then ordinary least squares ``Y(q, qd, qdd) f = tau``
    with :func:`plant.model.regressor`, the ends (filter transients) dropped.
 
 Cut-off rule
 ------------
-The motion lives in the reference's band (its highest harmonic ``f_ref``,
-and the quintic ramp's ``~2 / t_ramp``); the filter must pass it
-undistorted and cut the quantisation noise that double differentiation
-amplifies as ``omega^2``.  The motion also rings at the P loop's own,
-lightly damped mode (~10 Hz on the PUMA rigs), which the reference does not
-show: cutting it distorts qdd and biased f7 by -80 % on the paper log at
-5.5 Hz.  The rule is ``f_c = max(10 f_ref, 3 f_loop)`` (Gautier's "5 to 10
-times the bandwidth of the joint motion"), ``f_loop`` the P loop's natural
-frequency ``sqrt(P |k N / 2 pi| k Kt / J) / 2 pi`` with J the middle of the
-sidecar's prior range of the diagonal inertia (f7, f1), clipped to
-``[2 Hz, f_s / 20]``.  (A peak search in the currents' spectrum was tried
-and was not robust.)  A ``cutoff_hz`` overrides it.
+The positions come from an encoder: their error is the quantisation error,
+uniform over one count, a white floor of ``1/12`` pulse^2 spread over the
+Nyquist band when the motor moves (Widrow and Kollar, *Quantization Noise*,
+2008).  Double differentiation amplifies it as ``omega^4``, and least
+squares with a noisy regressor is biased (errors in variables).  The motion
+itself is the reference's band *and* the P loop's own, lightly damped mode
+(~13 Hz on the PUMA rigs), which carries most of what identifies the
+inertias.  The rule measures the bandwidth of the joint motion against the
+known floor: ``f_c`` is the highest frequency at which the Welch spectrum of
+the encoder counts stands :data:`FLOOR_MARGIN_DB` (20 dB) above the
+quantisation floor, the lower of the two joints', clipped to
+``[2 Hz, f_s / 20]``.  It depends on the sample rate, the encoder and the
+motion, not on a parameter of one log.  A ``cutoff_hz`` overrides it.  The previous
+rule, ``max(10 f_ref, 3 f_loop)``, put the cut-off in the floor (40 Hz on
+the PUMA rigs); with it, and no reversal guard, IDIM-LS missed the paper
+log's f2 by 5.3 %.  Measured by ``benchmarks/bench_methods.py`` and
+``tests/test_uncertainty.py`` on the rigid logs (table in the methods
+comparison page); on flexible joints the rigid model is wrong in the very
+band that identifies the inertias, whatever the cut-off.
+
+Velocity reversals
+------------------
+Near a reversal the Coulomb friction's sign is not known: under P control
+the joint sticks and slips at the encoder's resolution, and the filtered
+rate passes smoothly through zero while the true one chatters.  The known
+friction evaluated at the filtered rate is then wrong by up to twice the
+Coulomb level, and the filter spreads that error over about ``1 / f_c``.
+As in Gautier's practice of discarding low-velocity samples, the equations
+of joint j within :data:`REVERSAL_GUARD` ``/ f_c`` of a sign change of its
+filtered rate are dropped (weighted zero, so the Newey-West estimator keeps
+its time order).
 
 IDIM-IV
 -------
@@ -54,7 +75,10 @@ sandwich ``(Z^T W)^-1 S (W^T Z)^-1`` with the Newey-West S of the scores
 
 Standard errors are the same Newey-West sandwich as the output-error
 method's (:func:`identification.uncertainty.sandwich_covariance`, with the
-regressor as the Jacobian and the equation errors as residuals).
+regressor as the Jacobian and the equation errors as residuals), inflated
+like it when eq. 3's identities are violated beyond their statistical
+error (:func:`identification.uncertainty.structure_scale`: the rigid model
+does not describe the log, e.g. flexible joints).
 """
 from __future__ import annotations
 
@@ -68,23 +92,26 @@ import plant
 from plant.model import friction_torque, regressor
 from plant.rig import rig_constants
 
-from .uncertainty import RSE_WARN, poorly_excited, sandwich_covariance
+from .uncertainty import RSE_WARN, poorly_excited, sandwich_covariance, structure_scale
 
-__all__ = ["idim_ls", "idim_cutoff_hz", "identify_idim", "CUTOFF_FACTOR", "IV_ITERATIONS"]
+__all__ = ["idim_ls", "idim_cutoff_hz", "identify_idim", "FLOOR_MARGIN_DB", "REVERSAL_GUARD",
+           "IV_ITERATIONS", "reversal_mask"]
 
 #: Instrumental-variable iterations of IDIM-IV.
 IV_ITERATIONS = 3
 
-#: Cut-off of the IDIM low-pass as a multiple of the trajectory's highest frequency.
-CUTOFF_FACTOR = 10.0
-#: ... and as a multiple of the closed loop's mode frequency.
-LOOP_FACTOR = 3.0
+#: The IDIM cut-off is the highest frequency at which the counts' spectrum stands
+#: this far (dB) above the encoder's quantisation floor.
+FLOOR_MARGIN_DB = 20.0
+#: Equations of a joint within ``REVERSAL_GUARD / f_c`` (s) of a reversal of its
+#: filtered rate are dropped (Coulomb friction's sign unknown there).
+REVERSAL_GUARD = 1.0
 #: Butterworth order of the IDIM filter (applied forward and backward).
 IDIM_FILTER_ORDER = 4
 
 
 def idim_cutoff_hz(log) -> float:
-    """The documented cut-off rule: ``10 f_ref`` clipped to ``[2 Hz, f_s / 20]``.
+    """The documented cut-off rule: where the motion meets the quantisation floor.
 
     Parameters
     ----------
@@ -93,23 +120,50 @@ def idim_cutoff_hz(log) -> float:
     Returns
     -------
     float
-        Cut-off (Hz).
+        Cut-off (Hz): the highest frequency at which the Welch spectrum of the
+        encoder counts (:func:`plant.measured_counts`, linear trend removed)
+        stands :data:`FLOOR_MARGIN_DB` above the quantisation floor
+        ``(1/12) / (f_s / 2)`` pulse^2/Hz, the lower of the two joints',
+        clipped to ``[2 Hz, f_s / 20]`` (module docstring, "Cut-off rule").
     """
-    traj = log.trajectory
-    om = np.abs(np.asarray(traj.omega, dtype=float))
-    amp = np.abs(np.asarray(traj.amplitude, dtype=float))
-    f_ref = float(np.max(om[amp > 0], initial=0.0)) / (2 * math.pi)
-    if traj.t_ramp_s > 0:
-        f_ref = max(f_ref, 2.0 / traj.t_ramp_s)
-    fs = 1.0 / log.rig.sample_time_s
-    # the P loop's own mode, sqrt(P |k N / 2 pi| k Kt / J) with J the middle of
-    # the sidecar's prior ranges of the diagonal inertias f7 (joint 2), f1 (joint 3)
-    c = rig_constants(log.rig)
-    J = log.rig.bounds[[6, 0]].mean(axis=1)
-    w = np.sqrt(np.abs(np.asarray(c.p_gain) * np.asarray(c.pulses_per_rad)
-                       * np.asarray(c.torque_per_amp)) / np.maximum(J, 1e-9))
-    f_loop = float(np.max(w)) / (2 * math.pi)
-    return float(np.clip(max(CUTOFF_FACTOR * f_ref, LOOP_FACTOR * f_loop), 2.0, fs / 20.0))
+    ts = log.rig.sample_time_s
+    fs = 1.0 / ts
+    counts = plant.measured_counts(log)
+    nperseg = int(min(1024, max(64, counts.shape[0] // 4)))
+    freq, psd = signal.welch(counts, fs=fs, axis=0, nperseg=min(nperseg, counts.shape[0]),
+                             detrend="linear")
+    level = (1.0 / 12.0) / (0.5 * fs) * 10.0 ** (FLOOR_MARGIN_DB / 10.0)
+    edges = []
+    for j in range(psd.shape[1]):
+        above = np.flatnonzero(psd[:, j] > level)
+        edges.append(float(freq[above[-1]]) if above.size else 0.0)
+    return float(np.clip(min(edges), 2.0, fs / 20.0))
+
+
+def reversal_mask(qd, guard_samples):
+    """Equations kept by the reversal guard, shape (n_samples, 2) bool.
+
+    Parameters
+    ----------
+    qd : ndarray, shape (n_samples, 2)
+        Filtered joint rates (rad/s).
+    guard_samples : int
+        Half-width of the dropped window around each sign change (samples).
+
+    Returns
+    -------
+    ndarray of bool, shape (n_samples, 2)
+        False within ``guard_samples`` of a sign change of ``qd[:, j]``.
+    """
+    from scipy.ndimage import binary_dilation
+
+    qd = np.asarray(qd, dtype=float)
+    flip = np.zeros(qd.shape, dtype=bool)
+    flip[1:] = np.sign(qd[1:]) != np.sign(qd[:-1])
+    g = int(guard_samples)
+    if g > 0:
+        flip = binary_dilation(flip, structure=np.ones((2 * g + 1, 1), dtype=bool))
+    return ~flip
 
 
 def _friction(qd, c):
@@ -121,7 +175,8 @@ def _friction(qd, c):
     return out
 
 
-def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
+def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
+            reversal_guard=REVERSAL_GUARD):
     """Identify f1..f9 by IDIM-LS (inverse dynamic model, ordinary least squares).
 
     Parameters
@@ -139,6 +194,10 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
         0: ordinary least squares (IDIM-LS); n > 0: IDIM-IV, n iterations of
         the instrumental-variable estimate with the simulated closed loop's
         regressor as instruments (module docstring).
+    reversal_guard : float or None
+        Equations of a joint within ``reversal_guard / f_c`` seconds of a sign
+        change of its filtered rate are dropped (module docstring); 0 drops
+        only the samples of the sign changes, ``None`` keeps all.
 
     Returns
     -------
@@ -146,12 +205,15 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
         ``f`` (9,), ``f_std`` (9,), ``f_cov`` (9, 9), ``f_rse`` (9,),
         ``cutoff_hz``, ``n_equations``, ``residual_rms_Nm``,
         ``condition_number`` (of the column-scaled regressor), ``lag``
-        (Newey-West lag), ``iv_iterations`` (IV iterations that ran).
+        (Newey-West lag), ``iv_iterations`` (IV iterations that ran),
+        ``n_dropped`` (equations dropped by the reversal guard), ``scale``
+        and ``wald`` (:func:`identification.uncertainty.structure_scale`,
+        already applied to ``f_cov``).
 
     Raises
     ------
     ValueError
-        On a bad cut-off, decimation or a log too short for the filter.
+        On a bad cut-off, decimation or guard, or a log too short for the filter.
     """
     rig = log.rig
     ts = rig.sample_time_s
@@ -161,6 +223,8 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
     decimate = int(decimate)
     if decimate < 1:
         raise ValueError(f"decimate must be >= 1, got {decimate}")
+    if reversal_guard is not None and not (np.isfinite(reversal_guard) and reversal_guard >= 0):
+        raise ValueError(f"reversal_guard must be >= 0 or None, got {reversal_guard!r}")
     c = rig_constants(rig)
     sos = signal.butter(IDIM_FILTER_ORDER, fc, fs=1.0 / ts, output="sos")
     q = plant.measured_counts(log) / np.asarray(c.pulses_per_rad)
@@ -176,8 +240,13 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
     tau = i_mid * np.asarray(c.torque_per_amp) + _friction(qd, c)  # friction_torque < 0 along qd
     tauf = signal.sosfiltfilt(sos, tau, axis=0)
     sl = slice(n_trim, n - n_trim, decimate)
-    W = regressor(qf[sl], qd[sl], qdd[sl], c.gravity).reshape(-1, 9)
-    y = tauf[sl].reshape(-1)
+    if reversal_guard is None:
+        keep = np.ones((n, 2), dtype=bool)
+    else:
+        keep = reversal_mask(qd, round(reversal_guard / (fc * ts)))
+    weight = keep[sl].reshape(-1, 1).astype(float)  # dropped equations weigh zero
+    W = regressor(qf[sl], qd[sl], qdd[sl], c.gravity).reshape(-1, 9) * weight
+    y = tauf[sl].reshape(-1) * weight[:, 0]
     scale = np.linalg.norm(W, axis=0)
     scale[scale == 0] = 1.0
     fs_, *_ = np.linalg.lstsq(W / scale, y, rcond=None)
@@ -187,7 +256,7 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
         Zk = _instruments(log, f, sos, sl, c)
         if Zk is None:
             break
-        Z = Zk
+        Z = Zk * weight
         f = np.linalg.solve(Z.T @ W, Z.T @ y)
         done += 1
     r = W @ f - y
@@ -200,11 +269,18 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0):
         cov = A @ ZZ @ cz @ ZZ @ A.T
     else:
         cov, info = sandwich_covariance(W, r, n_channels=2)
+    # model adequacy: eq. 3's identities f3 = a3 f5, f4 = a3 f6 (the estimate
+    # does not enforce them); violated beyond the statistical error, the
+    # covariance is inflated (the output-error method's rule)
+    scale, wald = structure_scale(f, cov, rig.a3_m)
+    cov = cov * scale * scale
     f_std = np.sqrt(np.maximum(np.diag(cov), 0))
     sv = np.linalg.svd(W / scale, compute_uv=False)
+    n_eq = int(np.count_nonzero(weight))
     return dict(f=f, f_std=f_std, f_cov=cov, f_rse=f_std / np.abs(f), cutoff_hz=fc,
-                n_equations=int(y.size), residual_rms_Nm=float(np.sqrt(np.mean(r * r))),
-                condition_number=float(sv[0] / sv[-1]), lag=info["lag"], iv_iterations=done)
+                n_equations=n_eq, residual_rms_Nm=float(np.sqrt(np.sum(r * r) / max(n_eq, 1))),
+                condition_number=float(sv[0] / sv[-1]), lag=info["lag"], iv_iterations=done,
+                n_dropped=int(weight.size - n_eq), scale=scale, wald=wald)
 
 
 def _instruments(log, f, sos, sl, c):
@@ -251,8 +327,9 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
     -------
     IdentificationResult
         ``method``, ``f``, ``f_std``, ``f_rse``, ``f_correlation``,
-        ``poorly_excited``, ``idim`` (cut-off, equations, residual, condition
-        number), ``fun`` (output error of eq. 4 at f).
+        ``poorly_excited``, ``idim`` (cut-off, equations kept and dropped by
+        the reversal guard, residual, condition number), ``fun`` (output
+        error of eq. 4 at f).
     """
     import warnings
 
@@ -289,9 +366,10 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
                                 iv_iterations=iv)),
         f_std=res["f_std"], f_rse=res["f_rse"], f_correlation=_correlation(res["f_cov"]),
         x_std=res["f_std"], poorly_excited=bad,
-        uncertainty=dict(method=("IV" if iv else "OLS") + " sandwich, Newey-West (Bartlett) HAC", lag=res["lag"],
+        uncertainty=dict(method=("IV" if iv else "OLS") + " sandwich, Newey-West (Bartlett) HAC",
+                         lag=res["lag"], scale=res["scale"], wald=res["wald"],
                          rse_threshold=RSE_WARN),
         idim=dict(cutoff_hz=res["cutoff_hz"], n_equations=res["n_equations"],
-                  residual_rms_Nm=res["residual_rms_Nm"],
+                  n_dropped=res["n_dropped"], residual_rms_Nm=res["residual_rms_Nm"],
                   condition_number=res["condition_number"]),
     )
