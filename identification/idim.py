@@ -82,7 +82,6 @@ does not describe the log, e.g. flexible joints).
 """
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -272,15 +271,15 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
     # model adequacy: eq. 3's identities f3 = a3 f5, f4 = a3 f6 (the estimate
     # does not enforce them); violated beyond the statistical error, the
     # covariance is inflated (the output-error method's rule)
-    scale, wald = structure_scale(f, cov, rig.a3_m)
-    cov = cov * scale * scale
+    inflate, wald = structure_scale(f, cov, rig.a3_m)
+    cov = cov * inflate * inflate
     f_std = np.sqrt(np.maximum(np.diag(cov), 0))
     sv = np.linalg.svd(W / scale, compute_uv=False)
     n_eq = int(np.count_nonzero(weight))
     return dict(f=f, f_std=f_std, f_cov=cov, f_rse=f_std / np.abs(f), cutoff_hz=fc,
                 n_equations=n_eq, residual_rms_Nm=float(np.sqrt(np.sum(r * r) / max(n_eq, 1))),
                 condition_number=float(sv[0] / sv[-1]), lag=info["lag"], iv_iterations=done,
-                n_dropped=int(weight.size - n_eq), scale=scale, wald=wald)
+                n_dropped=int(weight.size - n_eq), scale=inflate, wald=wald)
 
 
 def _instruments(log, f, sos, sl, c):
