@@ -39,32 +39,14 @@ skipped).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
 from .computed_torque import ComputedTorqueController
 
 __all__ = ["AdaptiveComputedTorqueController"]
-
-
-def _prior_f(prior) -> np.ndarray:
-    if isinstance(prior, (str, Path)):
-        try:
-            prior = json.loads(Path(prior).read_text(encoding="utf-8"))
-        except (OSError, ValueError) as e:
-            raise ValueError(f"cannot read the prior result file {prior}: {e}") from None
-    f = prior.get("f") if isinstance(prior, dict) else getattr(prior, "f", prior)
-    try:
-        f = np.asarray(f, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError("prior must hold 9 numbers f1..f9") from None
-    if f.shape != (9,) or not np.all(np.isfinite(f)):
-        raise ValueError(f"prior must hold 9 finite numbers f1..f9, got shape {f.shape}")
-    return f
 
 
 class AdaptiveComputedTorqueController:
@@ -114,7 +96,9 @@ class AdaptiveComputedTorqueController:
 
     def __init__(self, prior_f, log, *, window_s=0.2, improvement=0.2, latency_s=None,
                  identify_options=None, **ctc_options):
-        self.prior_f = _prior_f(prior_f)
+        from identification.parameters import prior_f as as_prior_f
+
+        self.prior_f = as_prior_f(prior_f)
         ts = float(log.rig.sample_time_s)
         if not (np.isfinite(window_s) and window_s >= 20 * ts):
             raise ValueError(f"window_s must be at least 20 samples ({20 * ts} s), got {window_s!r}")

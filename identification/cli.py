@@ -58,7 +58,6 @@ Exit status
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -224,25 +223,12 @@ def _check_output_targets(out, plot_dir, inputs):
 
 def _load_prior(path) -> np.ndarray:
     """The ``"f"`` list (9 finite numbers) of an earlier result file."""
-    p = Path(path)
+    from .parameters import prior_f
+
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CLIError(f"{p}: prior result file not found") from None
-    except IsADirectoryError:
-        raise CLIError(f"{p}: prior result file is a directory") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise CLIError(f"{p}: cannot read prior result file ({e})") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise CLIError(f"{p}: invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
-    f = data.get("f") if isinstance(data, dict) else None
-    if (not isinstance(f, list) or len(f) != 9
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                       and math.isfinite(v) for v in f)):
-        raise CLIError(f"{p}: key 'f' must be a list of 9 finite numbers (f1..f9)")
-    return np.array(f, dtype=float)
+        return prior_f(Path(path))
+    except ValueError as e:
+        raise CLIError(str(e)) from None
 
 
 def _validate(args) -> None:

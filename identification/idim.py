@@ -125,9 +125,12 @@ def idim_cutoff_hz(log) -> float:
         ``(1/12) / (f_s / 2)`` pulse^2/Hz, the lower of the two joints',
         clipped to ``[2 Hz, f_s / 20]`` (module docstring, "Cut-off rule").
     """
-    ts = log.rig.sample_time_s
+    return _floor_cutoff_hz(plant.measured_counts(log), log.rig.sample_time_s)
+
+
+def _floor_cutoff_hz(counts, ts):
+    """:func:`idim_cutoff_hz` from the counts (n, 2) and the sample time (s)."""
     fs = 1.0 / ts
-    counts = plant.measured_counts(log)
     nperseg = int(min(1024, max(64, counts.shape[0] // 4)))
     freq, psd = signal.welch(counts, fs=fs, axis=0, nperseg=min(nperseg, counts.shape[0]),
                              detrend="linear")
@@ -216,7 +219,8 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
     """
     rig = log.rig
     ts = rig.sample_time_s
-    fc = idim_cutoff_hz(log) if cutoff_hz is None else float(cutoff_hz)
+    counts = plant.measured_counts(log)
+    fc = _floor_cutoff_hz(counts, ts) if cutoff_hz is None else float(cutoff_hz)
     if not (0 < fc < 0.5 / ts):
         raise ValueError(f"cutoff_hz must lie in (0, {0.5 / ts:.4g}) Hz, got {cutoff_hz}")
     decimate = int(decimate)
@@ -226,7 +230,7 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
         raise ValueError(f"reversal_guard must be >= 0 or None, got {reversal_guard!r}")
     c = rig_constants(rig)
     sos = signal.butter(IDIM_FILTER_ORDER, fc, fs=1.0 / ts, output="sos")
-    q = plant.measured_counts(log) / np.asarray(c.pulses_per_rad)
+    q = counts / np.asarray(c.pulses_per_rad)
     n = q.shape[0]
     n_trim = int(round(trim_s / ts))
     if n - 2 * n_trim < 50:

@@ -19,10 +19,12 @@ Pass one as ``identification.identify(log, parameters=...)``.
 """
 from __future__ import annotations
 
+import os
 from abc import ABC, abstractmethod
 
 import numpy as np
 
+from plant.fileio import read_json_object
 from plant.payload import payload_delta_matrix, payload_from_vector
 from plant.rig import F_NAMES
 
@@ -31,6 +33,7 @@ __all__ = [
     "BaseParameters",
     "ConsistentBaseParameters",
     "PayloadParameters",
+    "prior_f",
     "DEFAULT_PAYLOAD_BOUNDS",
     "check_bounds",
 ]
@@ -318,16 +321,42 @@ class ConsistentBaseParameters(BaseParameters):
         return f
 
 
-def _prior_f(prior) -> np.ndarray:
+def prior_f(prior) -> np.ndarray:
+    """The unloaded robot's f1..f9 from any form a prior comes in.
+
+    Parameters
+    ----------
+    prior : IdentificationResult, dict, str, os.PathLike or array_like
+        A result (its ``f``), a result's JSON as a dict or a path to that
+        file (``IdentificationResult.save_json``, the CLI's ``--output``), or
+        the nine numbers themselves.
+
+    Returns
+    -------
+    ndarray, shape (9,)
+
+    Raises
+    ------
+    ValueError
+        If the prior is missing, the file cannot be read, or it does not hold
+        nine finite numbers.
+    """
     if prior is None:
         raise ValueError("payload identification needs prior= (the unloaded robot's f)")
+    where = ""
+    if isinstance(prior, (str, os.PathLike)):
+        where = f"{prior}: "
+        prior = read_json_object(prior, "prior result file")
     f = prior.get("f") if isinstance(prior, dict) else getattr(prior, "f", prior)
+    if isinstance(f, (list, tuple)) and any(isinstance(v, bool) for v in f):
+        f = None  # true/false are not numbers here, although numpy would take them
     try:
         f = np.asarray(f, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError("prior must hold 9 numbers f1..f9") from None
+        f = np.empty(0)
     if f.shape != (9,) or not np.all(np.isfinite(f)):
-        raise ValueError(f"prior must hold 9 finite numbers f1..f9, got shape {f.shape}")
+        raise ValueError(f"{where}prior must hold 9 finite numbers f1..f9 (a result's key 'f'), "
+                         f"got shape {f.shape}")
     return f
 
 
@@ -346,8 +375,8 @@ class PayloadParameters(Parameterisation):
 
     Parameters
     ----------
-    prior : IdentificationResult, dict with ``'f'``, or array_like (9,)
-        The unloaded robot's f.
+    prior : IdentificationResult, dict, str, os.PathLike or array_like
+        The unloaded robot's f, in any form :func:`prior_f` takes.
     bounds : array_like, shape (4, 2), optional
         Box of ``[m, xp, yp, Jc]`` (default :data:`DEFAULT_PAYLOAD_BOUNDS`).
 
@@ -364,7 +393,7 @@ class PayloadParameters(Parameterisation):
     refine_ftol = 1e-6
 
     def __init__(self, prior, bounds=None):
-        self.prior_f = _prior_f(prior)
+        self.prior_f = prior_f(prior)
         self._bounds = check_bounds(DEFAULT_PAYLOAD_BOUNDS if bounds is None else bounds, 4)
 
     def names(self, log) -> list:

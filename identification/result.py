@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from plant.fileio import write_text_atomic
+from plant.fileio import read_json_object, write_text_atomic
 from plant.rig import F_NAMES, F_UNITS
 
 __all__ = ["IdentificationResult", "ResultFileError", "write_json_atomic", "describe_setting"]
@@ -442,21 +442,9 @@ class IdentificationResult(OptimizeResult):
         """
         p = Path(path)
         try:
-            text = p.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ResultFileError(f"{p}: result file not found") from None
-        except IsADirectoryError:
-            raise ResultFileError(f"{p}: result file is a directory") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise ResultFileError(f"{p}: cannot read result file "
-                                  f"({' '.join(str(e).split())})") from None
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise ResultFileError(f"{p}: invalid JSON at line {e.lineno} column {e.colno}: "
-                                  f"{e.msg}") from None
-        if not isinstance(d, dict):
-            raise ResultFileError(f"{p}: not an identification result (a JSON object expected)")
+            d = read_json_object(p, "result file")
+        except ValueError as e:
+            raise ResultFileError(str(e)) from None
         for alternatives in _REQUIRED:
             if not any(k in d for k in alternatives):
                 raise ResultFileError(f"{p}: missing key {alternatives[0]!r} "

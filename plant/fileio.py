@@ -58,6 +58,7 @@ __all__ = [
     "OutputTarget",
     "check_output_path",
     "write_text_atomic",
+    "read_json_object",
     "write_bytes_atomic",
     "atomic_output",
 ]
@@ -345,6 +346,47 @@ def write_bytes_atomic(path, data: bytes, *, create_dirs: bool = False) -> Outpu
         with open(tmp, "wb") as fh:
             fh.write(data)
     return info
+
+
+def read_json_object(path, what):
+    """Read a JSON file that must hold an object; one-line errors naming the file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    what : str
+        What the file is, for the messages (e.g. ``"result file"``).
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ValueError
+        ``"{path}: {what} not found"``, ``"... is a directory"``, ``"cannot
+        read ..."``, ``"invalid JSON at line L column C: ..."`` or ``"{what}
+        must hold a JSON object"``.
+    """
+    import json
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ValueError(f"{p}: {what} not found") from None
+    except IsADirectoryError:
+        raise ValueError(f"{p}: {what} is a directory") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{p}: cannot read {what} ({' '.join(str(e).split())})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{p}: invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{p}: {what} must hold a JSON object")
+    return data
 
 
 def write_text_atomic(path, text: str, *, encoding: str = "utf-8", newline: str = "",

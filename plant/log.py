@@ -9,7 +9,7 @@ A log is two files with the same stem (see the project README, "Log format"):
 
 :func:`load_log` checks everything and raises :class:`plant.LogError` (a
 ``ValueError``) with a one-line message naming the file and the line, column
-or key at fault. The library never reads ``STEM.truth.json``.
+or key at fault.
 """
 from __future__ import annotations
 
@@ -68,8 +68,6 @@ def _resolve(path: str | os.PathLike) -> tuple[Path, Path, str]:
     """Return (csv path, json path, stem) for STEM, STEM.csv or STEM.json."""
     p = Path(path)
     name = p.name
-    if name.lower().endswith(".truth.json"):
-        raise _err(p, "a truth file is not a log; pass STEM, STEM.csv or STEM.json")
     stem = name
     for suffix in (".csv", ".json"):
         if name.lower().endswith(suffix):
@@ -584,7 +582,7 @@ def example_log_path(name: str = DEFAULT_EXAMPLE) -> Path:
       currents; a log of a "real rig" for filtering and payload studies.
 
     The true parameters of these emulated logs are not shipped with the
-    package (the library never reads truth files).
+    package: the library works from the log alone.
 
     Parameters
     ----------

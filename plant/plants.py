@@ -433,5 +433,5 @@ class FlexibleJoints(Plant):
         -------
         ndarray, shape (8,)
         """
-        x = np.array([c.q0[0], c.q0[1], c.qd0[0], c.qd0[1]])
+        x = super().initial_state(c)  # the rigid start state, for link and motor alike
         return np.concatenate([x, x])

@@ -125,8 +125,13 @@ def test_path_forms(paper_rigid_path):
         assert log == ref and log.path == paper_rigid_path and log.name == PAPER_RIGID
 
 
-def test_truth_file_is_refused(data_dir):
-    expect_log_error(data_dir / f"{PAPER_RIGID}.truth.json", "truth file is not a log")
+def test_json_without_its_csv_is_refused(data_dir, tmp_path):
+    """Any JSON that is not a sidecar beside its CSV (a truth file, a result) is
+    refused in one line by the same path rule: STEM.json needs STEM.csv."""
+    expect_log_error(data_dir / f"{PAPER_RIGID}.truth.json", "log file not found")
+    other = tmp_path / "result.json"
+    other.write_text("{}")
+    expect_log_error(other, "log file not found")
 
 
 def test_load_is_fast(validation_rigid_path):
