@@ -92,6 +92,7 @@ import numpy as np
 
 from plant.controllers import CONTROL_LAWS, LoggedController
 from plant.model import friction_torque, is_positive_definite, joint_acceleration
+from plant.plants import dead_zone
 
 from .computed_torque import (
     _S_A,
@@ -144,6 +145,9 @@ class FlexibleCTCParameters(NamedTuple):
     link_gain_q, link_gain_w : tuple of 2 float
         Correction of the link estimate (angle: 1, rate: 1/s) by the motor
         observer's position residual (:func:`link_observer_gains`).
+    backlash : tuple of 2 float
+        Gearbox backlash width b (rad, joint side) of the link model's
+        spring (:func:`plant.plants.dead_zone`).
     """
 
     ctc: CTCParameters
@@ -153,6 +157,7 @@ class FlexibleCTCParameters(NamedTuple):
     link_substeps: int
     link_gain_q: tuple
     link_gain_w: tuple
+    backlash: tuple
 
 
 @numba.njit(nogil=True)
@@ -160,8 +165,8 @@ def _link_derivative(fl, p, s, th2, th3, v2, v3, a2, a3, q2, q3, w2, w3):
     """Link accelerations and spring torques at time ``s`` into the sample."""
     m2 = th2 + v2 * s + 0.5 * a2 * s * s
     m3 = th3 + v3 * s + 0.5 * a3 * s * s
-    t2 = p.stiffness[0] * (m2 - q2) + p.damping[0] * (v2 + a2 * s - w2)
-    t3 = p.stiffness[1] * (m3 - q3) + p.damping[1] * (v3 + a3 * s - w3)
+    t2 = p.stiffness[0] * dead_zone(m2 - q2, p.backlash[0]) + p.damping[0] * (v2 + a2 * s - w2)
+    t3 = p.stiffness[1] * dead_zone(m3 - q3, p.backlash[1]) + p.damping[1] * (v3 + a3 * s - w3)
     b2, b3, _ = joint_acceleration(fl, q2, q3, w2, w3, t2, t3, p.ctc.rig.gravity)
     return b2, b3, t2, t3
 
@@ -411,6 +416,10 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
     link_damping : float
         Damping ratio of the link-estimate error poles (default
         :data:`DEFAULT_LINK_OBSERVER_DAMPING`; :func:`link_observer_gains`).
+    backlash_rad : array_like, shape (2,), optional
+        Gearbox backlash widths b (rad, joint side): the link model's spring
+        acts through a dead zone of width b (:func:`plant.plants.dead_zone`,
+        as the plant); default none.
 
     Attributes
     ----------
@@ -432,13 +441,15 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
     def __init__(self, f, rig, trajectory, gains, *, stiffness_Nm_per_rad, damping_Nms_per_rad,
                  motor_inertia_reflected_kgm2, n_samples, nonlinear_velocity="reference",
                  friction=True, cell_centre=True, link_substeps=DEFAULT_LINK_SUBSTEPS,
-                 link_damping=DEFAULT_LINK_OBSERVER_DAMPING):
+                 link_damping=DEFAULT_LINK_OBSERVER_DAMPING, backlash_rad=None):
         super().__init__(f, rig, trajectory, gains, n_samples=n_samples,
                          nonlinear_velocity=nonlinear_velocity, friction=friction,
                          cell_centre=cell_centre)
         stiffness = _positive_pair(stiffness_Nm_per_rad, "stiffness_Nm_per_rad")
         damping = _positive_pair(damping_Nms_per_rad, "damping_Nms_per_rad", strict=False)
         jk2 = _positive_pair(motor_inertia_reflected_kgm2, "motor_inertia_reflected_kgm2")
+        backlash = _positive_pair((0.0, 0.0) if backlash_rad is None else backlash_rad,
+                                  "backlash_rad", strict=False)
         n = int(link_substeps)
         if n < 1:
             raise ValueError(f"link_substeps must be >= 1, got {link_substeps}")
@@ -452,13 +463,14 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         self.stiffness = np.array(stiffness)
         self.damping = np.array(damping)
         self.motor_inertia_reflected = np.array(jk2)
+        self.backlash = np.array(backlash)
         self.link_substeps = n
         lg = link_observer_gains(link_f, stiffness, damping, jk2, gains, link_damping)
         self.link_damping = float(link_damping)
         self.flexible_parameters = FlexibleCTCParameters(
             ctc=self.parameters._replace(observer_q=_pair(lg[:, 0]), observer_w=_pair(lg[:, 1])),
             stiffness=stiffness, damping=damping, motor_inertia=jk2, link_substeps=n,
-            link_gain_q=_pair(lg[:, 2]), link_gain_w=_pair(lg[:, 3]))
+            link_gain_q=_pair(lg[:, 2]), link_gain_w=_pair(lg[:, 3]), backlash=backlash)
         self._state = np.zeros((_S_FLEX_LEN, 1))
 
     @classmethod
@@ -466,7 +478,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
                  motor_inertia_reflected_kgm2, gains=None, nonlinear_velocity="reference",
                  friction=True, cell_centre=True, n_samples=None,
                  link_substeps=DEFAULT_LINK_SUBSTEPS,
-                 link_damping=DEFAULT_LINK_OBSERVER_DAMPING, **design):
+                 link_damping=DEFAULT_LINK_OBSERVER_DAMPING, backlash_rad=None, **design):
         """Build the flexible-joint CTC of a log's rig and reference.
 
         Parameters
@@ -481,6 +493,9 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
             Ready-made gains; otherwise ``design_gains(log.rig, **design)``.
         nonlinear_velocity, friction, cell_centre, link_substeps, link_damping
             See the class docstring.
+        backlash_rad : array_like, shape (2,), optional
+            Gearbox backlash widths b (rad, joint side) of the link model
+            (``joint_backlash_rad`` of a result; default none).
         n_samples : int, optional
             Samples to tabulate (default ``log.n_total``).
         **design
@@ -505,7 +520,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
                    n_samples=log.n_total if n_samples is None else n_samples,
                    nonlinear_velocity=nonlinear_velocity, friction=friction,
                    cell_centre=cell_centre, link_substeps=link_substeps,
-                   link_damping=link_damping)
+                   link_damping=link_damping, backlash_rad=backlash_rad)
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (2,) A for sample ``k`` at time ``t`` (s).
@@ -663,4 +678,6 @@ def controller_from_result(result, log, **options):
         if d.get(key) is None:
             raise ValueError(f"a flexible result needs {key!r} (2 values)")
         joints[name] = d[key]
+    if d.get("joint_backlash_rad") is not None:
+        joints["backlash_rad"] = d["joint_backlash_rad"]
     return FlexibleJointComputedTorqueController.from_log(f, target, **joints, **options)

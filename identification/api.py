@@ -27,7 +27,8 @@ from .result import IdentificationResult
 from .uncertainty import PoorExcitationWarning, uncertainty_entries, warning_text
 from .window import estimate_initial_state
 
-__all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS"]
+__all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
+           "ModelInadequacyWarning"]
 
 #: Identification methods: the paper's GA alone, and GA + prediction-error
 #: refinement (the default).
@@ -236,18 +237,40 @@ def identify(
     ropts.update(refine_options or {})
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
+    t_start = time.perf_counter()
     res = _search(log, space, method=method, rng=rng, seed=seed, ga_settings=ga_settings,
                   ropts=ropts, callback=callback, workers=workers, progress=progress,
                   lowpass_hz=lowpass_hz, substeps=substeps, controller=controller)
-    eligible = (type(space) is BaseParameters and lowpass_hz is None and method == "ga+pem"
+    t_search = time.perf_counter()
+    default_space = type(space) is BaseParameters or (
+        type(space) is FrictionParameters and type(space.base) is BaseParameters)
+    eligible = (default_space and lowpass_hz is None and method == "ga+pem"
                 and controller is None and log.rig.q0_rad is not None
                 and not res.interrupted and (model == "flexible" or (
                     ga_options is None and refine_options is None)))
-    res = apply_model(res, log, model, workers=workers, eligible=eligible)
+    res = apply_model(res, log, model, workers=workers, eligible=eligible, space=space)
+    t_end = time.perf_counter()
+    # the whole call: compilation, search, model choice and every fit (issue 20)
+    res["stage_times_s"] = dict(compile=float(res.get("compile_time_s") or 0.0),
+                                search=float(res["wall_time_s"]),
+                                model_choice_and_flexible_fit=t_end - t_search)
+    res["wall_time_s"] = t_end - t_start
+    for text in res.get("warnings") or []:
+        warnings.warn(text, ModelInadequacyWarning, stacklevel=2)
     if res.get("poorly_excited"):
         warnings.warn(warning_text(res["poorly_excited"], res["f_rse"]), PoorExcitationWarning,
                       stacklevel=2)
     return res
+
+
+class ModelInadequacyWarning(UserWarning):
+    """The chosen model does not describe the log to its quantisation floor (issue 20).
+
+    Raised by :func:`identify` with the held-back prediction-error cost and
+    the floor in the text (:func:`identification.flexible.apply_model`); the
+    result's ``model_choice['adequate']`` is False and its ``f_std``
+    includes the model-form error.
+    """
 
 
 def _user_callback(callback, stage, nfev):
@@ -367,6 +390,15 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
     fun = float(ga.fun) if refinement is None else float(objective(
         f[None], initial_state=x0,
         plant_parameters=space.plant_parameters(np.atleast_2d(x), log))[0])
+    if refinement is not None and ga is not None and (
+            not np.isfinite(fun) or fun > float(ga.fun) + 2 * log.n_samples / 12.0):
+        # never worse than the GA's best (issue 20): a refined point whose closed
+        # loop diverges or whose output error exceeds the GA's by more than the
+        # quantisation floor (n / 12 pulse^2 per residual) is dropped
+        messages.append(f"refined point rejected (output error {fun:.4g} > GA's "
+                        f"{float(ga.fun):.4g} + floor): the GA's best is returned")
+        refinement.update(rejected=True, x=np.asarray(x, dtype=float), fun_output_error=fun)
+        x, f, fun = np.asarray(ga.x, dtype=float), space.to_f(ga.x, log), float(ga.fun)
     wall = time.perf_counter() - t0
     if ga is not None:
         hist = {name: np.asarray(v) for name, v in ga.history.items()}

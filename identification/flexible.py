@@ -70,11 +70,15 @@ import numpy as np
 
 from plant.plants import FlexibleJoints
 
+from plant.friction import FRICTION_NAMES, friction_fields, friction_vector
+
+from .friction import default_friction_bounds, unknown_friction_indices
 from .parameters import BaseParameters, Parameterisation, check_bounds
 from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
-__all__ = ["FlexibleParameters", "flexible_substeps", "identify_flexible", "choose_model",
-           "apply_model", "held_back_cost",
+__all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
+           "BACKLASH_SIGNIFICANCE", "identify_flexible", "choose_model",
+           "apply_model", "held_back_cost", "quantisation_floor", "INADEQUATE_FACTOR",
            "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR",
            "MODELS"]
 
@@ -107,9 +111,25 @@ HOLD_EVERY = 4
 
 _PLANT = FlexibleJoints(1.0, 0.0, 1.0)  # constants unused: every lane carries its joints
 
+#: Box of the backlash widths ``[b2, b3]`` (rad, joint side): 0 .. 10 mrad
+#: (worn industrial gearboxes reach a few mrad).
+DEFAULT_BACKLASH_BOUNDS = np.array([[0.0, 0.01], [0.0, 0.01]])
+
+#: A backlash width is reported (``joint_backlash_rad``) when it exceeds this many
+#: standard errors (a one-sided test at about 0.1 % false alarms under the
+#: estimate's normal approximation); a smaller one is indistinguishable from none.
+BACKLASH_SIGNIFICANCE = 3.0
+
 
 class FlexibleParameters(Parameterisation):
     """Rigid-equivalent f plus the flexible joints (see the module docstring).
+
+    ``x = [f1..f9, log10 K2, log10 K3, D2, D3, r2, r3, b2, b3, friction...]``:
+    the rigid-equivalent f, the joints, the backlash widths (with
+    ``backlash=True``) and the drive friction components the sidecar does
+    not know (motor side, :data:`plant.friction.FRICTION_NAMES`; the box of
+    :func:`identification.friction.default_friction_bounds`; the paper: "if
+    unknown, they have to be included as unknown parameters").
 
     Parameters
     ----------
@@ -118,6 +138,10 @@ class FlexibleParameters(Parameterisation):
     joint_bounds : array_like, shape (6, 2), optional
         Box of ``[log10 K2, log10 K3, D2, D3, r2, r3]`` (default
         :data:`DEFAULT_JOINT_BOUNDS`).
+    backlash : bool
+        Identify a backlash width per joint (default True).
+    backlash_bounds : array_like, shape (2, 2), optional
+        Box of ``[b2, b3]`` (rad; default :data:`DEFAULT_BACKLASH_BOUNDS`).
 
     Raises
     ------
@@ -127,35 +151,49 @@ class FlexibleParameters(Parameterisation):
 
     name = "flexible"
 
-    def __init__(self, bounds=None, joint_bounds=None):
+    def __init__(self, bounds=None, joint_bounds=None, backlash=True, backlash_bounds=None):
         self.base = BaseParameters(bounds)
         self.joint_bounds = check_bounds(
             DEFAULT_JOINT_BOUNDS if joint_bounds is None else joint_bounds, 6)
+        self.backlash = bool(backlash)
+        self.backlash_bounds = check_bounds(
+            DEFAULT_BACKLASH_BOUNDS if backlash_bounds is None else backlash_bounds, 2)
+
+    def _n_fixed(self):
+        return 15 + (2 if self.backlash else 0)
 
     def names(self, log) -> list:
-        """f1..f9, ``log10_K2``, ``log10_K3``, ``D2``, ``D3``, ``r2``, ``r3``.
+        """f1..f9, the joints, ``b2_rad``, ``b3_rad`` and the unknown friction names.
 
         Parameters
         ----------
         log : plant.ExperimentLog
         """
-        return self.base.names(log) + ["log10_K2", "log10_K3", "D2", "D3", "r2", "r3"]
+        return (self.base.names(log) + ["log10_K2", "log10_K3", "D2", "D3", "r2", "r3"]
+                + (["b2_rad", "b3_rad"] if self.backlash else [])
+                + [FRICTION_NAMES[i] for i in unknown_friction_indices(log.rig)])
 
     def bounds(self, log) -> np.ndarray:
-        """The f box and the joint box, shape (15, 2).
+        """The f box, the joint box, the backlash box and the unknown friction's, shape (k, 2).
 
         Parameters
         ----------
         log : plant.ExperimentLog
         """
-        return np.vstack([self.base.bounds(log), self.joint_bounds])
+        rows = [self.base.bounds(log), self.joint_bounds]
+        if self.backlash:
+            rows.append(self.backlash_bounds)
+        unknown = unknown_friction_indices(log.rig)
+        if unknown:
+            rows.append(default_friction_bounds(log)[unknown])
+        return np.vstack(rows)
 
     def to_f(self, x, log) -> np.ndarray:
         """The rigid-equivalent f (the first nine components).
 
         Parameters
         ----------
-        x : ndarray, shape (15,) or (m, 15)
+        x : ndarray, shape (k,) or (m, k)
         log : plant.ExperimentLog
         """
         return np.asarray(x, dtype=float)[..., :9]
@@ -166,7 +204,7 @@ class FlexibleParameters(Parameterisation):
 
         Parameters
         ----------
-        x : ndarray, shape (15,) or (m, 15)
+        x : ndarray, shape (k,) or (m, k)
 
         Returns
         -------
@@ -175,6 +213,41 @@ class FlexibleParameters(Parameterisation):
         x = np.asarray(x, dtype=float)
         return np.stack([10.0 ** x[..., 9], 10.0 ** x[..., 10], x[..., 11], x[..., 12],
                          x[..., 13] * x[..., 6], x[..., 14] * x[..., 0]], axis=-1)
+
+    def backlash_widths(self, x) -> np.ndarray:
+        """Backlash widths ``(b2, b3)`` (rad) of x (zeros without ``backlash``).
+
+        Parameters
+        ----------
+        x : ndarray, shape (k,) or (m, k)
+
+        Returns
+        -------
+        ndarray, shape (2,) or (m, 2)
+        """
+        x = np.asarray(x, dtype=float)
+        if not self.backlash:
+            return np.zeros(x.shape[:-1] + (2,))
+        return x[..., 15:17]
+
+    def friction(self, x, log) -> np.ndarray:
+        """Motor-side friction vectors (known from the rig, unknown from x).
+
+        Parameters
+        ----------
+        x : ndarray, shape (k,) or (m, k)
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        ndarray, shape (6,) or (m, 6)
+        """
+        x = np.asarray(x, dtype=float)
+        V = np.tile(friction_vector(log.rig), x.shape[:-1] + (1,))
+        unknown = unknown_friction_indices(log.rig)
+        if unknown:
+            V[..., unknown] = x[..., self._n_fixed():]
+        return V
 
     def plant(self, log):
         """A :class:`plant.plants.FlexibleJoints` (its lanes carry each candidate's joints).
@@ -186,53 +259,69 @@ class FlexibleParameters(Parameterisation):
         return _PLANT
 
     def plant_parameters(self, x, log):
-        """``{"joints": (m, 6)}``.
+        """``{"joints": (m, 6), "friction": (m, 6), "backlash": (m, 2)}``.
 
         Parameters
         ----------
-        x : ndarray, shape (m, 15)
+        x : ndarray, shape (m, k)
         log : plant.ExperimentLog
         """
-        return {"joints": np.atleast_2d(self.joints(x))}
+        x = np.atleast_2d(x)
+        return {"joints": self.joints(x), "friction": self.friction(x, log),
+                "backlash": self.backlash_widths(x)}
 
     def extras(self, x, log) -> dict:
-        """``model`` and the identified joints (the JSON keys of the module docstring).
+        """``model``, the identified joints, backlash and friction (JSON keys of :mod:`.models`).
 
         Parameters
         ----------
-        x : ndarray, shape (15,)
+        x : ndarray, shape (k,)
         log : plant.ExperimentLog
         """
         j = self.joints(x)
-        return dict(model="flexible", joint_stiffness_Nm_per_rad=[float(j[0]), float(j[1])],
-                    joint_damping_Nms_per_rad=[float(j[2]), float(j[3])],
-                    motor_inertia_reflected_kgm2=[float(j[4]), float(j[5])])
+        b = self.backlash_widths(x)
+        out = dict(model="flexible", joint_stiffness_Nm_per_rad=[float(j[0]), float(j[1])],
+                   joint_damping_Nms_per_rad=[float(j[2]), float(j[3])],
+                   motor_inertia_reflected_kgm2=[float(j[4]), float(j[5])],
+                   joint_backlash_rad=[float(b[0]), float(b[1])] if self.backlash else None)
+        if unknown_friction_indices(log.rig):
+            out.update(friction_fields(self.friction(x, log)), friction_identified=True)
+        return out
 
     def __repr__(self) -> str:
-        return "FlexibleParameters()"
+        return f"FlexibleParameters(backlash={self.backlash})"
 
 
 def flexible_substeps(log, joint_bounds=DEFAULT_JOINT_BOUNDS, bounds=None) -> int:
     """RK4 substeps per sample for the flexible plant (rule of the module docstring).
 
+    The fastest eigenvalue of any candidate in the box is bounded by the
+    motor-side mode with the link locked, ``J th'' + D th' + K th = 0`` with
+    the stiffest spring, the largest damping and the lightest reflected
+    inertia: ``|lambda| <= D / 2J + sqrt(K / J + (D / 2J)^2)``.
+
     Parameters
     ----------
     log : plant.ExperimentLog
     joint_bounds : array_like, shape (6, 2)
-        The joint box (stiffest spring, lightest reflected inertia).
+        The joint box (stiffest spring, largest damping, lightest reflected
+        inertia).
     bounds : array_like, shape (9, 2), optional
         Box of f (default the sidecar's).
 
     Returns
     -------
     int
-        ``ceil(sqrt(K_max / J_min) Ts / H_OMEGA)``, at least 1.
+        ``ceil(|lambda|_max Ts / H_OMEGA)``, at least 1 (RK4 is stable to
+        ``|lambda| h = 2.78`` and accurate to 0.01 pulse at ``H_OMEGA``).
     """
     jb = np.asarray(joint_bounds, dtype=float)
     fb = log.rig.bounds if bounds is None else np.asarray(bounds, dtype=float)
     k_max = 10.0 ** jb[:2, 1].max()
+    d_max = float(jb[2:4, 1].max())
     j_min = min(jb[4, 0] * max(fb[6, 0], 1e-3), jb[5, 0] * max(fb[0, 0], 1e-3))
-    w = math.sqrt(k_max / j_min)
+    a = d_max / (2.0 * j_min)
+    w = a + math.sqrt(k_max / j_min + a * a)
     return max(1, int(math.ceil(w * log.rig.sample_time_s / H_OMEGA)))
 
 
@@ -267,7 +356,7 @@ def _problem(log, space, substeps, workers, gain):
 
 
 def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_GAIN,
-                      n_starts=4, max_iter=40, hold_back=False, space=None):
+                      n_starts=4, max_iter=40, hold_back=False, space=None, start=None):
     """Fit the flexible model from the rigid result's f (grid over K, then refinement).
 
     Parameters
@@ -288,38 +377,72 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     hold_back : bool
         Fit without the held-back blocks (model choice).
     space : FlexibleParameters, optional
-        Default ``FlexibleParameters()``.
+        Default ``FlexibleParameters(backlash=False)``.
+    start : array_like, shape (k,), optional
+        Start the refinement here instead of from the stiffness grid (e.g.
+        the held-back fit's point); a shorter vector (a fit without
+        backlash) is completed with zero backlash.
 
     Returns
     -------
     dict
-        ``x`` (15,), ``f`` (9,), ``cost`` (fitted prediction-error cost),
+        ``x`` (k,), ``f`` (9,), ``cost`` (fitted prediction-error cost),
         ``refine`` (:class:`~identification.refinement.RefineResult`),
         ``substeps``, ``space``.
     """
-    space = FlexibleParameters() if space is None else space
+    space = FlexibleParameters(backlash=False) if space is None else space
     substeps = flexible_substeps(log, space.joint_bounds) if substeps is None else int(substeps)
     xb = space.bounds(log)
+    k = xb.shape[0]
     problem = _problem(log, space, substeps, workers, gain)
     fit = problem
     if hold_back:
         fit = _Masked(problem, _hold_mask(log)[0])
-    f0 = np.clip(np.asarray(rigid["f"], dtype=float), xb[:9, 0], xb[:9, 1])
-    grid = np.array([(a, b) for a in STIFFNESS_GRID for b in STIFFNESS_GRID])
-    X = np.empty((len(grid), 15))
-    X[:, :9] = f0
-    X[:, 9:11] = grid
-    r = 0.5
-    jk = np.array([r * f0[6], r * f0[0]])
-    X[:, 11:13] = 0.02 * np.sqrt(10.0 ** grid * jk)  # light damping
-    X[:, 13:15] = r
-    X = np.clip(X, xb[:, 0], xb[:, 1])
-    R = fit.residuals(X)
-    costs = np.einsum("ij,ij->i", R, R)
-    starts = X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]
+    costs = None
+    if start is not None:
+        starts = np.atleast_2d(_complete(np.asarray(start, dtype=float), space, log))
+        if space.backlash and np.size(start) < k:  # no backlash yet: from none, 1 and 3 mrad
+            starts = np.repeat(starts, 3, axis=0)
+            starts[:, 15:17] = np.array([0.0, 1e-3, 3e-3])[:, None]
+    else:
+        # the rigid refinement's point, also when the rigid result fell back to the
+        # GA's best (a rigid model's output error on a compliant log is no guide to f)
+        x_rigid = _rigid_x(rigid)
+        f0 = np.clip(x_rigid[:9], xb[:9, 0], xb[:9, 1])
+        grid = np.array([(a, b) for a in STIFFNESS_GRID for b in STIFFNESS_GRID])
+        X = np.empty((len(grid), k))
+        X[:, :9] = f0
+        X[:, 9:11] = grid
+        r = 0.5
+        jk = np.array([r * f0[6], r * f0[0]])
+        X[:, 11:13] = 0.02 * np.sqrt(10.0 ** grid * jk)  # light damping
+        X[:, 13:15] = r
+        X[:, 15:space._n_fixed()] = 0.0  # no backlash
+        unknown = unknown_friction_indices(log.rig)
+        if unknown:  # the rigid fit's friction (identified there with f)
+            X[:, space._n_fixed():] = x_rigid[9:9 + len(unknown)]
+        X = np.clip(X, xb[:, 0], xb[:, 1])
+        R = fit.residuals(X)
+        costs = np.einsum("ij,ij->i", R, R)
+        starts = X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]
     ref = refine(fit, starts, xb, max_iter=max_iter)
     return dict(x=ref.x, f=space.to_f(ref.x, log), cost=ref.fun, refine=ref,
                 substeps=substeps, space=space, grid_costs=costs)
+
+
+def _complete(x, space, log):
+    """A point of another flexible space as a point of ``space`` (backlash added as 0)."""
+    n_friction = len(unknown_friction_indices(log.rig))
+    if x.size == len(space.names(log)):
+        return x
+    head, friction = x[:15], x[x.size - n_friction:] if n_friction else x[:0]
+    b = np.zeros(2) if space.backlash else np.zeros(0)
+    return np.concatenate([head, b, friction])
+
+
+def _rigid_x(rigid) -> np.ndarray:
+    """The rigid refinement's point (also when the result fell back to the GA's best)."""
+    return np.asarray((rigid.get("refinement") or {}).get("x", rigid["x"]), dtype=float)
 
 
 def held_back_cost(log, x, space, substeps, workers=None, gain=DEFAULT_GAIN):
@@ -343,7 +466,34 @@ def held_back_cost(log, x, space, substeps, workers=None, gain=DEFAULT_GAIN):
     return float(r[held] @ r[held])
 
 
-def choose_model(log, rigid, *, workers=None, gain=DEFAULT_GAIN):
+def _rigid_problem(log, space, rigid, workers, gain):
+    """The prediction-error problem of the rigid fit's parameterisation (friction if unknown)."""
+    return PredictionErrorProblem(
+        log, to_f=lambda X: space.to_f(X, log), gain=gain, substeps=rigid.substeps,
+        workers=workers, plant=space.plant(log),
+        to_plant_parameters=lambda X: space.plant_parameters(X, log))
+
+
+def quantisation_floor(n_residuals) -> float:
+    """Prediction-error cost (pulses^2) of ``n_residuals`` counts known to a unit cell.
+
+    A count known only to its cell (width 1 pulse) carries a uniform error
+    of variance 1/12 pulse^2 (the classical quantisation-noise model,
+    B. Widrow and I. Kollar, *Quantization Noise*, 2008, ch. 4).
+
+    Parameters
+    ----------
+    n_residuals : int
+
+    Returns
+    -------
+    float
+        ``n_residuals / 12``.
+    """
+    return float(n_residuals) / 12.0
+
+
+def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
     """Rigid or flexible: compare both fits on held-back samples (module docstring).
 
     Parameters
@@ -351,30 +501,37 @@ def choose_model(log, rigid, *, workers=None, gain=DEFAULT_GAIN):
     log : plant.ExperimentLog
     rigid : IdentificationResult
         The rigid identification of the log.
+    space : Parameterisation, optional
+        The rigid fit's parameterisation (default ``BaseParameters()``;
+        friction included when the sidecar does not know it).
     workers : int, optional
     gain : float
 
     Returns
     -------
-    (str, dict)
-        The chosen model and ``model_choice``: ``rule``,
+    (str, dict, dict)
+        The chosen model, ``model_choice`` (``rule``,
         ``held_back_cost_rigid_pulses2``, ``held_back_cost_flexible_pulses2``,
-        ``ratio``, ``mode_hz`` and ``mode_prominence_dec`` of the error
-        spectrum, ``reason``.
+        ``ratio``, ``floor_pulses2``, ``mode_hz`` and ``mode_prominence_dec``
+        of the error spectrum, ``reason``) and the held-back flexible fit
+        (:func:`identify_flexible`'s dict; its x starts the full fit).
     """
     from .diagnostics import error_spectrum
 
-    base = BaseParameters()
-    # rigid, refit without the held-back blocks (from the full fit's f)
-    rp = PredictionErrorProblem(log, gain=gain, substeps=rigid.substeps, workers=workers)
+    space = BaseParameters() if space is None else space
+    # rigid, refit without the held-back blocks (from the full fit's x)
+    rp = _rigid_problem(log, space, rigid, workers, gain)
     mask_fit, held = _hold_mask(log)
-    ref_r = refine(_Masked(rp, mask_fit), np.atleast_2d(rigid["f"]), base.bounds(log),
+    ref_r = refine(_Masked(rp, mask_fit), np.atleast_2d(_rigid_x(rigid)), space.bounds(log),
                    max_iter=20)
     r_rigid = rp.residuals(ref_r.x)
     c_rigid = float(r_rigid[held] @ r_rigid[held])
     flex = identify_flexible(log, rigid, workers=workers, gain=gain, hold_back=True)
     c_flex = held_back_cost(log, flex["x"], flex["space"], flex["substeps"], workers, gain)
+    if not np.isfinite(c_flex):
+        c_flex = np.inf
     ratio = c_flex / c_rigid if c_rigid > 0 else 1.0
+    floor = quantisation_floor(int(held.sum()))
     try:
         spec = error_spectrum(log)
         mode = [None if not np.isfinite(v) else float(v) for v in spec.mode_hz]
@@ -389,19 +546,24 @@ def choose_model(log, rigid, *, workers=None, gain=DEFAULT_GAIN):
                           for j, m in enumerate(mode)))
     return chosen, dict(rule=f"flexible if held-back cost ratio < {CHOICE_RATIO}",
                         held_back_cost_rigid_pulses2=c_rigid,
-                        held_back_cost_flexible_pulses2=c_flex, ratio=ratio, mode_hz=mode,
-                        mode_prominence_dec=prom, reason=reason, model=chosen)
+                        held_back_cost_flexible_pulses2=c_flex, ratio=ratio,
+                        floor_pulses2=floor, mode_hz=mode,
+                        mode_prominence_dec=prom, reason=reason, model=chosen), flex
 
 
 def _flexible_result(rigid, log, fit, model_choice, workers):
     """The IdentificationResult of a flexible fit (the rigid result's bookkeeping kept)."""
-    from .objective import OutputError
+    from plant import STATUS_OK, simulate_batch
+
     from .result import IdentificationResult
 
     space, x = fit["space"], fit["x"]
-    objective = OutputError(log, substeps=fit["substeps"], workers=workers, plant=space.plant(log))
-    fun = float(objective(fit["f"][None],
-                          plant_parameters=space.plant_parameters(np.atleast_2d(x), log))[0])
+    sim = simulate_batch(log, fit["f"][None], substeps=fit["substeps"], workers=workers,
+                         plant=space.plant(log),
+                         plant_parameters=space.plant_parameters(np.atleast_2d(x), log))
+    fun = float(sim.objective[0])
+    if sim.status[0] != STATUS_OK:
+        fun = np.inf  # diverged, not finite or D(q) not positive definite: never a result
     ref = fit["refine"]
     res = IdentificationResult(dict(rigid))
     settings = dict(rigid.get("settings") or {})
@@ -423,14 +585,28 @@ def _flexible_result(rigid, log, fit, model_choice, workers):
     for key in RESULT_KEYS:
         res.pop(key, None)
     xs = np.asarray(x, dtype=float)
+    names = space.names(log)
     res.update(uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
-                                   k=xs.size, names=space.names(log), a3=log.rig.a3_m,
-                                   warn=False))
+                                   k=xs.size, names=names, a3=log.rig.a3_m, warn=False))
+    if space.backlash:  # a width within BACKLASH_SIGNIFICANCE standard errors of 0: none
+        xstd = res.get("x_std")
+        b = space.backlash_widths(xs)
+        bstd = (np.full(2, np.inf) if xstd is None
+                else np.asarray(xstd, dtype=float)[[names.index("b2_rad"), names.index("b3_rad")]])
+        significant = b > BACKLASH_SIGNIFICANCE * bstd
+        res["joint_backlash_std_rad"] = [float(v) for v in bstd]
+        res["joint_backlash_rad"] = ([float(v) if sig else 0.0 for v, sig in zip(b, significant)]
+                                     if np.any(significant) else None)
     res["model_choice"] = model_choice
     return res
 
 
-def apply_model(rigid, log, model, *, workers=None, eligible=True):
+def _diverged(result) -> bool:
+    """True when a result's simulated closed loop failed (its ``fun`` is then inf)."""
+    return not np.isfinite(float(result.get("fun", np.inf)))
+
+
+def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
     """The result for ``identify(model=...)`` from the rigid identification of the log.
 
     Parameters
@@ -444,13 +620,19 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True):
     workers : int, optional
     eligible : bool
         False when the identification's options rule the flexible model out
-        (a low-pass filter, another parameterisation, the paper's method,
-        unknown friction): ``'auto'`` then keeps the rigid result and says
-        why, ``'flexible'`` raises.
+        (a low-pass filter, another parameterisation, the paper's method):
+        ``'auto'`` then keeps the rigid result and says why, ``'flexible'``
+        raises.
+    space : Parameterisation, optional
+        The rigid fit's parameterisation (with the friction when unknown).
 
     Returns
     -------
     IdentificationResult
+        With ``model_choice``; a flexible fit whose closed loop diverges or
+        whose output error exceeds the rigid result's is never returned
+        (``'auto'`` keeps the rigid result, ``'flexible'`` returns it with
+        ``success=False``).
 
     Raises
     ------
@@ -463,27 +645,94 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True):
         return rigid
     if not eligible:
         if model == "flexible":
-            raise ValueError("model='flexible' identifies the default parameterisation with the "
-                             "default method, known friction and no low-pass filter")
+            raise ValueError("model='flexible' identifies the default or unknown-friction "
+                             "parameterisation with the default method and no low-pass filter")
         rigid["model_choice"] = dict(model="rigid", reason="options other than the default "
-                                     "search (low-pass, parameterisation, method or unknown "
-                                     "friction): rigid model")
+                                     "search (low-pass, parameterisation or method): rigid model")
         return rigid
-    if model == "auto":
-        ref = rigid.get("refinement") or {}
-        floor = 2 * log.n_samples / 12.0
-        level = float(ref.get("fun", np.inf)) / floor
-        if level <= FLOOR_FACTOR:
-            rigid["model_choice"] = dict(
-                model="rigid", floor_ratio=level,
-                reason=f"the rigid model predicts the log to the quantisation floor "
-                       f"(prediction-error cost {level:.3g} x n/12 <= {FLOOR_FACTOR})")
-            return rigid
-        chosen, choice = choose_model(log, rigid, workers=workers)
-        if chosen == "rigid":
-            rigid["model_choice"] = choice
-            return rigid
-    else:
-        choice = dict(model="flexible", reason="model='flexible' requested")
-    fit = identify_flexible(log, rigid, workers=workers)
-    return _flexible_result(rigid, log, fit, choice, workers)
+    ref = rigid.get("refinement") or {}
+    floor = quantisation_floor(2 * log.n_samples)
+    level = float(ref.get("fun", np.inf)) / floor
+    if model == "auto" and level <= FLOOR_FACTOR:
+        rigid["model_choice"] = dict(
+            model="rigid", floor_ratio=level, adequate=True,
+            reason=f"the rigid model predicts the log to the quantisation floor "
+                   f"(prediction-error cost {level:.3g} x n/12 <= {FLOOR_FACTOR})")
+        return rigid
+    chosen, choice, held = choose_model(log, rigid, space=space, workers=workers)
+    if model == "flexible":
+        choice = dict(choice, model="flexible",
+                      reason="model='flexible' requested; " + choice["reason"])
+    elif chosen == "rigid":
+        return _judge(rigid, log, choice, alternative=None)
+    fspace = held["space"]
+    c_flex = choice["held_back_cost_flexible_pulses2"]
+    if np.isfinite(c_flex) and c_flex > INADEQUATE_FACTOR * choice["floor_pulses2"]:
+        # the spring alone leaves the held-back samples above the floor: try the
+        # gearbox backlash (the paper's second cause of the oscillations)
+        bspace = FlexibleParameters(backlash=True)
+        bl = identify_flexible(log, rigid, workers=workers, hold_back=True, space=bspace,
+                               start=held["x"])
+        c_bl = held_back_cost(log, bl["x"], bspace, bl["substeps"], workers)
+        choice["held_back_cost_backlash_pulses2"] = c_bl
+        if np.isfinite(c_bl) and c_bl < CHOICE_RATIO * c_flex:
+            fspace, held = bspace, bl
+            choice.update(model="flexible+backlash", held_back_cost_flexible_pulses2=c_bl,
+                          reason=choice["reason"] + f"; with backlash the held-back cost falls "
+                          f"from {c_flex:.4g} to {c_bl:.4g} pulses^2 (< {CHOICE_RATIO} x)")
+        else:
+            choice["reason"] += (f"; backlash tried, held-back cost {c_bl:.4g} pulses^2 "
+                                 f"(not < {CHOICE_RATIO} x {c_flex:.4g}): no backlash")
+    # the full fit starts from the held-back fit's point
+    fit = identify_flexible(log, rigid, workers=workers, space=fspace, start=held["x"])
+    res = _flexible_result(rigid, log, fit, choice, workers)
+    allowance = quantisation_floor(2 * log.n_samples)
+    if _diverged(res) or res["fun"] > float(rigid["fun"]) + allowance:
+        why = ("its simulated closed loop diverges" if _diverged(res) else
+               f"its output error {res['fun']:.4g} pulses^2 exceeds the rigid model's "
+               f"{float(rigid['fun']):.4g} by more than the quantisation floor {allowance:.4g}")
+        if model == "flexible":
+            res["success"] = False
+            res["message"] = f"flexible fit rejected: {why}; " + res["message"]
+            return res
+        choice = dict(choice, model="rigid", reason=f"flexible fit rejected: {why}; "
+                      + choice["reason"])
+        return _judge(rigid, log, choice, alternative=res)
+    return _judge(res, log, choice, alternative=rigid)
+
+
+#: A model whose held-back prediction-error cost exceeds this many quantisation
+#: floors (an RMS prediction error twice the quantisation noise's) does not
+#: describe the log: the result says so (:func:`apply_model`).
+INADEQUATE_FACTOR = 4.0
+
+
+def _judge(res, log, choice, alternative):
+    """Flag a chosen model whose held-back cost stays far above the quantisation floor.
+
+    The flag is a :class:`ModelInadequacyWarning` text in ``res['warnings']``
+    (raised by :func:`identification.identify`) and ``model_choice['adequate']``
+    False; ``f_std`` then covers the model-form error: the difference to the
+    other model's f is added in quadrature (when that model was fitted).
+    """
+    key = ("held_back_cost_rigid_pulses2" if choice["model"] == "rigid"
+           else "held_back_cost_flexible_pulses2")
+    cost, floor = choice.get(key), choice.get("floor_pulses2")
+    choice = dict(choice)
+    if cost is not None and floor:
+        level = float(cost) / float(floor)
+        choice["floor_ratio"] = level
+        choice["adequate"] = bool(level <= INADEQUATE_FACTOR)
+        if not choice["adequate"]:
+            text = (f"the {choice['model']} model does not describe the log: its held-back "
+                    f"prediction-error cost is {level:.3g} x the quantisation floor "
+                    f"({float(cost):.4g} / {float(floor):.4g} pulses^2, limit "
+                    f"{INADEQUATE_FACTOR:g}); f may be biased")
+            res.setdefault("warnings", []).append(text)
+            if alternative is not None and res.get("f_std") is not None:
+                d = np.asarray(res["f"], dtype=float) - np.asarray(alternative["f"], dtype=float)
+                res["f_std"] = np.sqrt(np.asarray(res["f_std"], dtype=float) ** 2 + d * d)
+                text += "; f_std includes the difference to the other model's f"
+                res["warnings"][-1] = text
+    res["model_choice"] = choice
+    return res

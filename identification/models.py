@@ -4,7 +4,9 @@ Every :class:`~identification.result.IdentificationResult` carries these keys
 (:data:`MODEL_KEYS`, a JSON contract): ``model`` (``"rigid"`` or
 ``"flexible"``), ``joint_stiffness_Nm_per_rad``, ``joint_damping_Nms_per_rad``
 and ``motor_inertia_reflected_kgm2`` (2 values each, ``None`` for a rigid
-result), ``viscous_friction_Nms_per_rad`` (2) and ``coulomb_friction_Nm``
+result), ``joint_backlash_rad`` (2 gearbox backlash widths, rad, ``None`` when
+none is significant or the model is rigid), ``stage_times_s`` (seconds spent
+in compilation, the search, and the model choice with the flexible fits), ``viscous_friction_Nms_per_rad`` (2) and ``coulomb_friction_Nm``
 (2 x 2) -- identified, or echoed from the sidecar -- with
 ``friction_identified``, and ``model_choice`` (how ``model`` was chosen, see
 :mod:`identification.flexible`; None when it was not a choice).
@@ -17,7 +19,7 @@ __all__ = ["MODEL_KEYS", "result_entries"]
 
 #: Keys every result carries (see the module docstring).
 MODEL_KEYS = ("model", "joint_stiffness_Nm_per_rad", "joint_damping_Nms_per_rad",
-              "motor_inertia_reflected_kgm2", "viscous_friction_Nms_per_rad",
+              "motor_inertia_reflected_kgm2", "joint_backlash_rad", "stage_times_s", "viscous_friction_Nms_per_rad",
               "coulomb_friction_Nm", "friction_identified", "model_choice")
 
 
@@ -39,7 +41,7 @@ def result_entries(space, x, log) -> dict:
         says otherwise.
     """
     out = dict(model="rigid", joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=None,
-               motor_inertia_reflected_kgm2=None, model_choice=None)
+               motor_inertia_reflected_kgm2=None, joint_backlash_rad=None, model_choice=None)
     out.update(friction_entries(log))
     out.update(space.extras(x, log))
     return out

@@ -37,7 +37,7 @@ from .model import friction_torque, joint_acceleration_sc
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "rigid_derivative", "flexible_rhs", "RigidKind",
            "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RightHandSide", "RIGHT_HAND_SIDES",
-           "register_plant"]
+           "register_plant", "dead_zone", "FLEXIBLE_N_PARAMETERS"]
 
 
 class RigidKind(NamedTuple):
@@ -260,8 +260,38 @@ RIGID = Plant(name="rigid", kind=RIGID_KIND, n_states=4, encoder_row=0, n_parame
 # ----------------------------------------------------------------------------
 # Two-mass flexible joints
 # ----------------------------------------------------------------------------
-# Rows of the flexible plant's per-lane parameters after the nine link f.
-_FX_K, _FX_D, _FX_J = 9, 11, 13
+# Rows of the flexible plant's per-lane parameters after the nine link f:
+# stiffness (2), damping (2), reflected motor inertia (2), joint-side friction
+# (viscous 2, Coulomb for positive rate 2, for negative rate 2), backlash width (2).
+_FX_K, _FX_D, _FX_J, _FX_FV, _FX_FP, _FX_FN, _FX_B = 9, 11, 13, 15, 17, 19, 21
+#: Per-lane parameters of the flexible plant.
+FLEXIBLE_N_PARAMETERS = 23
+
+
+@_jit
+def dead_zone(delta, width):
+    """Spring deflection through a gearbox dead zone (backlash) of total width ``width``.
+
+    ``delta - clip(delta, -width / 2, width / 2)``: zero inside the play, the
+    deflection beyond it outside (the classical dead-zone backlash model of
+    a gear pair: M. Nordin and P.-O. Gutman, "Controlling mechanical systems
+    with backlash -- a survey", Automatica 38 (2002), sec. 2.2).  With
+    ``width = 0`` it is ``delta`` bit for bit.
+
+    Parameters
+    ----------
+    delta : float
+        Deflection th - q (rad, joint side).
+    width : float
+        Backlash width b >= 0 (rad, joint side).
+
+    Returns
+    -------
+    float
+        The deflection the spring sees (rad).
+    """
+    hb = 0.5 * width
+    return delta - min(max(delta, -hb), hb)
 
 
 @_jit
@@ -270,14 +300,17 @@ def flexible_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
 
     State ``x = (q2, q3, qd2, qd3, th2, th3, thd2, thd3)``; parameters ``p``:
     link f1..f9, stiffness K (2), damping D (2), reflected motor inertia
-    Jm k^2 (2).  See :mod:`plant.core` for the protocol.
+    Jm k^2 (2), joint-side drive friction (viscous 2, Coulomb for positive
+    rate 2, for negative rate 2) and backlash width b (2).  The spring
+    torque is ``K dead_zone(th - q, b) + D (th' - q')`` (:func:`dead_zone`).
+    See :mod:`plant.core` for the protocol.
 
     Parameters
     ----------
-    p : tuple of 15 float
+    p : tuple of 23 float
         The lane's parameters.
     c : plant.rig.RigConstants
-        Rig layout.
+        Rig layout (the Coulomb ramp speed).
     x : tuple of 8 float
         Stage state (rad, rad/s).
     u2, u3 : float
@@ -293,36 +326,39 @@ def flexible_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
         det D_link(q), or -1 where the link f1 <= 0.
     """
     q2, q3, w2, w3, th2, th3, v2, v3 = x
-    ts2 = p[_FX_K] * (th2 - q2) + p[_FX_D] * (v2 - w2)
-    ts3 = p[_FX_K + 1] * (th3 - q3) + p[_FX_D + 1] * (v3 - w3)
+    ts2 = p[_FX_K] * dead_zone(th2 - q2, p[_FX_B]) + p[_FX_D] * (v2 - w2)
+    ts3 = p[_FX_K + 1] * dead_zone(th3 - q3, p[_FX_B + 1]) + p[_FX_D + 1] * (v3 - w3)
     a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, ts2, ts3, c.gravity)
-    fr2 = friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
-    fr3 = friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
+    fr2 = friction_torque(v2, p[_FX_FV], p[_FX_FP], p[_FX_FN], c.ramp_speed[0])
+    fr3 = friction_torque(v3, p[_FX_FV + 1], p[_FX_FP + 1], p[_FX_FN + 1], c.ramp_speed[1])
     b2 = (c.torque_per_amp[0] * u2 + fr2 - ts2) / p[_FX_J]
     b3 = (c.torque_per_amp[1] * u3 + fr3 - ts3) / p[_FX_J + 1]
     return (w2, w3, a2, a3, v2, v3, b2, b3), (det if p[0] > 0.0 else -1.0)
 
 
-register_plant(FlexibleKind, flexible_rhs, 8, 15)
+register_plant(FlexibleKind, flexible_rhs, 8, FLEXIBLE_N_PARAMETERS)
 
 
 @dataclass(frozen=True)
 class FlexibleJoints(Plant):
-    """Spong two-mass joints: motor and link joined by a spring and damper.
+    """Spong two-mass joints: motor and link joined by a spring and damper, optional backlash.
 
     With ``th`` the motor angle divided by the gear ratio (joint-side motor
     angle, what the encoder reads) and ``q`` the link angle, per joint::
 
         Jm k^2 th'' = k Kt i + tau_friction(th') - tau_s
         D_link(q) q'' + h(q, q') + g(q) = tau_s
-        tau_s = Ks (th - q) + Ds (th' - q')
+        tau_s = Ks (delta - clip(delta, -b/2, b/2)) + Ds (th' - q'),  delta = th - q
 
     ``D_link`` is the rigid model of :mod:`plant.model` with the reflected
     motor inertias removed from f7 (joint 2) and f1 (joint 3) (f1 - Jm k3^2,
-    f7 - Jm k2^2); friction acts on the motor side.  Source: M. W. Spong,
-    "Modeling and control of elastic joint robots", J. Dyn. Syst. Meas.
-    Control 109 (1987).  The robot starts with the springs relaxed (motor
-    angles and rates equal to the link's).
+    f7 - Jm k2^2); friction acts on the motor side; ``b`` is the gearbox
+    backlash (a dead zone of total width b on the deflection,
+    :func:`dead_zone`; 0 by default).  Source: M. W. Spong, "Modeling and
+    control of elastic joint robots", J. Dyn. Syst. Meas. Control 109
+    (1987); backlash: M. Nordin and P.-O. Gutman, Automatica 38 (2002).
+    The robot starts with the springs relaxed (motor angles and rates equal
+    to the link's).
 
     Parameters
     ----------
@@ -332,6 +368,8 @@ class FlexibleJoints(Plant):
         Joint-side spring damping Ds (N m s/rad), >= 0.
     motor_inertia_kgm2 : float or tuple of 2 float
         Motor rotor inertia Jm (kg m^2), motor side, > 0.
+    backlash_rad : float or tuple of 2 float
+        Backlash width b (rad, joint side), >= 0 (default 0: none).
 
     Raises
     ------
@@ -342,22 +380,26 @@ class FlexibleJoints(Plant):
     stiffness_Nm_per_rad: tuple = (1.0, 1.0)
     damping_Nms_per_rad: tuple = (0.0, 0.0)
     motor_inertia_kgm2: tuple = (1.0, 1.0)
+    backlash_rad: tuple = (0.0, 0.0)
 
-    def __init__(self, stiffness_Nm_per_rad, damping_Nms_per_rad, motor_inertia_kgm2):
+    def __init__(self, stiffness_Nm_per_rad, damping_Nms_per_rad, motor_inertia_kgm2,
+                 backlash_rad=0.0):
         pairs = []
         for name, v, positive in (("stiffness_Nm_per_rad", stiffness_Nm_per_rad, True),
                                   ("damping_Nms_per_rad", damping_Nms_per_rad, False),
-                                  ("motor_inertia_kgm2", motor_inertia_kgm2, True)):
+                                  ("motor_inertia_kgm2", motor_inertia_kgm2, True),
+                                  ("backlash_rad", backlash_rad, False)):
             a = np.broadcast_to(np.asarray(v, dtype=float), (2,))
             if not np.all(np.isfinite(a)) or np.any(a <= 0 if positive else a < 0):
                 raise ValueError("FlexibleJoints: stiffness and motor inertia must be > 0, "
-                                 f"damping >= 0 (got {name}={v!r})")
+                                 f"damping and backlash >= 0 (got {name}={v!r})")
             pairs.append((float(a[0]), float(a[1])))
         Plant.__init__(self, name="flexible", kind=FLEXIBLE_KIND, n_states=8, encoder_row=4,
-                       n_parameters=15)
+                       n_parameters=FLEXIBLE_N_PARAMETERS)
         object.__setattr__(self, "stiffness_Nm_per_rad", pairs[0])
         object.__setattr__(self, "damping_Nms_per_rad", pairs[1])
         object.__setattr__(self, "motor_inertia_kgm2", pairs[2])
+        object.__setattr__(self, "backlash_rad", pairs[3])
 
     def reflected_inertia(self, rig) -> np.ndarray:
         """Reflected motor inertias Jm k^2 of joints 2 and 3 (kg m^2), shape (2,).
@@ -389,8 +431,8 @@ class FlexibleJoints(Plant):
         fl[..., 0] -= jk2[1]
         return fl
 
-    def lane_parameters(self, F, rig, joints=None) -> np.ndarray:
-        """Per-lane parameters (15, m): link f, Ks, Ds, Jm k^2 (see :func:`flexible_rhs`).
+    def lane_parameters(self, F, rig, joints=None, friction=None, backlash=None) -> np.ndarray:
+        """Per-lane parameters (23, m): link f, Ks, Ds, Jm k^2, friction, b (see :func:`flexible_rhs`).
 
         Parameters
         ----------
@@ -401,25 +443,44 @@ class FlexibleJoints(Plant):
             Per-candidate joints ``(K2, K3, D2, D3, Jm2 k2^2, Jm3 k3^2)``
             (N m/rad, N m s/rad, kg m^2; identification); default this
             plant's constants for every candidate.
+        friction : array_like, shape (m, 6) or (6,), optional
+            Motor-side drive friction per candidate in the order of
+            :data:`plant.friction.FRICTION_NAMES`; default the rig's
+            (unknown values 0).
+        backlash : array_like, shape (m, 2) or (2,), optional
+            Backlash widths b (rad, joint side) per candidate; default this
+            plant's :attr:`backlash_rad`.
 
         Returns
         -------
-        ndarray, shape (15, m)
+        ndarray, shape (23, m)
+
+        Raises
+        ------
+        ValueError
+            On a friction of the wrong shape or not finite.
         """
+        from .friction import friction_vector, joint_side_friction
+
         F = np.atleast_2d(np.asarray(F, dtype=float))
         m = F.shape[0]
-        P = np.empty((15, m))
+        P = np.empty((FLEXIBLE_N_PARAMETERS, m))
         if joints is not None:
             J = np.broadcast_to(np.atleast_2d(np.asarray(joints, dtype=float)), (m, 6))
             P[:9] = F.T
             P[6] -= J[:, 4]
             P[0] -= J[:, 5]
-            P[_FX_K:] = J.T
-            return P
-        P[:9] = self.link_parameters(F, rig).T
-        P[_FX_K:_FX_K + 2] = np.asarray(self.stiffness_Nm_per_rad)[:, None]
-        P[_FX_D:_FX_D + 2] = np.asarray(self.damping_Nms_per_rad)[:, None]
-        P[_FX_J:_FX_J + 2] = self.reflected_inertia(rig)[:, None]
+            P[_FX_K:_FX_FV] = J.T
+        else:
+            P[:9] = self.link_parameters(F, rig).T
+            P[_FX_K:_FX_K + 2] = np.asarray(self.stiffness_Nm_per_rad)[:, None]
+            P[_FX_D:_FX_D + 2] = np.asarray(self.damping_Nms_per_rad)[:, None]
+            P[_FX_J:_FX_J + 2] = self.reflected_inertia(rig)[:, None]
+        V = friction_vector(rig) if friction is None else friction
+        V = np.broadcast_to(np.atleast_2d(np.asarray(V, dtype=float)), (m, 6))
+        P[_FX_FV:_FX_B] = joint_side_friction(V, rig)
+        b = self.backlash_rad if backlash is None else backlash
+        P[_FX_B:] = np.broadcast_to(np.atleast_2d(np.asarray(b, dtype=float)), (m, 2)).T
         return P
 
     def initial_state(self, c) -> np.ndarray:
