@@ -133,6 +133,10 @@ class RigConstants(NamedTuple):
     q0, qd0 : tuple of 2 float
         Start angles (rad) and rates (rad/s) of the run (NaN when the rig's
         start state is unknown and none was given).
+    current_limit : float
+        The drive's current full scale ``current_full_scale_A`` (A): every
+        commanded current is saturated to ``[-current_limit, current_limit]``
+        (inf when the sidecar gives none).
     """
 
     sample_time_s: float
@@ -146,6 +150,7 @@ class RigConstants(NamedTuple):
     gravity: float
     q0: tuple
     qd0: tuple
+    current_limit: float = math.inf
 
 
 def _pair(values) -> tuple:
@@ -204,4 +209,6 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
         gravity=float(rig.gravity_m_s2),
         q0=start[0],
         qd0=start[1],
+        current_limit=(math.inf if rig.current_full_scale_A is None
+                       else float(rig.current_full_scale_A)),
     )

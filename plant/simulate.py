@@ -46,6 +46,7 @@ the running sum extrapolated to the whole log, ``Y n_samples / n_compared``
 """
 from __future__ import annotations
 
+import math
 import threading
 import weakref
 from dataclasses import dataclass
@@ -235,11 +236,12 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
       P e`` for :data:`plant.controllers.P_LAW`) with the integer error ``e
       = trunc(ref) - trunc(c)`` and the measured angles ``trunc(c) / (kN /
       2 pi)`` (``quantize``; otherwise the smooth surrogate ``ref - c`` and
-      ``c / (kN / 2 pi)``), per-lane controller state ``CS``; ``obj`` the output error of eq. 4
+      ``c / (kN / 2 pi)``), per-lane controller state ``CS``, the current
+      saturated at the drive's full scale ``c.current_limit``; ``obj`` the output error of eq. 4
       against ``e_log``; with ``write`` the model errors go to ``out``
       (unquantised ``ref - c`` with ``continuous_out``);
-    * replay (``replay`` True): the logged input ``i = P (e_log + gain (m -
-      c))`` (``logged_current``: ``i = i_log + P gain (m - c)``) with ``m`` the centre of the count cell the log allows; ``out``
+    * replay (``replay`` True): the logged input ``i = sat(P e_log) + P gain (m -
+      c)`` (``sat``: the drive's current limit; ``logged_current``: ``i = i_log + P gain (m - c)``) with ``m`` the centre of the count cell the log allows; ``out``
       the prediction errors ``m - c`` (a failed lane's remaining ones are
       ``bound``); ``obj`` their sum of squares.  Before a window the run's
       own P loop with continuous counts (``quantize`` False).
@@ -256,6 +258,7 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
     n = e_log.shape[0]
     sc2, sc3 = c.pulses_per_rad
     p2, p3 = c.p_gain
+    i_lim = c.current_limit
     act = n_act
     cmp = np.int64(0)  # not a literal: one signature of _finish
     for k in range(k_start, n_total):
@@ -287,9 +290,12 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                 if logged_current:
                     U[0, j] = i_log[i, 0] + p2 * gain * d2
                     U[1, j] = i_log[i, 1] + p3 * gain * d3
-                else:
+                elif abs(p2 * el2) <= i_lim and abs(p3 * el3) <= i_lim:
                     U[0, j] = p2 * (el2 + gain * d2)
                     U[1, j] = p3 * (el3 + gain * d3)
+                else:  # the P current the drive applied (saturated), plus the correction
+                    U[0, j] = min(max(p2 * el2, -i_lim), i_lim) + p2 * gain * d2
+                    U[1, j] = min(max(p3 * el3, -i_lim), i_lim) + p3 * gain * d3
             for j in range(act):
                 c2, _ = encoder_read(X[enc, j], sc2)
                 c3, _ = encoder_read(X[enc + 1, j], sc3)
@@ -307,8 +313,9 @@ def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                     E[j] += d2 * d2 + d3 * d3
                 y2 = a2 if quantize else c2
                 y3 = a3 if quantize else c3
-                U[0, j], U[1, j] = control_law(law, law_params, c, k, y2 / sc2, y3 / sc3, e2, e3,
-                                               CS, j)
+                u2, u3 = control_law(law, law_params, c, k, y2 / sc2, y3 / sc3, e2, e3, CS, j)
+                U[0, j] = min(max(u2, -i_lim), i_lim)  # the drive's current limit
+                U[1, j] = min(max(u3, -i_lim), i_lim)
             if write and i >= 0:
                 for j in range(act):
                     c2, a2 = encoder_read(X[enc, j], sc2)
@@ -607,7 +614,7 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
 def _dummy_problem():
     """A three-sample problem in the kernels' exact argument types (warm-up)."""
     c = RigConstants(1e-3, (1.0, 1.0), (1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0),
-                     (0.0, 0.0), (1.0, 1.0), 9.81, (0.0, 0.0), (0.0, 0.0))
+                     (0.0, 0.0), (1.0, 1.0), 9.81, (0.0, 0.0), (0.0, 0.0), math.inf)
     Pall = np.ones((RIGID.n_parameters, 1))
     return c, Pall, np.zeros((3, 2)), np.zeros((3, 2))
 

@@ -187,7 +187,9 @@ def simulate_experiment_twin(log, f, *, substeps: int = 48) -> np.ndarray:
     x = ca.SX.sym("x", 4)
     refc = ca.SX.sym("ref", 2)
     e = ca.vertcat(*[trunc_sx(refc[j]) - trunc_sx(x[j] * c.pulses_per_rad[j]) for j in range(2)])
-    cur = ca.vertcat(*[c.p_gain[j] * e[j] for j in range(2)])
+    lim = c.current_limit  # the drive's full scale, as the compiled core
+    cur = ca.vertcat(*[c.p_gain[j] * e[j] if not np.isfinite(lim)
+                       else ca.fmin(ca.fmax(c.p_gain[j] * e[j], -lim), lim) for j in range(2)])
     loop = ca.Function("p_loop", [x, refc], [step(x, cur, ca.DM(f)), e])
     n = log.n_total
     t = np.arange(n) * c.sample_time_s
