@@ -57,8 +57,9 @@ class OutputError:
     -----
     Candidates that fail (D(q) not positive definite, divergence) receive the
     finite penalty documented in :mod:`plant.simulate`, so a rank-based
-    optimiser can still order them.  ``nfev`` counts simulated
-    candidates.
+    optimiser can still order them; ``last_status`` holds the status codes
+    (:data:`plant.STATUS_OK`, ...) of the last call's candidates.  ``nfev``
+    counts simulated candidates.
     """
 
     def __init__(self, log, *, substeps=IDENTIFICATION_SUBSTEPS, lowpass_hz=None, workers=None,
@@ -71,6 +72,7 @@ class OutputError:
         self.workers = workers
         self.lowpass_hz = None if lowpass_hz is None else float(lowpass_hz)
         self.nfev = 0
+        self.last_status = None
         if self.lowpass_hz is not None:
             self._sos = lowpass_sos(self.lowpass_hz, log.rig.sample_time_s)
             self._e_log_filtered = apply_lowpass(log.e_pulses, self._sos)
@@ -98,6 +100,7 @@ class OutputError:
             controller=self.controller, plant=self.plant, plant_parameters=plant_parameters,
         )
         self.nfev += F.shape[0]
+        self.last_status = sim.status  # per candidate (plant.STATUS_OK, ...), for the callers
         if not filtered:
             return sim.objective
         d = apply_lowpass(sim.e_pulses, self._sos) - self._e_log_filtered[None]
