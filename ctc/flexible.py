@@ -680,4 +680,19 @@ def controller_from_result(result, log, **options):
         joints[name] = d[key]
     if d.get("joint_backlash_rad") is not None:
         joints["backlash_rad"] = d["joint_backlash_rad"]
+    link_f = f.copy()
+    jk2 = np.asarray(joints["motor_inertia_reflected_kgm2"], dtype=float).reshape(-1)
+    if jk2.shape == (2,):
+        link_f[6] -= jk2[0]
+        link_f[0] -= jk2[1]
+    if jk2.shape == (2,) and not is_positive_definite(link_f):
+        # safe first: a link model that is not a physical inertia cannot run the
+        # spring-torque loop; the rigid-equivalent model still can
+        import warnings
+
+        warnings.warn("the flexible result's link model (f minus Jm k^2 in f7 and f1) has a "
+                      "D_link(q) that is not positive definite: the rigid-equivalent CTC is "
+                      "used instead", RuntimeWarning, stacklevel=3)
+        return ComputedTorqueController.from_log(f, target, **{
+            k: v for k, v in options.items() if k != "link_substeps"})
     return FlexibleJointComputedTorqueController.from_log(f, target, **joints, **options)
