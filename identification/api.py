@@ -188,19 +188,28 @@ def identify(
 
     model : {'auto', 'rigid', 'flexible'}
         The robot model (:mod:`identification.flexible`): ``'auto'``
-        (default) fits the two-mass flexible-joint model too when the log's
-        error spectrum shows a lightly damped mode and keeps it if it
-        predicts held-back samples better (``model_choice`` says why);
-        only with the default search (no low-pass, base parameters, known
-        friction, ``'ga+pem'``, default budgets), otherwise rigid.
+        (default) keeps the rigid model when its prediction errors sit at
+        the encoder's quantisation floor; otherwise it fits the two-mass
+        flexible-joint model (friction included when the sidecar does not
+        know it) with every fourth 0.1 s block held back, chooses it when it
+        halves the rigid model's held-back prediction-error cost, and adds
+        gearbox backlash when the spring alone stays above
+        :data:`~identification.flexible.INADEQUATE_FACTOR` floors and the
+        backlash halves the cost again (``model_choice`` says which and why).
+        A chosen model still far above the floor raises a
+        :class:`ModelInadequacyWarning`.  Only with the default search (no
+        low-pass, base parameters, ``'ga+pem'``, default budgets), otherwise
+        rigid.
 
     Returns
     -------
     IdentificationResult
         ``x`` (the searched vector), ``f`` (f1..f9), ``fun`` (output error
         of eq. 4 at f, pulses^2, at ``settings['substeps']`` RK4 steps per
-        sample), ``nfev``, ``nit``, ``success``, ``message``, ``population``,
-        ``population_energies`` and the domain keys.
+        sample), ``nfev``, ``nit``, ``success`` (False when interrupted or
+        when the simulated closed loop at the result diverges), ``message``,
+        ``population``, ``population_energies``, ``wall_time_s`` (the whole
+        call) with ``stage_times_s``, and the domain keys.
 
     Raises
     ------

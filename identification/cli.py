@@ -148,9 +148,11 @@ def build_parser():
                         "spectrum (none for a log without such a mode)")
     p.add_argument("--model", choices=("rigid", "flexible", "auto"), default="auto",
                    help="robot model: rigid, two-mass flexible joints, or auto (default): "
-                        "flexible when the error spectrum shows a lightly damped mode and "
-                        "the flexible fit predicts held-back samples better (the result's "
-                        "model_choice says why)")
+                        "rigid when its prediction errors sit at the encoder's quantisation "
+                        "floor, otherwise flexible when the flexible fit halves the "
+                        "prediction-error cost on held-back samples, with gearbox backlash "
+                        "when that halves it again; a model still far above the floor is "
+                        "reported as inadequate (the result's model_choice says why)")
     p.add_argument("--consistent", action="store_true",
                    help="enforce f3 = a3 f5 and f4 = a3 f6 (eq. 3; a3 from the sidecar) and "
                         "search the 7 other base parameters (recommended for flexible "
@@ -477,6 +479,7 @@ def _run(args, stdout, stderr) -> int:
         plant.warm_up(announce=None if args.quiet else status.say, closed_loop=False)
     with ctrl_c, warnings.catch_warnings():  # the table's warning line says it
         warnings.simplefilter("ignore", PoorExcitationWarning)
+        warnings.simplefilter("ignore", api.ModelInadequacyWarning)  # said below
         result = api.identify(log, callback=status, **kwargs)
     if ctrl_c.requested and result.get("interrupted"):
         result["message"] = str(result.get("message", "")).replace(
@@ -486,6 +489,11 @@ def _run(args, stdout, stderr) -> int:
     choice = result.get("model_choice") or {}
     if choice.get("reason") and not args.quiet:
         status.say(f"model: {result.get('model', 'rigid')} ({choice['reason']})")
+    for text in result.get("warnings") or []:
+        print(f"warning: {text}", file=stderr, flush=True)
+    if not result.get("success", True) and not result.get("interrupted"):
+        # a diverged or rejected fit is never written as a result (issue 20)
+        raise CLIError(f"no valid result: {result.get('message', '')}")
     if out is not None:
         _wrote(status, result.save_json(out, create_dirs=True))
     if plot_dir is not None:

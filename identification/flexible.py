@@ -1,66 +1,77 @@
-"""Flexible joints identified from position-only logs, and the rigid/flexible choice.
+"""Flexible joints identified from position-only logs, and the model choice.
 
 The two-mass plant (:class:`plant.plants.FlexibleJoints`, Spong's model: motor
 ``Jm k^2 th'' = k Kt i + tau_f(th') - tau_s``, link ``D_link(q) q'' + h + g =
-tau_s``, ``tau_s = K (th - q) + D (th' - q')``, the encoder reads th) is
-identified through :class:`FlexibleParameters`:
-``x = [f1..f9, log10 K2, log10 K3, D2, D3, r2, r3]`` -- the rigid-equivalent
-f exactly as the rigid model defines it (link plus ``Jm k^2`` in f7 and f1,
-so every consumer of f keeps working), the joint stiffnesses on a log scale
-(they span decades), the joint dampings, and the reflected motor inertias as
-fractions of the f they sit in (``Jm2 k2^2 = r2 f7``, ``Jm3 k3^2 = r3 f1``,
-``0 < r < 1`` keeps the link inertia positive).
+tau_s``, ``tau_s = K dz(th - q, b) + D (th' - q')`` with ``dz`` the gearbox
+backlash dead zone of width b, the encoder reads th) is identified through
+:class:`FlexibleParameters`:
+``x = [f1..f9, log10 K2, log10 K3, D2, D3, r2, r3, (b2, b3), (friction)]`` --
+the rigid-equivalent f exactly as the rigid model defines it (link plus
+``Jm k^2`` in f7 and f1, so every consumer of f keeps working), the joint
+stiffnesses on a log scale (they span decades), the joint dampings, the
+reflected motor inertias as fractions of the f they sit in (``Jm2 k2^2 = r2
+f7``, ``Jm3 k3^2 = r3 f1``, ``0 < r < 1`` keeps the link inertia positive),
+the backlash widths when they are searched, and the drive friction the
+sidecar does not know (the paper: "if unknown, they have to be included as
+unknown parameters"; motor side, the box of
+:func:`identification.friction.default_friction_bounds`).
 
-Procedure (:func:`identify_flexible`, called by ``identify(model=...)``):
+Procedure (:func:`apply_model`, called by ``identify(model=...)``):
 
-1. the rigid identification as always (its f is the start, and the rigid
-   result is kept bit for bit when the rigid model is chosen);
-2. a grid over (K2, K3) (:data:`STIFFNESS_GRID`, log-spaced) at the rigid f,
-   light damping and r = 1/2, evaluated as one batch of logged-input
-   prediction errors (:func:`plant.prediction_errors`);
-3. the batched Levenberg-Marquardt refinement of :mod:`identification.refinement`
-   over all 15 components from the grid's best points.
+1. the rigid identification as always (its f -- and its friction when
+   unknown -- start the fit, and the rigid result is kept bit for bit when
+   the rigid model is chosen);
+2. ``auto``: a log that the rigid fit already predicts to the quantisation
+   floor (prediction-error cost at most :data:`FLOOR_FACTOR` times ``n /
+   12`` pulse^2, the variance of a count known to a unit cell) keeps the
+   rigid result without a flexible fit;
+3. otherwise both models are fit with every fourth 0.1 s block *held back*
+   (its residuals are not fitted; the replay still runs through it): the
+   flexible fit starts from a grid over (K2, K3) (:data:`STIFFNESS_GRID`,
+   log-spaced) at the rigid f, light damping and r = 1/2, evaluated as one
+   batch of logged-input prediction errors, then the batched
+   Levenberg-Marquardt refinement of :mod:`identification.refinement` from
+   the grid's best points.  The flexible model is chosen when its
+   held-back prediction-error cost is below :data:`CHOICE_RATIO` times the
+   rigid model's;
+4. backlash: when the spring alone leaves the held-back cost above
+   :data:`INADEQUATE_FACTOR` quantisation floors, the fit is repeated with
+   the backlash widths (from 0, 1 and 3 mrad) and kept when it lowers the
+   held-back cost below :data:`CHOICE_RATIO` times the spring's; a width
+   reported in ``joint_backlash_rad`` exceeds :data:`BACKLASH_SIGNIFICANCE`
+   standard errors;
+5. the full fit starts from the held-back fit's point.
 
-Substeps: RK4 is accurate when ``h w << 1`` for the fastest mode w; the
-stiffest mode of a candidate is at most ``w_max = sqrt(K_max / J_min)``
-(motor inertia against the spring, link locked) over the search box, and
-:func:`flexible_substeps` takes ``ceil(w_max Ts / H_OMEGA)`` steps per sample
-with :data:`H_OMEGA` = 0.5 (the prediction errors then change by less than
-0.01 pulse when the substeps are doubled; tested).
+Safety (issue 20): a flexible fit whose simulated closed loop (the P
+experiment, quantised feedback, drive current limit) diverges, or whose
+output error exceeds the rigid result's by more than a quantisation floor,
+is never the result (``auto`` keeps the rigid result and says why; a forced
+``'flexible'`` returns ``success=False``).  A chosen model whose held-back
+cost stays above :data:`INADEQUATE_FACTOR` floors is reported as inadequate
+(``model_choice['adequate']`` False, a
+:class:`~identification.api.ModelInadequacyWarning` with the numbers), and
+its ``f_std`` then includes the difference to the other model's f
+(model-form error added in quadrature).
 
-Model choice (``model="auto"``, the default of the CLI): both models are fit
-on the log with every fourth block of 0.1 s *held back* (its residuals are
-not fitted; the replay still runs through it), and the flexible model is
-chosen when its held-back prediction-error cost is below
-:data:`CHOICE_RATIO` times the rigid model's.  Rationale, not a tuned
-threshold: on a log the rigid model describes, both models sit at the
-quantisation floor of the prediction errors (ratio ~1; a spring adds
+Rationale of the ratios, not tuned thresholds: on a log the rigid model
+describes, both models sit at the quantisation floor (ratio ~1; a spring adds
 nothing the held-back samples can confirm), while an unmodelled compliance
-leaves structured residuals many times the floor.  Before that, a log that the
-rigid fit already predicts to the quantisation floor (prediction-error cost
-at most :data:`FLOOR_FACTOR` times ``n_residuals / 12`` pulse^2, the variance
-of a count known to a unit cell; measured 0.99 and 1.01 on the two rigid
-development logs) keeps the rigid result without a flexible fit, so rigid
-logs cost no more than before.  ``auto`` considers the flexible model only
-for the default search (default budgets, base parameters, known friction,
-no low-pass).  The error spectrum's
-lightly damped mode (:func:`identification.diagnostics.error_spectrum`) and
-both costs are reported in ``model_choice``.
+leaves structured residuals many times the floor; :data:`INADEQUATE_FACTOR`
+= 4 is an RMS prediction error twice the quantisation noise's.
 
-Accuracy on held-out logs (``benchmarks/bench_flexible.py``: six emulated
-flexible logs, K 5e3..5e4 N m/rad, D 0.1..15 N m s/rad, payload 0..4 kg,
-encoders 250..4096 ppr, P gains 0.1..0.2 A/pulse; default ``identify(log)``),
-worst case of the relative error over the six logs:
+Substeps: RK4 is accurate when ``h |lambda| << 1`` for the fastest
+eigenvalue; :func:`flexible_substeps` bounds it over the whole search box
+(stiffest spring, largest damping, lightest reflected inertia: every
+candidate the fit can evaluate) and takes ``ceil(|lambda| Ts / H_OMEGA)``
+steps per sample with :data:`H_OMEGA` = 0.5 (the prediction errors then
+change by less than 0.01 pulse when the substeps are doubled; tested).
 
-=====  =====  =====  =====  =====  =====  =====  =====  =========  =========
-f1     f2     f4     f6     f7     f9     K2     K3     Jm2 k2^2   Jm3 k3^2
-=====  =====  =====  =====  =====  =====  =====  =====  =========  =========
-0.01%  0.13%  0.15%  0.01%  0.23%  0.07%  0.5%   3.8%   0.24%      2.0%
-=====  =====  =====  =====  =====  =====  =====  =====  =========  =========
-
-``puma560_paper_drill_flex`` with no options: flexible chosen (held-back
-ratio 0.018), f1 f2 f4 f6 f7 f9 within 0.11 %, K within 0.1 % of the
-emulator's (3.0e4 / 6.0e3), about 30 s.
+Accuracy: on logs from an independent simulator (Robotics Toolbox's PUMA
+560 dynamics, its own drive, DOP853; ``benchmarks/bench_robustness.py``)
+see ``docs/tutorial_real_rigs.rst``; the five committed ones in
+``tests/data/independent`` (compliant, unknown friction, backlash, 4 kg at
+250 ppr) are identified within 0.2 % (f1 f2 f4 f6 f7 f9), K within 1 %,
+friction within 0.5 %, backlash 2.00 mrad for 2 (tested).
 """
 from __future__ import annotations
 

@@ -61,6 +61,9 @@ def test_model_flexible_recovers_a_held_out_log(short_flexible_log):
     log, f, flex = short_flexible_log
     r = identify(log, rng=0, progress=False, model="flexible")
     assert r.model == "flexible" and r.parameters == "flexible"
+    # wall_time_s covers the whole call, the flexible fits included (issue 20)
+    st = r["stage_times_s"]
+    assert r.wall_time_s >= st["search"] + st["model_choice_and_flexible_fit"] > st["search"]
     rel = np.abs(r.f - f)[WELL_EXCITED] / np.abs(f)[WELL_EXCITED]
     assert np.all(rel < 0.02), rel
     K = np.asarray(r.joint_stiffness_Nm_per_rad)
