@@ -82,6 +82,11 @@ TARGETS = {
 }
 
 
+#: A reference is feasible when a perfect tracker needs at most this fraction of
+#: the drive's full-scale current (the rest is the feedback's headroom).
+FEASIBLE_FRACTION = 0.7
+
+
 # ----------------------------------------------------------------------------- draws
 def _multisine(rng):
     """A random multisine reference (sidecar parameters) and its duration."""
@@ -117,6 +122,12 @@ def _paper(rng):
 
 def draw_settings(seed: int, index: int) -> tuple[ir.RobotSettings, dict]:
     """Settings of log ``index`` of the suite ``seed`` (independent of the suite size).
+
+    Feasibility: a reference that a perfect tracker could only follow with more
+    than :data:`FEASIBLE_FRACTION` of the full-scale current (inverse dynamics
+    of the independent robot along it) is redrawn from a separate stream (and
+    after every ten such redraws the payload too), so a feasible first draw is
+    unchanged; the redraws are recorded.
 
     Stability: the P gains are redrawn until the linearised sampled P loop is
     stable with margin (spectral radius <= RHO_MAX at four poses, Coulomb
@@ -169,8 +180,39 @@ def draw_settings(seed: int, index: int) -> tuple[ir.RobotSettings, dict]:
         redraws += 1
     else:
         raise RuntimeError(f"no stable drive found for log {index}")
+    # Feasibility: the reference must be within the drive's torque (a test engineer
+    # never runs an experiment whose reference needs more than the full-scale current:
+    # the loop then saturates and the robot cannot follow).  An infeasible reference is
+    # redrawn from a separate stream, so that a feasible first draw is unchanged.
+    traj_redraws = 0
+    rng_t = np.random.default_rng([int(seed), int(index), 2])
+    i_fs = float(s.current_full_scale_A or math.inf)
+    while True:
+        from plant.trajectory import Trajectory
+
+        traj = Trajectory.from_sidecar(s.trajectory)
+        need = ir.IndependentRobot(s).required_current(
+            traj, int(round(s.duration_s / s.sample_time_s)) + 1)
+        if np.all(need <= FEASIBLE_FRACTION * i_fs):
+            break
+        traj_redraws += 1
+        if traj_redraws > 100:
+            raise RuntimeError(f"no feasible reference found for log {index}")
+        if traj_redraws % 10 == 0:  # the drive cannot carry this payload on any reference
+            mass = float(rng_t.uniform(0.0, 5.0))
+            d = rng_t.normal(size=3)
+            d *= rng_t.uniform(0.0, 0.15) / np.linalg.norm(d)
+            s.payload = {"mass_kg": mass, "com_m_rtb_frame6": [float(x) for x in d],
+                         "inertia_about_com_kgm2": [float(x) for x in
+                                                    mass * rng_t.uniform(2e-4, 2e-3, 3)]}
+        if rng_t.random() < 0.5:
+            s.trajectory, s.duration_s, traj_info = _paper(rng_t)
+        else:
+            s.trajectory, s.duration_s, traj_info = _multisine(rng_t)
     info = dict(seed=int(seed), index=int(index), trajectory=traj_info, stability_radius=rho,
-                drive_redraws=redraws, rho_max=RHO_MAX)
+                drive_redraws=redraws, rho_max=RHO_MAX, trajectory_redraws=traj_redraws,
+                required_current_A=[float(x) for x in need],
+                feasible_fraction=FEASIBLE_FRACTION)
     return s, info
 
 

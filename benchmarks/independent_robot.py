@@ -292,6 +292,22 @@ class IndependentRobot:
         thdd = (self.kkt * i + self.friction(thd) - ts) / self.jref
         return np.concatenate([qd, qdd, thd, thdd])
 
+    def required_current(self, trajectory, n_samples: int, stride: int = 5) -> np.ndarray:
+        """Peak motor current (2,) A the reference needs by inverse dynamics (rigid-equivalent).
+
+        ``i = (M(q) qdd + b(q, qd) + Jm k^2 qdd - tau_f(qd)) / (k Kt)`` along
+        ``q_ref`` at every ``stride``-th sample: the current a perfect tracker
+        would draw (the feasibility of the experiment for the drive).
+        """
+        t = np.arange(0, n_samples, stride) * self.s.sample_time_s
+        q, qd, qdd = trajectory.evaluate(t)
+        peak = np.zeros(2)
+        for k in range(len(t)):
+            M, bias = self.links.dynamics(q[k], qd[k])
+            tau = M @ qdd[k] + bias + self.jref * qdd[k] - self.friction(qd[k])
+            peak = np.maximum(peak, np.abs(tau / self.kkt))
+        return peak
+
     def initial_state(self):
         q0 = np.asarray(self.s.q0, float)
         x = np.concatenate([q0, np.zeros(2)])

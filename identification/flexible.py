@@ -126,6 +126,9 @@ _PLANT = FlexibleJoints(1.0, 0.0, 1.0)  # constants unused: every lane carries i
 #: (worn industrial gearboxes reach a few mrad).
 DEFAULT_BACKLASH_BOUNDS = np.array([[0.0, 0.01], [0.0, 0.01]])
 
+#: Backlash widths (rad, both joints) of the start grid of a fit with backlash.
+BACKLASH_GRID = (0.0, 1e-3, 2.5e-3)
+
 #: A backlash width is reported (``joint_backlash_rad``) when it exceeds this many
 #: standard errors (a one-sided test at about 0.1 % false alarms under the
 #: estimate's normal approximation); a smaller one is indistinguishable from none.
@@ -367,7 +370,8 @@ def _problem(log, space, substeps, workers, gain):
 
 
 def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_GAIN,
-                      n_starts=4, max_iter=40, hold_back=False, space=None, start=None):
+                      n_starts=4, max_iter=40, hold_back=False, space=None, start=None,
+                      grid=True):
     """Fit the flexible model from the rigid result's f (grid over K, then refinement).
 
     Parameters
@@ -390,9 +394,12 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     space : FlexibleParameters, optional
         Default ``FlexibleParameters(backlash=False)``.
     start : array_like, shape (k,), optional
-        Start the refinement here instead of from the stiffness grid (e.g.
-        the held-back fit's point); a shorter vector (a fit without
-        backlash) is completed with zero backlash.
+        A start besides the stiffness grid (e.g. the held-back fit's point);
+        a shorter vector (a fit without backlash) is tried with each width
+        of :data:`BACKLASH_GRID`.
+    grid : bool
+        Evaluate the stiffness grid (with ``start``, False refines from
+        ``start`` alone).
 
     Returns
     -------
@@ -409,36 +416,69 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     fit = problem
     if hold_back:
         fit = _Masked(problem, _hold_mask(log)[0])
-    costs = None
-    if start is not None:
-        starts = np.atleast_2d(_complete(np.asarray(start, dtype=float), space, log))
-        if space.backlash and np.size(start) < k:  # no backlash yet: from none, 1 and 3 mrad
-            starts = np.repeat(starts, 3, axis=0)
-            starts[:, 15:17] = np.array([0.0, 1e-3, 3e-3])[:, None]
+    # the start pool: the stiffness grid at the rigid f -- or the given start's f
+    # -- (with a few backlash widths when they are searched), plus the given start;
+    # the best n_starts are refined
+    x_rigid = _rigid_x(rigid)
+    if start is not None:  # f, r and friction of the given start, K and b from the grid
+        x0 = _complete(np.asarray(start, dtype=float), space, log)
+        f0, r = x0[:9], x0[13:15]
+        x_rigid = np.concatenate([f0, x0[space._n_fixed():]])
     else:
-        # the rigid refinement's point, also when the rigid result fell back to the
-        # GA's best (a rigid model's output error on a compliant log is no guide to f)
-        x_rigid = _rigid_x(rigid)
-        f0 = np.clip(x_rigid[:9], xb[:9, 0], xb[:9, 1])
-        grid = np.array([(a, b) for a in STIFFNESS_GRID for b in STIFFNESS_GRID])
-        X = np.empty((len(grid), k))
-        X[:, :9] = f0
-        X[:, 9:11] = grid
-        r = 0.5
-        jk = np.array([r * f0[6], r * f0[0]])
-        X[:, 11:13] = 0.02 * np.sqrt(10.0 ** grid * jk)  # light damping
-        X[:, 13:15] = r
-        X[:, 15:space._n_fixed()] = 0.0  # no backlash
-        unknown = unknown_friction_indices(log.rig)
-        if unknown:  # the rigid fit's friction (identified there with f)
-            X[:, space._n_fixed():] = x_rigid[9:9 + len(unknown)]
-        X = np.clip(X, xb[:, 0], xb[:, 1])
-        R = fit.residuals(X)
-        costs = np.einsum("ij,ij->i", R, R)
-        starts = X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]
+        f0, r = _consistent_start(np.clip(x_rigid[:9], xb[:9, 0], xb[:9, 1]), xb)
+    kgrid = np.array([(a, b) for a in STIFFNESS_GRID for b in STIFFNESS_GRID])
+    widths = BACKLASH_GRID if space.backlash else (0.0,)
+    X = np.empty((len(kgrid) * len(widths), k))
+    X[:, :9] = f0
+    X[:, 9:11] = np.tile(kgrid, (len(widths), 1))
+    jk = np.array([r[0] * f0[6], r[1] * f0[0]])
+    X[:, 11:13] = 0.02 * np.sqrt(10.0 ** X[:, 9:11] * jk)  # light damping
+    X[:, 13:15] = r
+    if space.backlash:
+        X[:, 15:17] = np.repeat(widths, len(kgrid))[:, None]
+    unknown = unknown_friction_indices(log.rig)
+    if unknown:  # the rigid fit's friction (identified there with f)
+        X[:, space._n_fixed():] = x_rigid[9:9 + len(unknown)]
+    if start is not None:
+        S = np.atleast_2d(_complete(np.asarray(start, dtype=float), space, log))
+        if space.backlash and np.size(start) < k:  # no backlash yet: from each grid width
+            S = np.repeat(S, len(widths), axis=0)
+            S[:, 15:17] = np.asarray(widths)[:, None]
+        X = np.vstack([S, X]) if grid else S
+    X = np.clip(X, xb[:, 0], xb[:, 1])
+    R = fit.residuals(X)
+    costs = np.einsum("ij,ij->i", R, R)
+    starts = X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]
     ref = refine(fit, starts, xb, max_iter=max_iter)
     return dict(x=ref.x, f=space.to_f(ref.x, log), cost=ref.fun, refine=ref,
                 substeps=substeps, space=space, grid_costs=costs)
+
+
+def _consistent_start(f, xb):
+    """A start (f, (r2, r3)) whose link model is a physical inertia.
+
+    Eq. 3 gives ``f1 - f2 = Jm3 k3^2`` (the link part of f1 is f2), so
+    ``r3 = (f1 - f2) / f1``; a rigid fit of a compliant log can violate it
+    (f2 >= f1), and then no split of f1 makes D_link(q) positive definite
+    and every candidate of the grid fails.  Such an f gets ``r3 = 1/2`` and
+    ``f2 = f1 / 2``; r2 is the largest of 1/2, 0.4, ..., 0.1 whose link model
+    is positive definite.
+    """
+    from plant.model import is_positive_definite
+
+    f = np.array(f, dtype=float)
+    r3 = (f[0] - f[1]) / f[0] if f[0] > 0 else 0.5
+    if not 0.1 <= r3 <= 0.9:
+        r3 = min(max(r3, 0.1), 0.9) if f[0] > f[1] else 0.5
+        f[1] = min(max(f[0] * (1.0 - r3), xb[1, 0]), xb[1, 1])
+    r3 = min(max(r3, xb[14, 0]), xb[14, 1])
+    for r2 in (0.5, 0.4, 0.3, 0.2, 0.1):
+        link = f.copy()
+        link[6] -= r2 * f[6]
+        link[0] -= r3 * f[0]
+        if is_positive_definite(link):
+            break
+    return f, np.array([min(max(r2, xb[13, 0]), xb[13, 1]), r3])
 
 
 def _complete(x, space, log):
@@ -695,7 +735,8 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
             choice["reason"] += (f"; backlash tried, held-back cost {c_bl:.4g} pulses^2 "
                                  f"(not < {CHOICE_RATIO} x {c_flex:.4g}): no backlash")
     # the full fit starts from the held-back fit's point
-    fit = identify_flexible(log, rigid, workers=workers, space=fspace, start=held["x"])
+    fit = identify_flexible(log, rigid, workers=workers, space=fspace, start=held["x"],
+                            grid=False)
     res = _flexible_result(rigid, log, fit, choice, workers)
     allowance = quantisation_floor(2 * log.n_samples)
     if _diverged(res) or res["fun"] > float(rigid["fun"]) + allowance:
