@@ -44,7 +44,7 @@ import time
 
 import numpy as np
 
-from .computed_torque import ComputedTorqueController
+from .computed_torque import ComputedTorqueController, reference_of
 
 __all__ = ["AdaptiveComputedTorqueController"]
 
@@ -72,6 +72,8 @@ class AdaptiveComputedTorqueController:
         (e.g. a real rig's worker budget; reproducible simulations).
     identify_options : dict, optional
         Extra keyword arguments of :func:`identification.identify`.
+    trajectory : plant.trajectory.Trajectory, optional
+        The reference to follow (default the log's).
     **ctc_options
         Keyword arguments of :meth:`ctc.ComputedTorqueController.from_log`
         (gains, estimator, ...).
@@ -95,7 +97,7 @@ class AdaptiveComputedTorqueController:
     """
 
     def __init__(self, prior_f, log, *, window_s=0.2, improvement=0.2, latency_s=None,
-                 identify_options=None, **ctc_options):
+                 identify_options=None, trajectory=None, **ctc_options):
         from identification.parameters import prior_f as as_prior_f
 
         self.prior_f = as_prior_f(prior_f)
@@ -113,7 +115,9 @@ class AdaptiveComputedTorqueController:
         self.identify_options = dict(identify_options or {})
         self._ts = ts
         self._n_window = int(round(self.window_s / ts))
-        self._ctc = ComputedTorqueController.from_log(self.prior_f, log, **ctc_options)
+        self.trajectory = reference_of(log, trajectory)
+        self._ctc = ComputedTorqueController.from_log(self.prior_f, log, trajectory=self.trajectory,
+                                                      **ctc_options)
         self._window_rig = dataclasses.replace(log.rig, q0_rad=None, qd0_rad_per_s=None,
                                                payload_mass_kg=None)
         self.reset()
@@ -131,7 +135,8 @@ class AdaptiveComputedTorqueController:
         window_s : float
             Identification window (s), default 0.2.
         **options
-            ``improvement``, ``latency_s``, ``identify_options`` and the
+            ``improvement``, ``latency_s``, ``identify_options``,
+            ``trajectory`` (any reference; default the log's) and the
             keywords of :meth:`ctc.ComputedTorqueController.from_log`.
 
         Returns
@@ -211,7 +216,8 @@ class AdaptiveComputedTorqueController:
         e = np.array([[r[1], r[2]] for r in rows], dtype=np.int64)
         i = np.array([[r[3], r[4]] for r in rows], dtype=float)
         return self.log.replace(
-            name=f"ctc_window_{t[0]:.3f}s", t=t, q_ref=self.log.trajectory.position(t),
+            name=f"ctc_window_{t[0]:.3f}s", t=t, q_ref=self.trajectory.position(t),
+            trajectory=self.trajectory,
             e_pulses=e, i_A=i, rig=self._window_rig, start_index=int(k[0]),
             window_s=(float(t[0]), float(t[-1] + self._ts)))
 

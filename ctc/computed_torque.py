@@ -73,7 +73,8 @@ from plant.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, gains_for
 
-__all__ = ["ComputedTorqueController", "CTCParameters", "CTCLaw", "CTCLawKind", "ctc_law"]
+__all__ = ["ComputedTorqueController", "CTCParameters", "CTCLaw", "CTCLawKind", "ctc_law",
+           "reference_of"]
 
 
 class CTCParameters(NamedTuple):
@@ -258,6 +259,36 @@ def _pair(values):
     return (float(a[0]), float(a[1]))
 
 
+def reference_of(log, trajectory=None):
+    """The reference a controller follows: ``trajectory``, or the log's.
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+    trajectory : plant.trajectory.Trajectory, optional
+
+    Returns
+    -------
+    plant.trajectory.Trajectory
+
+    Raises
+    ------
+    ValueError
+        If ``trajectory`` is not a :class:`plant.trajectory.Trajectory`, or
+        ``log`` is not a log.
+    """
+    from plant.trajectory import Trajectory
+
+    if trajectory is None:
+        if not hasattr(log, "trajectory") or not hasattr(log, "rig"):
+            raise ValueError(f"log must be a plant.ExperimentLog, got {type(log).__name__}")
+        return log.trajectory
+    if not isinstance(trajectory, Trajectory):
+        raise ValueError("trajectory must be a plant.trajectory.Trajectory (e.g. "
+                         f"Trajectory.from_terms(...)), got {type(trajectory).__name__}")
+    return trajectory
+
+
 def _reference_table(trajectory, t):
     q, qd, qdd = trajectory.evaluate(t)
     return np.ascontiguousarray(np.hstack([q, qd, qdd]), dtype=np.float64)
@@ -360,7 +391,7 @@ class ComputedTorqueController:
 
     @classmethod
     def from_log(cls, f, log, *, gains=None, nonlinear_velocity="reference", friction=True,
-                 cell_centre=True, n_samples=None, **design):
+                 cell_centre=True, n_samples=None, trajectory=None, **design):
         """Build the CTC of a log's rig and reference.
 
         Parameters
@@ -375,7 +406,11 @@ class ComputedTorqueController:
         nonlinear_velocity, friction, cell_centre
             See the class docstring.
         n_samples : int, optional
-            Samples to tabulate (default ``log.n_total``).
+            Samples to tabulate (default ``log.n_total``; later samples are
+            evaluated on the fly).
+        trajectory : plant.trajectory.Trajectory, optional
+            The reference to follow (default the log's): any reference, e.g.
+            ``Trajectory.from_terms(...)`` or ``Trajectory.paper(T)``.
         **design
             Keyword arguments of :func:`ctc.design.design_gains`
             (``bandwidth_hz``, ``damping``, ``estimator``,
@@ -393,7 +428,7 @@ class ComputedTorqueController:
         """
         gains = gains_for(log.rig, gains, **design)
         return cls(
-            f, log.rig, log.trajectory, gains,
+            f, log.rig, reference_of(log, trajectory), gains,
             n_samples=log.n_total if n_samples is None else n_samples,
             nonlinear_velocity=nonlinear_velocity, friction=friction, cell_centre=cell_centre,
         )

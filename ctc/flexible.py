@@ -106,6 +106,7 @@ from .computed_torque import (
     _joint_update,
     _pair,
     _reference_table,
+    reference_of,
 )
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
@@ -478,7 +479,8 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
                  motor_inertia_reflected_kgm2, gains=None, nonlinear_velocity="reference",
                  friction=True, cell_centre=True, n_samples=None,
                  link_substeps=DEFAULT_LINK_SUBSTEPS,
-                 link_damping=DEFAULT_LINK_OBSERVER_DAMPING, backlash_rad=None, **design):
+                 link_damping=DEFAULT_LINK_OBSERVER_DAMPING, backlash_rad=None, trajectory=None,
+                 **design):
         """Build the flexible-joint CTC of a log's rig and reference.
 
         Parameters
@@ -496,6 +498,8 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         backlash_rad : array_like, shape (2,), optional
             Gearbox backlash widths b (rad, joint side) of the link model
             (``joint_backlash_rad`` of a result; default none).
+        trajectory : plant.trajectory.Trajectory, optional
+            The reference to follow (default the log's).
         n_samples : int, optional
             Samples to tabulate (default ``log.n_total``).
         **design
@@ -514,7 +518,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         from .design import gains_for
 
         gains = gains_for(log.rig, gains, **design)
-        return cls(f, log.rig, log.trajectory, gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
+        return cls(f, log.rig, reference_of(log, trajectory), gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
                    damping_Nms_per_rad=damping_Nms_per_rad,
                    motor_inertia_reflected_kgm2=motor_inertia_reflected_kgm2,
                    n_samples=log.n_total if n_samples is None else n_samples,

@@ -266,3 +266,24 @@ def test_casadi_evaluation_true_f(paper_log, ctc_true, f_true):
         evaluate_ctc(ctc_true, f_true, n_samples=10**6)
     with pytest.raises(ValueError, match="ComputedTorqueController"):
         evaluate_ctc(PController.from_log(paper_log), f_true)
+
+
+def test_every_controller_follows_any_reference(paper_log):
+    """trajectory= on from_log / from_result / the adaptive CTC (issue 21, item 6)."""
+    from plant.trajectory import Trajectory
+
+    import ctc
+
+    f = np.array([1.2, 0.6, 0.0, -0.5, 0.0, -1.2, 4.8, -0.1, 3.8])
+    other = Trajectory.from_terms([-0.3, 0.4], [[(0.2, 3.0, 0.0)], [(-0.25, 5.0, 1.0)]], 0.3)
+    c = ctc.ComputedTorqueController.from_log(f, paper_log, trajectory=other)
+    assert c.trajectory == other and c.trajectory != paper_log.trajectory
+    k = 700
+    q, qd, qdd = other.evaluate(np.array([k * paper_log.rig.sample_time_s]))
+    assert np.allclose(c.reference_table[k], np.r_[q[0], qd[0], qdd[0]], rtol=0, atol=1e-12)
+    r = ctc.ComputedTorqueController.from_result({"f": list(f)}, paper_log, trajectory=other)
+    assert r.trajectory == other
+    a = ctc.AdaptiveComputedTorqueController.from_log(f, paper_log, trajectory=other)
+    assert a.trajectory == other and a._ctc.trajectory == other
+    with pytest.raises(ValueError, match="trajectory must be a plant.trajectory.Trajectory"):
+        ctc.ComputedTorqueController.from_log(f, paper_log, trajectory="paper")
