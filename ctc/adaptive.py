@@ -13,8 +13,11 @@ The paper's closing proposal, in three stages, as one sampled controller
    refinement replays the logged commands, the output error simulates the
    CTC in the loop through the compiled law of :mod:`plant.controllers`);
 3. put the identified load into the CTC (D_hat, h_hat, g_hat of ``prior +
-   payload``) -- but only once the measured wall time of the identification
-   has passed on the controller's own sample clock.
+   payload``) -- but only once the identification's latency has passed on
+   the controller's own sample clock: a fixed ``latency_s`` (default, so a
+   simulation repeats bit for bit) or the measured wall time
+   (``latency_s='measured'``, hardware).  The kernels are compiled when the
+   controller is built, never inside the loop.
 
 When to identify: every window, back to back.  A correct model tracks to
 +-1 pulse, so a small payload (0.5 kg) shows in the errors only as a bias
@@ -31,10 +34,10 @@ Real hardware: the sample loop must never wait for an identification.
 There a background worker (a thread or a second core) takes each completed
 window, identifies it and posts the result; the sample loop switches the
 model at the first sample after the post.  In simulation the identification
-runs synchronously at the window's end and its measured wall time delays
-the switch by as many samples -- the same timing as the worker, and the
-worker is busy for that time (a window completed while it is busy is
-skipped).
+runs synchronously at the window's end and its latency (fixed, or the
+measured wall time) delays the switch by as many samples -- the same timing
+as the worker, and the worker is busy for that time (a window completed
+while it is busy is skipped).
 """
 from __future__ import annotations
 
@@ -46,7 +49,12 @@ import numpy as np
 
 from .computed_torque import ComputedTorqueController, reference_of
 
-__all__ = ["AdaptiveComputedTorqueController"]
+__all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S"]
+
+#: Default identification latency (s): the per-window budget of a 200 ms window
+#: (``benchmarks/bench_online_payload.py`` measures 0.01-0.07 s per window on the
+#: development machine), fixed so that simulations repeat bit for bit.
+DEFAULT_LATENCY_S = 0.2
 
 
 class AdaptiveComputedTorqueController:
@@ -67,9 +75,11 @@ class AdaptiveComputedTorqueController:
     improvement : float
         An estimate is accepted when its windowed output error is below
         ``(1 - improvement)`` times the current model's.
-    latency_s : float, optional
-        Fixed identification latency (s) instead of the measured wall time
-        (e.g. a real rig's worker budget; reproducible simulations).
+    latency_s : float or 'measured'
+        Delay (s) from a window's end to its model taking effect.  A number
+        (default :data:`DEFAULT_LATENCY_S`, the per-window budget) makes a
+        simulation repeat bit for bit; ``'measured'`` uses the measured wall
+        time of each identification (hardware: the worker's real delay).
     identify_options : dict, optional
         Extra keyword arguments of :func:`identification.identify`.
     trajectory : plant.trajectory.Trajectory, optional
@@ -96,8 +106,9 @@ class AdaptiveComputedTorqueController:
         On a bad prior, window or option.
     """
 
-    def __init__(self, prior_f, log, *, window_s=0.2, improvement=0.2, latency_s=None,
-                 identify_options=None, trajectory=None, **ctc_options):
+    def __init__(self, prior_f, log, *, window_s=0.2, improvement=0.2,
+                 latency_s=DEFAULT_LATENCY_S, identify_options=None, trajectory=None,
+                 **ctc_options):
         from identification.parameters import prior_f as as_prior_f
 
         self.prior_f = as_prior_f(prior_f)
@@ -106,12 +117,15 @@ class AdaptiveComputedTorqueController:
             raise ValueError(f"window_s must be at least 20 samples ({20 * ts} s), got {window_s!r}")
         if not 0.0 <= improvement < 1.0:
             raise ValueError(f"improvement must be in [0, 1), got {improvement!r}")
-        if latency_s is not None and not (np.isfinite(latency_s) and latency_s >= 0):
-            raise ValueError(f"latency_s must be >= 0, got {latency_s!r}")
+        if latency_s is None:
+            latency_s = DEFAULT_LATENCY_S
+        if not (latency_s == "measured" or (isinstance(latency_s, (int, float))
+                                            and np.isfinite(latency_s) and latency_s >= 0)):
+            raise ValueError(f"latency_s must be a number >= 0 (s) or 'measured', got {latency_s!r}")
         self.log = log
         self.window_s = float(window_s)
         self.improvement = float(improvement)
-        self.latency_s = None if latency_s is None else float(latency_s)
+        self.latency_s = latency_s if latency_s == "measured" else float(latency_s)
         self.identify_options = dict(identify_options or {})
         self._ts = ts
         self._n_window = int(round(self.window_s / ts))
@@ -121,6 +135,30 @@ class AdaptiveComputedTorqueController:
         self._window_rig = dataclasses.replace(log.rig, q0_rad=None, qd0_rad_per_s=None,
                                                payload_mass_kg=None)
         self.reset()
+        self._compile()
+
+    def _compile(self):
+        """Compile (or load) every kernel a window identification uses, now, not in the loop.
+
+        One identification of a still window (zero errors and currents) with
+        the CTC in the loop; its outcome is discarded.
+        """
+        import warnings
+
+        import identification
+
+        n = self._n_window
+        rows = [(k, 0, 0, 0.0, 0.0, self._ctc.estimator_state(), self.f) for k in range(n)]
+        window = self.window_log(rows)
+        law = self._ctc.logged_controller(window, state=rows[0][5])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                identification.identify(window, payload=True, prior=self.prior_f, controller=law,
+                                        rng=0, progress=False, workers=1,
+                                        refine_options=dict(max_iter=1, n_starts=1))
+            except ValueError:
+                pass  # a still window may be refused; the kernels are compiled by then
 
     @classmethod
     def from_log(cls, prior, log, *, window_s=0.2, **options):
@@ -234,8 +272,12 @@ class AdaptiveComputedTorqueController:
         law = dataclasses.replace(law, parameters=law.parameters._replace(f=np.ascontiguousarray(f_used)))
         opts = dict(rng=0, progress=False, workers=1)
         opts.update(self.identify_options)
-        res = identification.identify(window, payload=True, prior=self.prior_f, controller=law,
-                                      **opts)
+        import warnings
+
+        with warnings.catch_warnings(record=True) as caught:  # kept in the record, not raised
+            warnings.simplefilter("always")
+            res = identification.identify(window, payload=True, prior=self.prior_f,
+                                          controller=law, **opts)
         x0 = res.refinement["initial_state"]
         # the current model's output error from the same start, the CTC in the loop
         y_now = float(plant.simulate_batch(window, self.f[None], substeps=res.settings["substeps"],
@@ -246,8 +288,9 @@ class AdaptiveComputedTorqueController:
         mass = float(res.payload["mass_kg"])
         self.identifications.append(dict(window_s=window.window_s, wall_time_s=wall,
                                          mass_kg=mass, fun=float(res.fun), fun_current=y_now,
-                                         accepted=accepted))
-        latency = wall if self.latency_s is None else self.latency_s
+                                         accepted=accepted,
+                                         warnings=[str(w.message) for w in caught]))
+        latency = wall if self.latency_s == "measured" else self.latency_s
         k_eff = k_end + 1 + int(math.ceil(latency / self._ts))
         self._busy_until = k_eff
         if accepted:

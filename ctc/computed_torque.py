@@ -57,6 +57,8 @@ about 2.5 us per call, target <= 20 us).
 from __future__ import annotations
 
 
+import math
+
 import numba
 import numpy as np
 
@@ -67,6 +69,7 @@ from plant.model import (
     friction_torque,
     inverse_dynamics_terms,
     is_positive_definite,
+    mass_terms,
 )
 from plant.controllers import CONTROL_LAWS, LoggedController
 from plant.rig import RigConstants, rig_constants
@@ -173,6 +176,25 @@ def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
     if p.friction:
         t2 -= friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
         t3 -= friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
+    i2 = t2 / c.torque_per_amp[0]
+    i3 = t3 / c.torque_per_amp[1]
+    lim = c.current_limit
+    if abs(i2) > lim or abs(i3) > lim:
+        # the drive's current limit, with anti-windup: the observer predicts the
+        # next sample with the acceleration the *saturated* current gives the
+        # model, D_hat(q_hat)^-1 k Kt (i_sat - i) added to the command (the
+        # observer form of back-calculation anti-windup: K. J. Astrom and
+        # T. Hagglund, *Advanced PID Control*, 2006, sec. 3.5)
+        i2s = min(max(i2, -lim), lim)
+        i3s = min(max(i3, -lim), lim)
+        d11, d12, d22 = mass_terms(f, math.cos(q3), math.sin(q3))
+        det = d11 * d22 - d12 * d12
+        if det > 0.0:
+            u2 = (i2s - i2) * c.torque_per_amp[0]
+            u3 = (i3s - i3) * c.torque_per_amp[1]
+            a2 += (d22 * u2 - d12 * u3) / det
+            a3 += (d11 * u3 - d12 * u2) / det
+        i2, i3 = i2s, i3s
     S[_S_Q, lane] = q2
     S[_S_Q + 1, lane] = q3
     S[_S_W, lane] = w2
@@ -182,7 +204,7 @@ def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
     S[_S_Y, lane] = y2
     S[_S_Y + 1, lane] = y3
     S[_S_INIT, lane] = 1.0
-    return t2 / c.torque_per_amp[0], t3 / c.torque_per_amp[1]
+    return i2, i3
 
 
 @numba.njit(cache=True, nogil=True)

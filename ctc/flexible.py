@@ -233,6 +233,17 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
     if pc.friction:
         t2 -= friction_torque(n2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
         t3 -= friction_torque(n3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
+    i2 = t2 / c.torque_per_amp[0]
+    i3 = t3 / c.torque_per_amp[1]
+    lim = c.current_limit
+    if abs(i2) > lim or abs(i3) > lim:
+        # the drive's current limit, with anti-windup: the motor observer predicts
+        # with the acceleration the saturated current gives the motor (as the rigid CTC)
+        i2s = min(max(i2, -lim), lim)
+        i3s = min(max(i3, -lim), lim)
+        a2 += (i2s - i2) * c.torque_per_amp[0] / p.motor_inertia[0]
+        a3 += (i3s - i3) * c.torque_per_amp[1] / p.motor_inertia[1]
+        i2, i3 = i2s, i3s
     S[_S_Q, lane] = th2
     S[_S_Q + 1, lane] = th3
     S[_S_W, lane] = v2
@@ -246,7 +257,7 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
     S[_S_LW, lane] = w2
     S[_S_LW + 1, lane] = w3
     S[_S_INIT, lane] = 1.0
-    return t2 / c.torque_per_amp[0], t3 / c.torque_per_amp[1]
+    return i2, i3
 
 
 @numba.njit(cache=True, nogil=True)

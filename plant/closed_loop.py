@@ -15,7 +15,9 @@ each sample ``t_k = k Ts``, exactly as the rig's control card and
    ``ref = trunc(q_ref(t_k) k N / 2 pi)`` is formed;
 3. the controller returns the motor currents ``i`` (A), clipped to
    ``[-I_fs, I_fs]`` when the rig's sidecar gives a ``current_full_scale_A``
-   (the recorded ``i_A`` is the clipped current that was applied);
+   (the recorded ``i_A`` is the clipped current that was applied; the
+   library's controllers saturate there themselves, with anti-windup, and
+   ``n_clipped`` counts the samples at the limit);
 4. the current is held over ``[t_k, t_k + Ts)`` (ZOH, no computation delay)
    and the plant is advanced by :func:`plant.core.advance_sample`.
 
@@ -218,7 +220,7 @@ def simulate_closed_loop(
             raise ValueError(f"controller must return 2 currents (A), got {i!r} at sample {k}") from None
         if not (math.isfinite(i2) and math.isfinite(i3)):
             raise ValueError(f"controller returned non-finite currents {i2!r}, {i3!r} at sample {k}")
-        if abs(i2) > i_fs or abs(i3) > i_fs:
+        if abs(i2) >= i_fs or abs(i3) >= i_fs:  # saturated, by the controller or the drive
             n_clipped += 1
             i2 = min(max(i2, -i_fs), i_fs)
             i3 = min(max(i3, -i_fs), i_fs)

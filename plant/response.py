@@ -44,8 +44,9 @@ class ClosedLoopResponse:
     label : str
         Free-text label (controller name) used in plots.
     n_clipped : int
-        Samples at which the controller's current was clipped to the
-        amplifiers' full scale.
+        Samples at which a current was at the drive's full scale
+        (``current_full_scale_A``): saturated by the controller itself or
+        clipped by the drive.
     """
 
     t: np.ndarray

@@ -70,10 +70,11 @@ def test_adaptive_ctc_after_a_pick_up(paper_log, prior, mass_kg, com_m, izz, t_p
 
 
 def test_measured_latency_delays_the_switch(paper_log, prior):
-    """Default: a new model takes effect after the measured wall time of its identification."""
+    """``latency_s='measured'``: a new model takes effect after the measured wall time."""
     a3 = paper_log.rig.a3_m
     f_loaded = plant.add_payload(prior, plant.Payload(2.0, (0.10, 0.02), 0.01), a3)
-    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log,
+                                                             latency_s="measured")
     resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=[(1.0, f_loaded)],
                                       substeps=SUBSTEPS, n_samples=int(2.2 / paper_log.rig.sample_time_s))
     assert resp.success and adaptive.payload_history
@@ -99,3 +100,21 @@ def test_adaptive_ctc_protocol_and_prior_forms(paper_log, prior, tmp_path):
         ctc.AdaptiveComputedTorqueController.from_log(prior[:8], paper_log)
     with pytest.raises(ValueError, match="window_s"):
         ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log, window_s=0.001)
+
+
+def test_fixed_latency_repeats_bit_for_bit(paper_log, prior):
+    """Issue 21 item 5: with the default (fixed) latency two runs are identical."""
+    a3 = paper_log.rig.a3_m
+    f_loaded = plant.add_payload(prior, plant.Payload(2.0, (0.10, 0.02), 0.01), a3)
+    n = int(1.6 / paper_log.rig.sample_time_s)
+    runs = []
+    for _ in range(2):
+        adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=[(1.0, f_loaded)],
+                                          substeps=SUBSTEPS, n_samples=n)
+        runs.append((resp, adaptive))
+    (r1, a1), (r2, a2) = runs
+    assert np.array_equal(r1.e_pulses, r2.e_pulses) and np.array_equal(r1.i_A, r2.i_A)
+    assert a1.payload_history == a2.payload_history and a1.payload_history
+    with pytest.raises(ValueError, match="latency_s"):
+        ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log, latency_s="soon")

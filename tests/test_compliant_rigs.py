@@ -84,3 +84,39 @@ def test_flexible_parameters_with_unknown_friction_and_backlash():
     assert ex["friction_identified"] and ex["joint_backlash_rad"] == list(x[15:17])
     # known friction: no friction components, the rig's in the lanes
     assert len(FlexibleParameters(backlash=False).names(log)) == 15
+
+
+@pytest.mark.parametrize("flexible", [False, True])
+def test_controllers_saturate_at_the_full_scale_with_anti_windup(paper_log, truth, flexible):
+    """Issue 21 item 4: no commanded current beyond the full scale; the observer
+    predicts with the saturated acceleration, so tracking recovers after the limit."""
+    import ctc
+
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    i_fs = 3.0
+    rig = dataclasses.replace(paper_log.rig, current_full_scale_A=i_fs)
+    log = paper_log.replace(rig=rig)
+    if flexible:
+        flex = plant.FlexibleJoints((3e4, 1e4), (3.0, 1.0), 2e-4)
+        c = ctc.FlexibleJointComputedTorqueController.from_log(
+            f, log, stiffness_Nm_per_rad=flex.stiffness_Nm_per_rad,
+            damping_Nms_per_rad=flex.damping_Nms_per_rad,
+            motor_inertia_reflected_kgm2=flex.reflected_inertia(rig))
+    else:
+        flex = None
+        c = ctc.ComputedTorqueController.from_log(f, log)
+    raw = []
+
+    class Spy:
+        def reset(self):
+            c.reset()
+
+        def __call__(self, k, t, q, e):
+            i = c(k, t, q, e)
+            raw.append(np.array(i))
+            return i
+
+    r = plant.simulate_closed_loop(log, f, Spy(), flexible=flex, substeps=8)
+    raw = np.abs(np.array(raw))
+    assert raw.max() <= i_fs
+    assert r.n_clipped > 0 and np.abs(r.i_A).max() <= i_fs
