@@ -57,6 +57,27 @@ __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S"]
 DEFAULT_LATENCY_S = 0.2
 
 
+def _refuse_flexible_prior(prior):
+    """A flexible identification cannot be this controller's prior: say so in one line.
+
+    The adaptive CTC runs the rigid CTC and identifies the payload with the
+    rigid plant in the loop; reducing a two-mass prior to its rigid-equivalent
+    f would drop K, D and Jm k^2 silently (issue 21, item 2).
+    """
+    import os
+
+    d = prior
+    if isinstance(prior, (str, os.PathLike)):
+        from plant.fileio import read_json_object
+
+        d = read_json_object(prior, "prior result file")
+    model = d.get("model") if isinstance(d, dict) else getattr(d, "get", lambda k: None)("model")
+    if model is not None and model != "rigid":
+        raise ValueError(f"the adaptive CTC takes a rigid prior; this prior's model is {model!r} "
+                         "(use ComputedTorqueController.from_result for a flexible robot, or "
+                         "identify the prior with model='rigid')")
+
+
 class AdaptiveComputedTorqueController:
     """CTC that identifies its payload on-line and adapts D_hat, h_hat, g_hat.
 
@@ -103,7 +124,9 @@ class AdaptiveComputedTorqueController:
     Raises
     ------
     ValueError
-        On a bad prior, window or option.
+        On a bad prior, window or option, or a flexible prior (the inner
+        controller is the rigid CTC: a two-mass prior is refused, never
+        reduced to its rigid-equivalent f).
     """
 
     def __init__(self, prior_f, log, *, window_s=0.2, improvement=0.2,
@@ -111,6 +134,7 @@ class AdaptiveComputedTorqueController:
                  **ctc_options):
         from identification.parameters import prior_f as as_prior_f
 
+        _refuse_flexible_prior(prior_f)
         self.prior_f = as_prior_f(prior_f)
         ts = float(log.rig.sample_time_s)
         if not (np.isfinite(window_s) and window_s >= 20 * ts):

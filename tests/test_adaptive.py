@@ -118,3 +118,14 @@ def test_fixed_latency_repeats_bit_for_bit(paper_log, prior):
     assert a1.payload_history == a2.payload_history and a1.payload_history
     with pytest.raises(ValueError, match="latency_s"):
         ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log, latency_s="soon")
+
+
+def test_a_flexible_prior_is_refused_in_one_line(paper_log, prior, tmp_path):
+    flex = {"f": list(prior), "model": "flexible", "joint_stiffness_Nm_per_rad": [3e4, 6e3]}
+    with pytest.raises(ValueError, match="rigid prior; this prior's model is 'flexible'"):
+        ctc.AdaptiveComputedTorqueController.from_log(flex, paper_log)
+    path = tmp_path / "flex.json"
+    path.write_text(json.dumps(flex))
+    with pytest.raises(ValueError, match="rigid prior"):
+        ctc.AdaptiveComputedTorqueController.from_log(path, paper_log)
+    ctc.AdaptiveComputedTorqueController.from_log(dict(flex, model="rigid"), paper_log)
