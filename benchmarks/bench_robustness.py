@@ -290,6 +290,7 @@ def evaluate(csv: Path, out: Path) -> dict:
             wall = time.perf_counter() - t0
         row["warnings"] = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
         row["wall_time_s"] = wall
+        res.save_json(res_dir / f"{stem}.result.json")  # for --ctc-only
         f = np.asarray(res.f, float)
         row["f"] = f.tolist()
         row["f_true"] = f_true.tolist()
@@ -341,23 +342,58 @@ def evaluate(csv: Path, out: Path) -> dict:
         row["flagged"] = (not row["success"]) or bool(row["warnings"]) or row["fun"] is None
         row["fun_huge"] = row["fun_per_sample"] is None or row["fun_per_sample"] > 4.0
         # the CTC built from the result, on the same independent robot
-        try:
-            ctrl = ctc.ComputedTorqueController.from_result(res, log)
-            rob = ir.IndependentRobot(s)
-            t0 = time.perf_counter()
-            run = rob.run(ctrl, log.trajectory, log.n_total, max_step_fraction=ir.max_step_fraction(s), max_abs_e=CTC_DIVERGED_PULSES)
-            row["ctc_sim_time_s"] = time.perf_counter() - t0
-            k0 = int(math.ceil(0.1 / s.sample_time_s))
-            row["ctc_success"] = bool(run["success"])
-            row["ctc_max_abs_e"] = np.max(np.abs(run["e"][k0:]), axis=0).astype(int).tolist()
-            row["ctc_saturated"] = int(run["n_saturated"])
-            row["p_max_abs_e"] = truth["run"]["max_abs_e_pulses"]
-        except Exception as exc:  # noqa: BLE001
-            row["ctc_error"] = f"{type(exc).__name__}: {exc}"
-            row["ctc_max_abs_e"] = None
+        row.update(ctc_row(res, log, s, truth))
     except Exception as exc:  # noqa: BLE001 - a library failure is a row, not a crash
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["traceback"] = traceback.format_exc()[-2000:]
+    cache.write_text(json.dumps(row, indent=1, default=_json_default) + "\n")
+    return row
+
+
+def ctc_row(res, log, s, truth) -> dict:
+    """Run the CTC of a result on the independent robot along the log's reference."""
+    import ctc
+
+    row = {}
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ctrl = ctc.ComputedTorqueController.from_result(res, log)
+        row["ctc_type"] = type(ctrl).__name__
+        row["ctc_warnings"] = [str(w.message) for w in caught]
+        rob = ir.IndependentRobot(s)
+        t0 = time.perf_counter()
+        run = rob.run(ctrl, log.trajectory, log.n_total, max_step_fraction=ir.max_step_fraction(s),
+                      max_abs_e=CTC_DIVERGED_PULSES)
+        row["ctc_sim_time_s"] = time.perf_counter() - t0
+        k0 = int(math.ceil(0.1 / s.sample_time_s))
+        row["ctc_success"] = bool(run["success"])
+        row["ctc_max_abs_e"] = np.max(np.abs(run["e"][k0:]), axis=0).astype(int).tolist()
+        row["ctc_saturated"] = int(run["n_saturated"])
+        row["p_max_abs_e"] = truth["run"]["max_abs_e_pulses"]
+    except Exception as exc:  # noqa: BLE001
+        row["ctc_error"] = f"{type(exc).__name__}: {exc}"
+        row["ctc_max_abs_e"] = None
+    return row
+
+
+def recheck_ctc(csv: Path, out: Path) -> dict:
+    """Re-run only the CTC part of a cached row from its saved result (``--ctc-only``)."""
+    import identification
+    import plant
+
+    stem = csv.stem
+    cache = out / "results" / f"{stem}.json"
+    saved = out / "results" / f"{stem}.result.json"
+    if not (cache.exists() and saved.exists()):
+        return evaluate(csv, out)
+    row = json.loads(cache.read_text())
+    truth = json.loads((csv.parent / f"{stem}.truth.json").read_text())
+    s = ir.RobotSettings.from_dict(truth["settings"])
+    res = identification.IdentificationResult.load_json(saved)
+    for key in ("ctc_error", "ctc_type", "ctc_warnings"):
+        row.pop(key, None)
+    row.update(ctc_row(res, plant.load_log(csv), s, truth))
     cache.write_text(json.dumps(row, indent=1, default=_json_default) + "\n")
     return row
 
@@ -497,7 +533,8 @@ def print_summary(s, rows, file=sys.stdout):
             return math.inf
         return r["f_main_err_max"]
 
-    worst = sorted(rows, key=badness, reverse=True)[:5]
+    worst = sorted([r for r in rows if not r.get("generation_failed")], key=badness,
+                   reverse=True)[:5]
     print("\nworst five logs (by f1 f2 f4 f6 f7 f9 error):", file=file)
     for r in worst:
         st = r["settings"]
@@ -619,6 +656,8 @@ def _job(args):
                     generation_failed=True)
     if task == "generate":
         return dict(stem=csv.stem)
+    if task == "ctc":
+        return recheck_ctc(csv, out)
     return evaluate(csv, out)
 
 
@@ -630,6 +669,9 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     ap.add_argument("--generate-only", action="store_true")
     ap.add_argument("--evaluate-only", action="store_true")
+    ap.add_argument("--ctc-only", action="store_true",
+                    help="re-run only the CTC of each cached result on its robot (after a "
+                         "controller change); logs without a cached result are evaluated")
     ap.add_argument("--rst", type=Path, default=None)
     ap.add_argument("--make-test-logs", action="store_true",
                     help="(re)write the five committed logs in tests/data/independent and exit")
@@ -638,9 +680,9 @@ def main(argv=None):
         make_test_logs()
         return 0
     a.out.mkdir(parents=True, exist_ok=True)
-    task = "generate" if a.generate_only else "evaluate"
+    task = "generate" if a.generate_only else "ctc" if a.ctc_only else "evaluate"
     indices = list(range(a.n))
-    if a.evaluate_only:
+    if a.evaluate_only or a.ctc_only:
         indices = [i for i in indices if (a.out / "logs" / f"{stem_of(a.seed, i)}.csv").exists()]
     jobs = [(task, a.seed, i, str(a.out)) for i in indices]
     t0 = time.perf_counter()
@@ -660,14 +702,14 @@ def main(argv=None):
     rows = [r for r in rows if not r.get("generation_failed")] + \
            [r for r in rows if r.get("generation_failed")]
     print()
-    print_table([r for r in rows if r.get("settings")])
-    s = summarise([r for r in rows if r.get("settings")])
-    print_summary(s, [r for r in rows if r.get("settings")])
+    print_table(rows)
+    s = summarise(rows)
+    print_summary(s, rows)
     (a.out / f"summary_{a.seed}_{a.n}.json").write_text(
         json.dumps(dict(summary=s, rows=rows), indent=1, default=_json_default) + "\n")
     print(f"\nrows written to {a.out / f'summary_{a.seed}_{a.n}.json'}")
     if a.rst:
-        write_rst([r for r in rows if r.get("settings")], s, a.rst)
+        write_rst(rows, s, a.rst)
         print(f"RST table written to {a.rst}")
     return 0
 
