@@ -248,3 +248,27 @@ def test_flexible_ctc_tolerates_joint_errors(held_out, k_factor, d_factor):
         motor_inertia_reflected_kgm2=flex.reflected_inertia(log.rig))
     r = plant.simulate_closed_loop(log, f, c, flexible=flex)
     assert np.all(max_error_after(r) <= 1), max_error_after(r)
+
+
+def test_robustness_check_reports_and_the_fallback_is_minimax(drill_log, drill_result):
+    """Issue 21 item 3 (in progress): the scenario check over the stated model errors,
+    its report on the controller, and robust='fallback' picking the smaller worst case."""
+    import warnings as _w
+
+    from ctc.flexible import ROBUSTNESS_SCENARIOS, _worst
+
+    log, res = drill_log, drill_result[0]
+    c = ComputedTorqueController.from_result(res, log)
+    assert isinstance(c, FlexibleJointComputedTorqueController) and not hasattr(c, "robustness")
+    with _w.catch_warnings(record=True):
+        _w.simplefilter("always")
+        checked = ComputedTorqueController.from_result(res, log, robust="check")
+        fb = ComputedTorqueController.from_result(res, log, robust="fallback")
+    rep = checked.robustness
+    assert [s["name"] for s in rep["scenarios"]] == [s["name"] for s in ROBUSTNESS_SCENARIOS]
+    assert rep["scenarios"][0]["success"]  # the nominal model holds the bound
+    if not rep["robust"]:
+        assert _worst(fb.robustness["rigid"]) >= _worst(fb.robustness["flexible"]) or \
+            not isinstance(fb, FlexibleJointComputedTorqueController)
+    with pytest.raises(ValueError, match="robust must be"):
+        ComputedTorqueController.from_result(res, log, robust="yes")
