@@ -140,6 +140,9 @@ BACKLASH_GRID = (0.0, 1e-3, 2.5e-3)
 #: stalled at 80 quantisation floors reached the floor.
 CONTINUATION_GAINS = (0.5, 0.1)
 
+#: Relative cost decrease below which an intermediate continuation stage stops.
+CONTINUATION_FTOL = 1e-4
+
 #: Refinement batches of the backlash fit (the dead zone's kink slows
 #: Levenberg-Marquardt down).
 BACKLASH_MAX_ITER = 60
@@ -386,7 +389,7 @@ def _problem(log, space, substeps, workers, gain):
 
 def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_GAIN,
                       n_starts=4, max_iter=40, hold_back=False, space=None, start=None,
-                      grid=True, continuation=None):
+                      grid=True, continuation=None, ftol=1e-10):
     """Fit the flexible model from the rigid result's f (grid over K, then refinement).
 
     Parameters
@@ -415,6 +418,9 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     grid : bool
         Evaluate the stiffness grid (with ``start``, False refines from
         ``start`` alone).
+    ftol : float
+        Convergence tolerance of the (final) refinement
+        (:func:`~identification.refinement.refine`).
     continuation : sequence of float, optional
         Output-injection gains to fit at first, in order, before ``gain``
         (default :data:`CONTINUATION_GAINS` with the grid, none without):
@@ -435,15 +441,18 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     if len(continuation):
         # gain continuation: the strongly corrected replay first (a benign cost
         # landscape), then each weaker gain from the previous point
+        # (the intermediate stages only need the basin: a loose tolerance)
         first = identify_flexible(log, rigid, substeps=substeps, workers=workers,
                                   gain=continuation[0], n_starts=n_starts, max_iter=max_iter,
                                   hold_back=hold_back, space=space, start=start, grid=grid,
-                                  continuation=())
+                                  continuation=(), ftol=CONTINUATION_FTOL)
         x = first["x"]
-        for g in list(continuation[1:]) + [gain]:
+        gains = list(continuation[1:]) + [gain]
+        for i, g in enumerate(gains):
             nxt = identify_flexible(log, rigid, substeps=substeps, workers=workers, gain=g,
                                     max_iter=max_iter, hold_back=hold_back, space=space,
-                                    start=x, grid=False, continuation=())
+                                    start=x, grid=False, continuation=(),
+                                    ftol=ftol if i == len(gains) - 1 else CONTINUATION_FTOL)
             x = nxt["x"]
         nxt["grid_costs"] = first["grid_costs"]
         return nxt
@@ -490,7 +499,7 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
         R = fit.residuals(X)
         costs = np.einsum("ij,ij->i", R, R)
         S = np.vstack([S, X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]])
-    ref = refine(fit, S, xb, max_iter=max_iter)
+    ref = refine(fit, S, xb, max_iter=max_iter, ftol=ftol)
     return dict(x=ref.x, f=space.to_f(ref.x, log), cost=ref.fun, refine=ref,
                 substeps=substeps, space=space, grid_costs=costs)
 
