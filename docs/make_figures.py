@@ -54,6 +54,12 @@ it in ``optimisers``):
 ``online_payload``
     ``benchmarks/bench_online_payload.py``: the wall time of one payload
     identification on a 200 ms window.
+``robustness``
+    ``benchmarks/bench_robustness.py --n 106 --seed 20261122 --jobs 2``: the
+    randomized suite of logs from the independent simulator (needs the
+    ``bench`` extra, Robotics Toolbox for Python; about 40 min on 2 cores):
+    ``figures/robustness.rst`` (success rates, worst five) and
+    ``figures/robustness.txt`` (every log).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -84,7 +90,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "alteration", "ctc", "real_rigs", "speed",
-            "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload")
+            "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
+            "robustness")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -223,6 +230,13 @@ def flexible(ctx):
     text, wall = _run(["benchmarks/bench_flexible.py", *q, "--json", ctx["raw"] / "bench_flexible.json"],
                       ctx["raw"], "bench_flexible")
     return {"printed": text.splitlines(), "wall_s": wall}
+
+
+def robustness(ctx):
+    q = ["--n", "4"] if ctx["quick"] else ["--n", "106"]
+    text, wall = _run(["benchmarks/bench_robustness.py", *q, "--seed", "20261122", "--jobs", "2",
+                       "--rst", ctx["raw"] / "robustness.rst"], ctx["raw"], "bench_robustness")
+    return {"printed": text.splitlines()[-40:], "wall_s": wall}
 
 
 def methods(ctx):

@@ -12,6 +12,7 @@ import importlib
 # second importing scipy and numba before anything can answer a Ctrl-C.
 _LOCATIONS = {
     "identify": "api", "METHODS": "api", "DEFAULT_METHOD": "api",
+    "ModelInadequacyWarning": "api",
     "identify_many": "distributed", "Job": "distributed", "JobResult": "distributed",
     "seed_jobs": "distributed",
     "apply_lowpass": "filtering", "lowpass_sos": "filtering",
@@ -42,6 +43,7 @@ def __dir__():
 
 __all__ = [
     "identify",
+    "ModelInadequacyWarning",
     "identify_many",
     "Job",
     "JobResult",

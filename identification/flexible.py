@@ -90,8 +90,8 @@ from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "BACKLASH_SIGNIFICANCE", "identify_flexible", "choose_model",
            "apply_model", "held_back_cost", "quantisation_floor", "INADEQUATE_FACTOR",
-           "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "CONTINUATION_GAINS", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR",
-           "MODELS"]
+           "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "CONTINUATION_GAINS", "CONTINUATION_FTOL",
+           "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
 MODELS = ("rigid", "flexible", "auto")

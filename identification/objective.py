@@ -58,7 +58,7 @@ class OutputError:
     Candidates that fail (D(q) not positive definite, divergence) receive the
     finite penalty documented in :mod:`plant.simulate`, so a rank-based
     optimiser can still order them; ``last_status`` holds the status codes
-    (:data:`plant.STATUS_OK`, ...) of the last call's candidates.  ``nfev``
+    (:data:`plant.core.STATUS_OK`, ...) of the last call's candidates.  ``nfev``
     counts simulated candidates.
     """
 
