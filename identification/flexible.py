@@ -171,7 +171,8 @@ class FlexibleParameters(Parameterisation):
         Box of ``[log10 K2, log10 K3, D2, D3, r2, r3]`` (default
         :data:`DEFAULT_JOINT_BOUNDS`).
     backlash : bool
-        Identify a backlash width per joint (default True).
+        Identify a backlash width per joint (default False; the model choice
+        adds it when the spring alone does not fit).
     backlash_bounds : array_like, shape (2, 2), optional
         Box of ``[b2, b3]`` (rad; default :data:`DEFAULT_BACKLASH_BOUNDS`).
 
@@ -183,7 +184,7 @@ class FlexibleParameters(Parameterisation):
 
     name = "flexible"
 
-    def __init__(self, bounds=None, joint_bounds=None, backlash=True, backlash_bounds=None):
+    def __init__(self, bounds=None, joint_bounds=None, backlash=False, backlash_bounds=None):
         self.base = BaseParameters(bounds)
         self.joint_bounds = check_bounds(
             DEFAULT_JOINT_BOUNDS if joint_bounds is None else joint_bounds, 6)
@@ -410,7 +411,7 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     hold_back : bool
         Fit without the held-back blocks (model choice).
     space : FlexibleParameters, optional
-        Default ``FlexibleParameters(backlash=False)``.
+        Default ``FlexibleParameters()`` (no backlash).
     start : array_like, shape (k,), optional
         A start besides the stiffness grid (e.g. the held-back fit's point);
         a shorter vector (a fit without backlash) is tried with each width
@@ -434,7 +435,7 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
         ``refine`` (:class:`~identification.refinement.RefineResult`),
         ``substeps``, ``space``.
     """
-    space = FlexibleParameters(backlash=False) if space is None else space
+    space = FlexibleParameters() if space is None else space
     substeps = flexible_substeps(log, space.joint_bounds) if substeps is None else int(substeps)
     if continuation is None:
         continuation = CONTINUATION_GAINS if grid else ()
