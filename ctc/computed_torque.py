@@ -77,7 +77,7 @@ from plant.rig import RigConstants, rig_constants
 from .design import ESTIMATORS, GainDesign, gains_for
 
 __all__ = ["ComputedTorqueController", "CTCParameters", "CTCLaw", "CTCLawKind", "ctc_law",
-           "reference_of"]
+           "reference_of", "model_f"]
 
 
 class CTCParameters(NamedTuple):
@@ -281,6 +281,37 @@ def _pair(values):
     return (float(a[0]), float(a[1]))
 
 
+def model_f(f) -> np.ndarray:
+    """A controller's model f (9,), with a one-line pointer when a result is passed instead.
+
+    Parameters
+    ----------
+    f : array_like, shape (9,)
+
+    Returns
+    -------
+    ndarray, shape (9,)
+
+    Raises
+    ------
+    ValueError
+        If ``f`` is an identification result (use ``from_result``) or not 9
+        finite numbers.
+    """
+    if isinstance(f, dict) or hasattr(f, "to_dict"):
+        raise ValueError("from_log takes f (9 numbers); for an identification result use "
+                         "ComputedTorqueController.from_result(result, log)")
+    try:
+        a = np.asarray(f, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"f must be 9 finite numbers f1..f9, got {type(f).__name__}") from None
+    if a.shape != (9,):
+        raise ValueError(f"f must have shape (9,) (f1..f9), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("f contains NaN or inf")
+    return a
+
+
 def reference_of(log, trajectory=None):
     """The reference a controller follows: ``trajectory``, or the log's.
 
@@ -448,9 +479,11 @@ class ComputedTorqueController:
             See the class docstring; also for ``gains`` given together with
             design keywords.
         """
+        f = model_f(f)
+        traj = reference_of(log, trajectory)
         gains = gains_for(log.rig, gains, **design)
         return cls(
-            f, log.rig, reference_of(log, trajectory), gains,
+            f, log.rig, traj, gains,
             n_samples=log.n_total if n_samples is None else n_samples,
             nonlinear_velocity=nonlinear_velocity, friction=friction, cell_centre=cell_centre,
         )

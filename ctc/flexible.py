@@ -106,6 +106,7 @@ from .computed_torque import (
     _joint_update,
     _pair,
     _reference_table,
+    model_f,
     reference_of,
 )
 
@@ -529,8 +530,10 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         """
         from .design import gains_for
 
+        f = model_f(f)
+        traj = reference_of(log, trajectory)
         gains = gains_for(log.rig, gains, **design)
-        return cls(f, log.rig, reference_of(log, trajectory), gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
+        return cls(f, log.rig, traj, gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
                    damping_Nms_per_rad=damping_Nms_per_rad,
                    motor_inertia_reflected_kgm2=motor_inertia_reflected_kgm2,
                    n_samples=log.n_total if n_samples is None else n_samples,

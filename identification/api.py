@@ -28,7 +28,7 @@ from .uncertainty import PoorExcitationWarning, uncertainty_entries, warning_tex
 from .window import estimate_initial_state
 
 __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
-           "ModelInadequacyWarning"]
+           "ModelInadequacyWarning", "GA_OPTION_KEYS"]
 
 #: Identification methods: the paper's GA alone, and GA + prediction-error
 #: refinement (the default).
@@ -48,6 +48,39 @@ def _as_log(log):
     if isinstance(log, (str, Path)):
         return plant.load_log(log)
     raise TypeError(f"log must be a plant.ExperimentLog or a path, got {type(log).__name__}")
+
+
+def _check_rng(rng):
+    """``rng`` must be None, a seed >= 0 or a numpy Generator (one-line error otherwise)."""
+    ok = (rng is None or isinstance(rng, np.random.Generator)
+          or (isinstance(rng, (int, np.integer)) and not isinstance(rng, bool) and rng >= 0))
+    if not ok:
+        raise ValueError(f"rng must be None, an integer seed >= 0 or a numpy.random.Generator, "
+                         f"got {rng!r}")
+
+
+#: Keys of ``ga_options`` (the settings of :func:`identification.ga.run_ga`).
+GA_OPTION_KEYS = ("n_subpops", "n_ind", "n_gen", "bits", "sp", "p_xover", "p_mut", "ggap",
+                  "migration_rate", "migration_interval", "initial", "gray", "topology",
+                  "immigrants", "early_stop")
+
+
+def _checked_ga_options(ga_options) -> dict:
+    """``ga_options`` validated against :data:`GA_OPTION_KEYS` (one-line errors)."""
+    if ga_options is None:
+        return {}
+    if not isinstance(ga_options, dict):
+        raise ValueError(f"ga_options must be a dict, got {type(ga_options).__name__}")
+    unknown = sorted(set(ga_options) - set(GA_OPTION_KEYS))
+    if unknown:
+        raise ValueError(f"unknown ga_options key(s) {', '.join(map(repr, unknown))}; valid keys: "
+                         + ", ".join(GA_OPTION_KEYS))
+    for key in ("n_subpops", "n_ind", "n_gen", "migration_interval"):
+        v = ga_options.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))
+                              or v < 1):
+            raise ValueError(f"ga_options[{key!r}] must be an integer >= 1, got {v!r}")
+    return dict(ga_options)
 
 
 def _seed_of(rng):
@@ -135,7 +168,7 @@ def identify(
     bounds : array_like, shape (9, 2), optional
         Shorthand: search ranges of f1..f9 (default: the sidecar's), i.e.
         ``parameters=BaseParameters(bounds)``.
-    rng : numpy.random.Generator or int, optional
+    rng : numpy.random.Generator or int >= 0, optional
         Random source (SPEC 7); the same seed gives the same result bit for
         bit, whatever the number of ``workers``.
     callback : callable, optional
@@ -156,7 +189,8 @@ def identify(
     substeps : int
         RK4 substeps per sample while identifying.
     ga_options : dict, optional
-        Overrides of the GA settings (:func:`~identification.ga.run_ga`).
+        Overrides of the GA settings (:func:`~identification.ga.run_ga`; keys
+        :data:`GA_OPTION_KEYS`, an unknown key is refused).
         The default method runs the GA Gray-coded and with
         ``early_stop=1.0`` (offspring stop being simulated once their running
         output error passes the worst individual of the population);
@@ -229,6 +263,7 @@ def identify(
 
         return identify_idim(log, substeps=substeps, workers=workers, lowpass_hz=lowpass_hz,
                              seed=_seed_of(rng), method=method)
+    _check_rng(rng)
     space = _with_friction(
         _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent), log)
     seed = _seed_of(rng)
@@ -237,7 +272,7 @@ def identify(
         raise ValueError(f"workers must be >= 1, got {workers}")
     ga_settings = dict(PAPER_GA, gray=(method != "paper"),
                        early_stop=None if method == "paper" else 1.0)
-    ga_settings.update(ga_options or {})
+    ga_settings.update(_checked_ga_options(ga_options))
     ropts = dict(gain=DEFAULT_GAIN, n_starts=4, max_iter=40,
                  ftol=getattr(space, "refine_ftol", 1e-10))
     unknown = set(refine_options or {}) - set(ropts)

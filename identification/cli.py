@@ -104,8 +104,10 @@ def build_parser():
     """
     from .api import DEFAULT_METHOD, METHODS
 
+    script = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
     p = argparse.ArgumentParser(
-        prog="python -m identification",
+        # the installed script says its own name; python -m identification says that
+        prog="puma-identify" if script == "puma-identify" else "python -m identification",
         description=(
             "Identify the base parameters f1..f9 of PUMA 560 links 2-3 from a "
             "position-only P-control log (CSV + JSON sidecar with the same stem) "
@@ -247,6 +249,10 @@ def _validate(args) -> None:
     if args.lowpass not in (None, "auto") and not (math.isfinite(args.lowpass)
                                                    and args.lowpass > 0):
         raise CLIError(f"--lowpass must be a positive frequency in Hz, got {args.lowpass}")
+    if args.output is not None and not str(args.output).strip():
+        raise CLIError("--output needs a file name (got an empty string)")
+    if args.plot is not None and not str(args.plot).strip():
+        raise CLIError("--plot needs a directory name (got an empty string)")
     if args.payload and not args.prior:
         raise CLIError("--payload requires --prior PRIOR.json (a result file of the unloaded robot)")
     if args.prior and not args.payload:

@@ -80,7 +80,13 @@ def _step(kind, lanes, c, substeps, k, i2, i3):
 
 
 def _check_f(f, what):
-    f = np.ascontiguousarray(f, dtype=np.float64)
+    if isinstance(f, dict) or hasattr(f, "to_dict"):
+        raise ValueError(f"{what} must be 9 numbers f1..f9; for an identification result pass "
+                         "result.f")
+    try:
+        f = np.ascontiguousarray(f, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be 9 numbers f1..f9, got {type(f).__name__}") from None
     if f.shape != (9,):
         raise ValueError(f"{what} must have shape (9,) (f1..f9), got {f.shape}")
     if not np.all(np.isfinite(f)):

@@ -67,12 +67,17 @@ _EXAMPLE_STEM = "puma560_paper_rigid"
 def _resolve(path: str | os.PathLike) -> tuple[Path, Path, str]:
     """Return (csv path, json path, stem) for STEM, STEM.csv or STEM.json."""
     p = Path(path)
+    if p.is_dir():
+        raise _err(p, "log file is a directory (give STEM.csv with its STEM.json beside it)")
     name = p.name
     stem = name
     for suffix in (".csv", ".json"):
         if name.lower().endswith(suffix):
             stem = name[: -len(suffix)]
             break
+    else:
+        if p.suffix and p.exists():
+            raise _err(p, f"a log is STEM.csv with its STEM.json sidecar, not a {p.suffix} file")
     if not stem:
         raise _err(p, "no file stem")
     return p.with_name(stem + ".csv"), p.with_name(stem + ".json"), stem

@@ -641,3 +641,34 @@ def test_ctrl_c_while_importing_the_cli(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert status == 130
     assert_one_error_line(status, err)
+
+
+def test_first_hour_bad_inputs_get_one_line_messages(tmp_path, paper_log):
+    """Issue 22 (part): bad paths, options and argument types each get one line naming them."""
+    import identification
+    import plant
+    from ctc import ComputedTorqueController
+
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "run.txt").write_text("x")
+    with pytest.raises(plant.LogError, match="adir: log file is a directory"):
+        plant.load_log(tmp_path / "adir")
+    with pytest.raises(plant.LogError, match=r"run.txt: a log is STEM.csv .* not a .txt file"):
+        plant.load_log(tmp_path / "run.txt")
+    for rng in ("x", -1, True):
+        with pytest.raises(ValueError, match="rng must be None, an integer seed >= 0"):
+            identification.identify(paper_log, rng=rng, progress=False)
+    with pytest.raises(ValueError, match="unknown ga_options key.*'maxiter'.*valid keys: n_subpops"):
+        identification.identify(paper_log, ga_options={"maxiter": 2}, progress=False)
+    with pytest.raises(ValueError, match=r"ga_options\['n_gen'\] must be an integer >= 1"):
+        identification.identify(paper_log, ga_options={"n_gen": 0}, progress=False)
+    f = np.array([1.2, 0.6, 0.0, -0.5, 0.0, -1.2, 4.8, -0.1, 3.8])
+    res = {"f": list(f)}
+    with pytest.raises(ValueError, match="use ComputedTorqueController.from_result"):
+        ComputedTorqueController.from_log(res, paper_log)
+    with pytest.raises(ValueError, match="log must be a plant.ExperimentLog"):
+        ComputedTorqueController.from_log(f, None)
+    with pytest.raises(ValueError, match="pass result.f"):
+        plant.simulate_closed_loop(paper_log, res, ComputedTorqueController.from_log(f, paper_log))
+    code = main(["--example", "--output", ""])
+    assert code == 1
