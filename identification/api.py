@@ -190,7 +190,7 @@ def identify(
         RK4 substeps per sample while identifying.
     ga_options : dict, optional
         Overrides of the GA settings (:func:`~identification.ga.run_ga`; keys
-        :data:`GA_OPTION_KEYS`, an unknown key is refused).
+        :data:`identification.api.GA_OPTION_KEYS`, an unknown key is refused).
         The default method runs the GA Gray-coded and with
         ``early_stop=1.0`` (offspring stop being simulated once their running
         output error passes the worst individual of the population);
