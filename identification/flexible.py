@@ -81,9 +81,9 @@ import numpy as np
 
 from plant.plants import FlexibleJoints
 
-from plant.friction import FRICTION_NAMES, friction_fields, friction_vector
+from plant.friction import FRICTION_NAMES, friction_fields
 
-from .friction import default_friction_bounds, unknown_friction_indices
+from .friction import default_friction_bounds, full_friction, unknown_friction_indices
 from .parameters import BaseParameters, Parameterisation, check_bounds
 from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
@@ -275,12 +275,7 @@ class FlexibleParameters(Parameterisation):
         -------
         ndarray, shape (6,) or (m, 6)
         """
-        x = np.asarray(x, dtype=float)
-        V = np.tile(friction_vector(log.rig), x.shape[:-1] + (1,))
-        unknown = unknown_friction_indices(log.rig)
-        if unknown:
-            V[..., unknown] = x[..., self._n_fixed():]
-        return V
+        return full_friction(np.asarray(x, dtype=float)[..., self._n_fixed():], log)
 
     def plant(self, log):
         """A :class:`plant.plants.FlexibleJoints` (its lanes carry each candidate's joints).

@@ -29,7 +29,7 @@ from plant.friction import FRICTION_NAMES, RIGID_FRICTION, friction_fields, fric
 from .parameters import BaseParameters, Parameterisation, check_bounds
 
 __all__ = ["FrictionParameters", "unknown_friction_indices", "default_friction_bounds",
-           "friction_entries"]
+           "friction_entries", "full_friction"]
 
 
 def unknown_friction_indices(rig) -> list:
@@ -84,6 +84,29 @@ def default_friction_bounds(log) -> np.ndarray:
     hi = np.array([torque[0] / speed[0], torque[1] / speed[1],
                    torque[0], torque[0], torque[1], torque[1]])
     return np.column_stack([np.zeros(6), hi])
+
+
+def full_friction(unknown_values, log) -> np.ndarray:
+    """Motor-side friction vectors: the rig's known components, the unknown ones given.
+
+    Parameters
+    ----------
+    unknown_values : array_like, shape (u,) or (m, u)
+        Values of the rig's unknown components (:func:`unknown_friction_indices`
+        order), u = their number (0 when the rig knows its friction).
+    log : plant.ExperimentLog
+
+    Returns
+    -------
+    ndarray, shape (6,) or (m, 6)
+        In :data:`plant.friction.FRICTION_NAMES` order.
+    """
+    v = np.asarray(unknown_values, dtype=float)
+    V = np.tile(friction_vector(log.rig), v.shape[:-1] + (1,))
+    unknown = unknown_friction_indices(log.rig)
+    if unknown:
+        V[..., unknown] = v
+    return V
 
 
 def friction_entries(log) -> dict:
@@ -179,10 +202,7 @@ class FrictionParameters(Parameterisation):
         -------
         ndarray, shape (6,) or (m, 6)
         """
-        x = np.asarray(x, dtype=float)
-        V = np.tile(friction_vector(log.rig), x.shape[:-1] + (1,))
-        V[..., unknown_friction_indices(log.rig)] = x[..., self._k(log):]
-        return V
+        return full_friction(np.asarray(x, dtype=float)[..., self._k(log):], log)
 
     def plant(self, log):
         """:data:`plant.friction.RIGID_FRICTION`.
