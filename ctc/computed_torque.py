@@ -66,12 +66,13 @@ from typing import NamedTuple
 
 from plant.core import cell_centre
 from plant.model import (
+    checked_f,
     friction_torque,
     inverse_dynamics_terms,
     is_positive_definite,
     mass_terms,
 )
-from plant.controllers import CONTROL_LAWS, LoggedController
+from plant.controllers import CONTROL_LAWS, LoggedController, saturated
 from plant.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, gains_for
@@ -178,23 +179,15 @@ def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
         t3 -= friction_torque(v3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
     i2 = t2 / c.torque_per_amp[0]
     i3 = t3 / c.torque_per_amp[1]
-    lim = c.current_limit
-    if abs(i2) > lim or abs(i3) > lim:
-        # the drive's current limit, with anti-windup: the observer predicts the
-        # next sample with the acceleration the *saturated* current gives the
-        # model, D_hat(q_hat)^-1 k Kt (i_sat - i) added to the command (the
-        # observer form of back-calculation anti-windup: K. J. Astrom and
-        # T. Hagglund, *Advanced PID Control*, 2006, sec. 3.5)
-        i2s = min(max(i2, -lim), lim)
-        i3s = min(max(i3, -lim), lim)
+    i2, i3, u2, u3 = saturated(i2, i3, c)
+    if u2 != 0.0 or u3 != 0.0:
+        # anti-windup: the observer predicts the next sample with the acceleration
+        # the *saturated* current gives the model, a + D_hat(q_hat)^-1 u
         d11, d12, d22 = mass_terms(f, math.cos(q3), math.sin(q3))
         det = d11 * d22 - d12 * d12
         if det > 0.0:
-            u2 = (i2s - i2) * c.torque_per_amp[0]
-            u3 = (i3s - i3) * c.torque_per_amp[1]
             a2 += (d22 * u2 - d12 * u3) / det
             a3 += (d11 * u3 - d12 * u2) / det
-        i2, i3 = i2s, i3s
     S[_S_Q, lane] = q2
     S[_S_Q + 1, lane] = q3
     S[_S_W, lane] = w2
@@ -282,7 +275,8 @@ def _pair(values):
 
 
 def model_f(f) -> np.ndarray:
-    """A controller's model f (9,), with a one-line pointer when a result is passed instead.
+    """A controller's model f (9,) (:func:`plant.model.checked_f`), pointing a result to
+    ``from_result``.
 
     Parameters
     ----------
@@ -295,21 +289,9 @@ def model_f(f) -> np.ndarray:
     Raises
     ------
     ValueError
-        If ``f`` is an identification result (use ``from_result``) or not 9
-        finite numbers.
+        If ``f`` is an identification result or not 9 finite numbers.
     """
-    if isinstance(f, dict) or hasattr(f, "to_dict"):
-        raise ValueError("from_log takes f (9 numbers); for an identification result use "
-                         "ComputedTorqueController.from_result(result, log)")
-    try:
-        a = np.asarray(f, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"f must be 9 finite numbers f1..f9, got {type(f).__name__}") from None
-    if a.shape != (9,):
-        raise ValueError(f"f must have shape (9,) (f1..f9), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError("f contains NaN or inf")
-    return a
+    return checked_f(f, "f", "use ComputedTorqueController.from_result(result, log)")
 
 
 def reference_of(log, trajectory=None):

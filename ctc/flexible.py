@@ -90,7 +90,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from plant.controllers import CONTROL_LAWS, LoggedController
+from plant.controllers import CONTROL_LAWS, LoggedController, saturated
 from plant.model import friction_torque, is_positive_definite, joint_acceleration
 from plant.plants import dead_zone
 
@@ -237,15 +237,11 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
         t3 -= friction_torque(n3, c.viscous[1], c.coulomb_pos[1], c.coulomb_neg[1], c.ramp_speed[1])
     i2 = t2 / c.torque_per_amp[0]
     i3 = t3 / c.torque_per_amp[1]
-    lim = c.current_limit
-    if abs(i2) > lim or abs(i3) > lim:
-        # the drive's current limit, with anti-windup: the motor observer predicts
-        # with the acceleration the saturated current gives the motor (as the rigid CTC)
-        i2s = min(max(i2, -lim), lim)
-        i3s = min(max(i3, -lim), lim)
-        a2 += (i2s - i2) * c.torque_per_amp[0] / p.motor_inertia[0]
-        a3 += (i3s - i3) * c.torque_per_amp[1] / p.motor_inertia[1]
-        i2, i3 = i2s, i3s
+    # the drive's current limit, with anti-windup: the motor observer predicts with
+    # the acceleration the saturated current gives the motor (as the rigid CTC)
+    i2, i3, u2, u3 = saturated(i2, i3, c)
+    a2 += u2 / p.motor_inertia[0]
+    a3 += u3 / p.motor_inertia[1]
     S[_S_Q, lane] = th2
     S[_S_Q + 1, lane] = th3
     S[_S_W, lane] = v2

@@ -45,7 +45,7 @@ from .plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older c
 from .response import ClosedLoopResponse
 from .rig import rig_constants
 from .simulate import _dummy_problem, _kernel, check_substeps, new_lanes
-from .model import is_positive_definite
+from .model import checked_f, is_positive_definite
 
 # ClosedLoopResponse (plant.response) and FlexibleJoints (plant.plants) are
 # importable from here too, for older code; they are documented where defined.
@@ -77,21 +77,6 @@ def _step(kind, lanes, c, substeps, k, i2, i3):
     U[1, 0] = i3
     advance_sample(kind, P, c, X, U, A, S, W, 1, substeps, k % REANCHOR == 0)
     return S[0]
-
-
-def _check_f(f, what):
-    if isinstance(f, dict) or hasattr(f, "to_dict"):
-        raise ValueError(f"{what} must be 9 numbers f1..f9; for an identification result pass "
-                         "result.f")
-    try:
-        f = np.ascontiguousarray(f, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be 9 numbers f1..f9, got {type(f).__name__}") from None
-    if f.shape != (9,):
-        raise ValueError(f"{what} must have shape (9,) (f1..f9), got {f.shape}")
-    if not np.all(np.isfinite(f)):
-        raise ValueError(f"{what} contains NaN or inf")
-    return f
 
 
 def simulate_closed_loop(
@@ -174,7 +159,7 @@ def simulate_closed_loop(
     if n < 1:
         raise ValueError(f"n_samples must be >= 1, got {n_samples}")
     substeps = check_substeps(substeps)
-    f = _check_f(f_robot, "f_robot")
+    f = checked_f(f_robot, "f_robot")
     if not callable(controller) or not callable(getattr(controller, "reset", None)):
         raise ValueError("controller must be callable and have a reset() method (sampled-controller protocol)")
     c = rig_constants(rig, q0=q0, qd0=qd0)
@@ -202,7 +187,7 @@ def simulate_closed_loop(
     changes = []
     for t_s, f_new in (f_schedule or ()):
         k_s = max(0, int(math.ceil(float(t_s) / ts - 1e-9)))
-        changes.append((k_s, plant.lane_parameters(_check_f(f_new, "f_schedule f")[None], rig)))
+        changes.append((k_s, plant.lane_parameters(checked_f(f_new, "f_schedule f")[None], rig)))
     changes.sort(key=lambda ch: ch[0])
     controller.reset()
     status = STATUS_OK

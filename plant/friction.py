@@ -31,6 +31,7 @@ import numba
 import numpy as np
 
 from .plants import Plant, register_plant, rigid_derivative
+from .rig import friction_vector, joint_side_friction  # noqa: F401 (their home is plant.rig)
 
 __all__ = ["RigidFrictionKind", "RIGID_FRICTION_KIND", "RigidWithFriction", "RIGID_FRICTION",
            "rigid_friction_rhs", "FRICTION_NAMES", "friction_vector", "friction_fields",
@@ -62,25 +63,6 @@ class RigidFrictionKind(NamedTuple):
 RIGID_FRICTION_KIND = RigidFrictionKind()
 
 
-def friction_vector(rig) -> np.ndarray:
-    """The rig's friction as a vector (6,) in :data:`FRICTION_NAMES` order; unknown -> 0.
-
-    Parameters
-    ----------
-    rig : plant.rig.Rig
-
-    Returns
-    -------
-    ndarray, shape (6,)
-    """
-    v = np.zeros(6)
-    if rig.viscous_friction_Nms_per_rad is not None:
-        v[:2] = rig.viscous_friction_Nms_per_rad
-    if rig.coulomb_friction_Nm is not None:
-        v[2:] = np.asarray(rig.coulomb_friction_Nm, dtype=float).ravel()
-    return v
-
-
 def friction_fields(v) -> dict:
     """A friction vector (6,) as the sidecar's fields.
 
@@ -98,34 +80,6 @@ def friction_fields(v) -> dict:
     v = np.asarray(v, dtype=float).reshape(6)
     return dict(viscous_friction_Nms_per_rad=[float(v[0]), float(v[1])],
                 coulomb_friction_Nm=[[float(v[2]), float(v[3])], [float(v[4]), float(v[5])]])
-
-
-def joint_side_friction(V, rig) -> np.ndarray:
-    """Joint-side friction rows (6, m) of motor-side friction vectors V (m, 6).
-
-    Parameters
-    ----------
-    V : array_like, shape (m, 6) or (6,)
-        Motor-side friction (:data:`FRICTION_NAMES`).
-    rig : plant.rig.Rig
-        For the gear ratios k.
-
-    Returns
-    -------
-    ndarray, shape (6, m)
-        Rows ``k^2 B`` (2), ``abs(k) Tc+`` (2), ``abs(k) Tc-`` (2).
-    """
-    V = np.atleast_2d(np.asarray(V, dtype=float))
-    if V.shape[1] != 6 or not np.all(np.isfinite(V)):
-        raise ValueError(f"friction must be finite with shape (m, 6), got {V.shape}")
-    k = np.abs(np.asarray(rig.gear_ratio, dtype=float))
-    out = np.empty((6, V.shape[0]))
-    out[0:2] = (k * k)[:, None] * V[:, 0:2].T
-    out[2] = k[0] * V[:, 2]
-    out[3] = k[1] * V[:, 4]
-    out[4] = k[0] * V[:, 3]
-    out[5] = k[1] * V[:, 5]
-    return out
 
 
 @_jit

@@ -45,6 +45,7 @@ __all__ = [
     "is_positive_definite",
     "min_inertia_eigenvalue",
     "friction_torque",
+    "checked_f",
 ]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -453,3 +454,40 @@ def is_positive_definite(f, q3=None):
     if q3 is None:
         q3 = np.linspace(-np.pi, np.pi, 721)
     return bool(np.all(min_inertia_eigenvalue(f, q3) > 0.0))
+
+
+def checked_f(f, what="f", result_hint="pass result.f"):
+    """Base parameters f1..f9 as a contiguous float array, or a one-line error.
+
+    The one check of an f argument (controllers, closed-loop simulation).
+
+    Parameters
+    ----------
+    f : array_like, shape (9,)
+    what : str
+        The argument's name in the message.
+    result_hint : str
+        What to say when an identification result (a dict or a result
+        object) is passed instead of its f.
+
+    Returns
+    -------
+    ndarray, shape (9,), float64, C-contiguous
+
+    Raises
+    ------
+    ValueError
+        For a result, a non-numeric value, a shape other than (9,), NaN or inf.
+    """
+    if isinstance(f, dict) or hasattr(f, "to_dict"):
+        raise ValueError(f"{what} must be 9 numbers f1..f9; for an identification result "
+                         f"{result_hint}")
+    try:
+        a = np.ascontiguousarray(f, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be 9 numbers f1..f9, got {type(f).__name__}") from None
+    if a.shape != (9,):
+        raise ValueError(f"{what} must have shape (9,) (f1..f9), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} contains NaN or inf")
+    return a

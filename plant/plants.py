@@ -34,6 +34,7 @@ import numba
 import numpy as np
 
 from .model import friction_torque, joint_acceleration_sc
+from .rig import friction_vector, joint_side_friction
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "rigid_derivative", "flexible_rhs", "RigidKind",
            "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RightHandSide", "RIGHT_HAND_SIDES",
@@ -460,8 +461,6 @@ class FlexibleJoints(Plant):
         ValueError
             On a friction of the wrong shape or not finite.
         """
-        from .friction import friction_vector, joint_side_friction
-
         F = np.atleast_2d(np.asarray(F, dtype=float))
         m = F.shape[0]
         P = np.empty((FLEXIBLE_N_PARAMETERS, m))

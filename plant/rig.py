@@ -212,3 +212,53 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
         current_limit=(math.inf if rig.current_full_scale_A is None
                        else float(rig.current_full_scale_A)),
     )
+
+
+# ----------------------------------------------------------------------------
+# Drive friction as vectors (motor side, sidecar order) and per-lane rows (joint side)
+# ----------------------------------------------------------------------------
+def friction_vector(rig) -> np.ndarray:
+    """The rig's friction as a vector (6,) in :data:`plant.friction.FRICTION_NAMES` order; unknown -> 0.
+
+    Parameters
+    ----------
+    rig : plant.rig.Rig
+
+    Returns
+    -------
+    ndarray, shape (6,)
+    """
+    v = np.zeros(6)
+    if rig.viscous_friction_Nms_per_rad is not None:
+        v[:2] = rig.viscous_friction_Nms_per_rad
+    if rig.coulomb_friction_Nm is not None:
+        v[2:] = np.asarray(rig.coulomb_friction_Nm, dtype=float).ravel()
+    return v
+
+
+def joint_side_friction(V, rig) -> np.ndarray:
+    """Joint-side friction rows (6, m) of motor-side friction vectors V (m, 6).
+
+    Parameters
+    ----------
+    V : array_like, shape (m, 6) or (6,)
+        Motor-side friction (:data:`plant.friction.FRICTION_NAMES`).
+    rig : plant.rig.Rig
+        For the gear ratios k.
+
+    Returns
+    -------
+    ndarray, shape (6, m)
+        Rows ``k^2 B`` (2), ``abs(k) Tc+`` (2), ``abs(k) Tc-`` (2).
+    """
+    V = np.atleast_2d(np.asarray(V, dtype=float))
+    if V.shape[1] != 6 or not np.all(np.isfinite(V)):
+        raise ValueError(f"friction must be finite with shape (m, 6), got {V.shape}")
+    k = np.abs(np.asarray(rig.gear_ratio, dtype=float))
+    out = np.empty((6, V.shape[0]))
+    out[0:2] = (k * k)[:, None] * V[:, 0:2].T
+    out[2] = k[0] * V[:, 2]
+    out[3] = k[1] * V[:, 4]
+    out[4] = k[0] * V[:, 3]
+    out[5] = k[1] * V[:, 5]
+    return out
