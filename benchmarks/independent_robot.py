@@ -318,7 +318,7 @@ class IndependentRobot:
 
     # ---------------------------------------------------------------- run
     def run(self, controller, trajectory, n_samples: int, *, rtol=1e-9, atol=1e-12,
-            max_step_fraction=0.25, record_state=False, max_abs_e=1e6):
+            max_step_fraction=0.25, record_state=False, max_abs_e=1e6, changes=()):
         """Run a sampled controller on the robot along ``trajectory`` for ``n_samples``.
 
         Parameters
@@ -331,6 +331,10 @@ class IndependentRobot:
         max_abs_e : float
             Stop (``success`` False, "diverged") once an error exceeds this
             many pulses; the remaining rows repeat the last error.
+        changes : sequence of (int, IndependentRobot)
+            Mid-run plant switches: from sample ``k`` on, the robot's
+            dynamics are the given robot's (same joint model, so the state
+            carries over; encoder, gears and current limit stay this robot's).
 
         Returns
         -------
@@ -355,7 +359,14 @@ class IndependentRobot:
         controller.reset()
         ok, msg = True, "ok"
         max_step = ts * float(max_step_fraction)
+        switches = sorted(((int(kc), r) for kc, r in changes), key=lambda c: c[0])
+        for kc, r in switches:
+            if r.flexible != self.flexible:
+                raise ValueError("a mid-run change must keep the joint model (rigid or flexible)")
+        rhs = self.rhs
         for k in range(n):
+            while switches and k >= switches[0][0]:
+                rhs = switches.pop(0)[1].rhs
             if record_state:
                 Y[k] = y
             count = np.trunc(self.encoder_angle(y) * self.pulses_per_rad)
@@ -373,7 +384,7 @@ class IndependentRobot:
                 ok, msg = False, f"diverged at sample {k} (e = {e.tolist()})"
                 E[k + 1:] = E[k]
                 break
-            sol = solve_ivp(self.rhs, (t[k], t[k] + ts), y, method="DOP853", rtol=rtol,
+            sol = solve_ivp(rhs, (t[k], t[k] + ts), y, method="DOP853", rtol=rtol,
                             atol=atol, max_step=max_step, args=(i,))
             if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
                 ok, msg = False, f"integration failed at sample {k}: {sol.message}"

@@ -17,7 +17,7 @@
 Run a controller against the model robot with
 :func:`plant.closed_loop.simulate_closed_loop`.
 """
-from .adaptive import AdaptiveComputedTorqueController
+from .adaptive import AdaptiveComputedTorqueController, UnmodelledChangeWarning
 from .computed_torque import ComputedTorqueController
 from .design import GainDesign, design_gains
 from .flexible import FlexibleJointComputedTorqueController
@@ -27,7 +27,7 @@ __all__ = [
     "SampledController",
     "PController",
     "ComputedTorqueController",
-    "AdaptiveComputedTorqueController",
+    "AdaptiveComputedTorqueController", "UnmodelledChangeWarning",
     "FlexibleJointComputedTorqueController",
     "GainDesign",
     "design_gains",

@@ -9,7 +9,9 @@ of the emulated development logs in ``tests/data``) and writes
   commit and the date of the run (written atomically: a failed run leaves
   the previous file);
 * ``docs/images/*.png``: the images the pages show
-  (``real_rigs_spectrum.png``, ``scaling.png``, ``optimisers_convergence.png``);
+  (``identification_convergence.png``, ``identification_tracking_errors.png``,
+  ``online_payload_errors.png``, ``real_rigs_spectrum.png``, ``scaling.png``,
+  ``optimisers_convergence.png``);
 * ``docs/figures/``: the raw outputs of the examples and benchmarks it ran
   (JSON results, printed tables).
 
@@ -53,13 +55,18 @@ it in ``optimisers``):
     the paper trajectory.
 ``online_payload``
     ``benchmarks/bench_online_payload.py``: the wall time of one payload
-    identification on a 200 ms window.
+    identification on 100 and 200 ms windows; ``examples/online_payload.py``
+    and its pick-up image.
 ``robustness``
     ``benchmarks/bench_robustness.py --n 106 --seed 20261122 --jobs 2``: the
     randomized suite of logs from the independent simulator (needs the
     ``bench`` extra, Robotics Toolbox for Python; about 40 min on 2 cores):
     ``figures/robustness.rst`` (success rates, worst five) and
     ``figures/robustness.txt`` (every log).
+``changes``
+    ``benchmarks/bench_changes.py --n 60 --seed 20261122 --jobs 2``: mid-run
+    changes on the independent simulator, P / static CTC / adaptive CTC
+    (``figures/changes.rst``, ``figures/changes.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -89,9 +96,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
-SECTIONS = ("simulator", "identification", "alteration", "ctc", "real_rigs", "speed",
+SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness")
+            "robustness", "changes")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -149,6 +156,11 @@ def identification(ctx):
     out = {"log": log.name}
     for method in ident.METHODS:
         res = ident.identify(log, method=method, rng=0, progress=False, **ctx["quick"])
+        if method == ident.DEFAULT_METHOD:
+            # the two plots the identification tutorial explains
+            res.plot().savefig(ctx["images"] / "identification_convergence.png", dpi=110)
+            res.plot_tracking_errors().savefig(ctx["images"] / "identification_tracking_errors.png",
+                                               dpi=110)
         err = _rel_pct(res.f, f_true)
         e_val = plant.simulate_experiment(val, res.f)
         out[method] = {
@@ -168,13 +180,36 @@ def identification(ctx):
     return out
 
 
+def timings(ctx):
+    """The times the README, the CLI and the examples quote, measured here.
+
+    The README's main command with an empty numba cache (first run: compile)
+    and with the cache filled (later runs), each a fresh process.
+    """
+    import tempfile
+
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = _env()
+        env["NUMBA_CACHE_DIR"] = cache
+        for name in ("first_run_compile_s", "later_run_cached_s"):
+            t0 = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-m", "identification", "--example", "--quiet"],
+                                  cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+            if proc.returncode != 0:
+                raise RuntimeError(f"identification --example exited {proc.returncode}")
+            out[name] = time.perf_counter() - t0
+    return out
+
+
 def alteration(ctx):
     q = ["--quick"] if ctx["quick"] else ["--seeds", "10"]
-    _run(["examples/alteration_study.py", *q, "--truth", DATA / "puma560_paper_rigid.truth.json",
+    _, wall = _run(["examples/alteration_study.py", *q, "--truth", DATA / "puma560_paper_rigid.truth.json",
           "--validate", DATA / "puma560_validation_rigid.csv", "--out", ctx["raw"] / "alteration"],
          ctx["raw"], "alteration_study")
     rep = json.loads((ctx["raw"] / "alteration" / "alteration.json").read_text())
-    out = {"seeds": rep["seeds"], "validation_pulses2_at_truth": rep.get("validation_pulses2_at_truth")}
+    out = {"seeds": rep["seeds"], "validation_pulses2_at_truth": rep.get("validation_pulses2_at_truth"),
+           "example_wall_s": wall}
     for method, m in rep["methods"].items():
         s = m["statistics"]
         runs = m["runs"]
@@ -190,20 +225,26 @@ def alteration(ctx):
 
 def ctc(ctx):
     q = ["--quick"] if ctx["quick"] else []
-    _run(["examples/ctc_vs_p.py", *q, "--truth", DATA / "puma560_paper_rigid.truth.json",
-          "--drill-truth", DATA / "puma560_paper_drill_flex.truth.json",
-          "--out", ctx["raw"] / "ctc_vs_p"], ctx["raw"], "ctc_vs_p")
+    _, wall = _run(["examples/ctc_vs_p.py", *q, "--truth", DATA / "puma560_paper_rigid.truth.json",
+                    "--drill-truth", DATA / "puma560_paper_drill_flex.truth.json",
+                    "--out", ctx["raw"] / "ctc_vs_p"], ctx["raw"], "ctc_vs_p")
     res = json.loads((ctx["raw"] / "ctc_vs_p" / "results.json").read_text())
+    # the default run (no --truth) identifies f first: its time is the one the docs quote
+    _, wall_default = _run(["examples/ctc_vs_p.py", *q, "--out", ctx["raw"] / "ctc_vs_p_default"],
+                           ctx["raw"], "ctc_vs_p_default")
     return {"rigid": {r["name"]: r for r in res["rigid"]}, "robustness": res["robustness"],
             "flexible": {r["name"]: r for r in res["flexible"]["rows"]},
-            "substeps": res["substeps"], "gains": res["gains"]}
+            "substeps": res["substeps"], "gains": res["gains"], "example_wall_s": wall,
+            "example_default_wall_s": wall_default}
 
 
 def real_rigs(ctx):
     q = ["--quick"] if ctx["quick"] else []
-    _run(["examples/real_rigs.py", *q, "--truth", DATA / "puma560_paper_drill_flex.truth.json",
-          "--out", ctx["raw"] / "real_rigs"], ctx["raw"], "real_rigs")
+    _, wall = _run(["examples/real_rigs.py", *q, "--truth",
+                    DATA / "puma560_paper_drill_flex.truth.json",
+                    "--out", ctx["raw"] / "real_rigs"], ctx["raw"], "real_rigs")
     res = json.loads((ctx["raw"] / "real_rigs" / "results.json").read_text())
+    res["example_wall_s"] = wall
     f_true = _truth("puma560_paper_drill_flex")
     for key in [k for k in res if k.startswith("drill_f_")]:
         res[key.replace("drill_f_", "drill_error_pct_")] = _rel_pct(res[key], f_true)
@@ -262,7 +303,20 @@ def excitation(ctx):
 
 def online_payload(ctx):
     text, wall = _run(["benchmarks/bench_online_payload.py"], ctx["raw"], "bench_online_payload")
-    return {"printed": text.splitlines(), "wall_s": wall}
+    q = ["--quick"] if ctx["quick"] else []
+    _, wall_ex = _run(["examples/online_payload.py", *q, "--truth",
+                       DATA / "puma560_paper_rigid.truth.json", "--out", ctx["raw"] / "online_payload"],
+                      ctx["raw"], "online_payload")
+    shutil.copyfile(ctx["raw"] / "online_payload" / "errors.png",
+                    ctx["images"] / "online_payload_errors.png")
+    return {"printed": text.splitlines(), "wall_s": wall, "example_wall_s": wall_ex}
+
+
+def changes(ctx):
+    q = ["--n", "4"] if ctx["quick"] else ["--n", "60"]
+    text, wall = _run(["benchmarks/bench_changes.py", *q, "--seed", "20261122", "--jobs", "2",
+                       "--rst", ctx["raw"] / "changes.rst"], ctx["raw"], "bench_changes")
+    return {"printed": text.splitlines()[-30:], "wall_s": wall}
 
 
 # -------------------------------------------------------------------------------- main

@@ -305,7 +305,7 @@ def main(argv=None):
     if truth is not None:
         f_robot, robot = truth["f_vector"], f"true f from {args.truth}"
     else:
-        f_robot, robot = f_id, "the identified f (no --truth given)"
+        f_robot, robot = f_id, "the identified f"
     f_centre = log.rig.bounds.mean(axis=1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

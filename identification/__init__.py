@@ -13,6 +13,7 @@ import importlib
 _LOCATIONS = {
     "identify": "api", "METHODS": "api", "DEFAULT_METHOD": "api",
     "ModelInadequacyWarning": "api",
+    "SearchBoundWarning": "api",
     "identify_many": "distributed", "Job": "distributed", "JobResult": "distributed",
     "seed_jobs": "distributed",
     "apply_lowpass": "filtering", "lowpass_sos": "filtering",
@@ -44,6 +45,7 @@ def __dir__():
 __all__ = [
     "identify",
     "ModelInadequacyWarning",
+    "SearchBoundWarning",
     "identify_many",
     "Job",
     "JobResult",

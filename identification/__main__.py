@@ -25,6 +25,9 @@ def main(argv=None):
         The exit status (0, 1, 130; argparse usage errors exit with 2).
     """
     try:
+        from identification import _sigint
+
+        _sigint.install()  # a Ctrl-C swallowed by a finaliser is remembered, not lost
         from identification.cli import main as cli_main
     except KeyboardInterrupt:
         try:
@@ -50,6 +53,18 @@ def exit_after(status):
         Exit status.
     """
     gc.freeze()
+    if status == EXIT_INTERRUPTED:
+        # a Ctrl-C: every output is complete or absent by now (atomic writes); leave at
+        # once, so that the interpreter's shutdown cannot turn a KeyboardInterrupt it
+        # saw on the way into a death by SIGINT (exit status -2 instead of 130)
+        import os
+
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError, KeyboardInterrupt):
+                pass
+        os._exit(EXIT_INTERRUPTED)
     sys.exit(status)
 
 

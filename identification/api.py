@@ -9,6 +9,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 import plant
+from plant.sanity import check_experiment
 
 from .ga import run_ga
 from .objective import IDENTIFICATION_SUBSTEPS, OutputError
@@ -27,7 +28,7 @@ from .result import IdentificationResult
 from .uncertainty import PoorExcitationWarning, uncertainty_entries, warning_text
 from .window import estimate_initial_state
 
-__all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
+__all__ = ["identify", "SearchBoundWarning", "at_bounds", "bounds_text", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
            "ModelInadequacyWarning", "GA_OPTION_KEYS"]
 
 #: Identification methods: the paper's GA alone, and GA + prediction-error
@@ -177,8 +178,10 @@ def identify(
         ``fun`` (output error, pulses^2), ``nfev``; after each refinement
         start has converged (or merged) ``stage='refine'``, ``start``
         (1-based), ``n_starts``, ``x``, ``fun`` (prediction-error cost,
-        pulses^2), ``nfev``.  True stops the search and returns the best so
-        far (``interrupted``).
+        pulses^2), ``nfev``; during the model choice and the flexible fit
+        ``stage='model'`` (the rigid result's ``x``, ``fun``), polled between
+        refinement steps.  True stops the search and returns the best so far
+        (``interrupted``; a stop in the model choice keeps the rigid result).
     workers : int, optional
         Threads of the parallel simulation (default: all available CPUs).
     progress : bool
@@ -251,7 +254,10 @@ def identify(
         On an unknown method, bad bounds or options, or ``payload`` without
         a valid ``prior``.
     plant.LogError
-        If ``log`` is a path to a malformed log.
+        If ``log`` is a path to a malformed log, or its signals cannot carry
+        an identification (:func:`plant.sanity.check_experiment`: too few
+        samples for the parameters, all zero, impossible encoder counts or
+        currents, currents that disagree with the rig's ``i = P e``).
     """
     if method == "default":
         method = DEFAULT_METHOD
@@ -261,11 +267,16 @@ def identify(
     if method in ("idim-ls", "idim-iv"):  # the classical inverse-dynamic model (issue 15)
         from .idim import identify_idim
 
+        check_experiment(log, n_parameters=9 + len(log.rig.unknown_friction), p_control=True)
+
         return identify_idim(log, substeps=substeps, workers=workers, lowpass_hz=lowpass_hz,
                              seed=_seed_of(rng), method=method)
     _check_rng(rng)
     space = _with_friction(
         _parameterisation(parameters, bounds, payload, prior, payload_bounds, consistent), log)
+    # a log that cannot carry an identification is refused in one line (issue 22)
+    check_experiment(log, n_parameters=int(np.asarray(space.bounds(log)).shape[0]),
+                     p_control=controller is None)
     seed = _seed_of(rng)
     rng = np.random.default_rng(rng)
     if workers is not None and int(workers) < 1:
@@ -292,19 +303,90 @@ def identify(
                 and controller is None and log.rig.q0_rad is not None
                 and not res.interrupted and (model == "flexible" or (
                     ga_options is None and refine_options is None)))
-    res = apply_model(res, log, model, workers=workers, eligible=eligible, space=space)
+    stop = None
+    if callback is not None:  # the caller's callback may stop the model choice too (Ctrl-C)
+        stop = lambda: bool(callback(OptimizeResult(  # noqa: E731
+            x=res.get("x"), fun=res.get("fun"), stage="model", nfev=res.get("nfev"))))
+    res = apply_model(res, log, model, workers=workers, eligible=eligible, space=space, stop=stop)
     t_end = time.perf_counter()
     # the whole call: compilation, search, model choice and every fit (issue 20)
     res["stage_times_s"] = dict(compile=float(res.get("compile_time_s") or 0.0),
                                 search=float(res["wall_time_s"]),
                                 model_choice_and_flexible_fit=t_end - t_search)
     res["wall_time_s"] = t_end - t_start
+    res["at_bounds"] = at_bounds(res)
+    if res["at_bounds"]:
+        warnings.warn(bounds_text(res["at_bounds"]), SearchBoundWarning, stacklevel=2)
     for text in res.get("warnings") or []:
         warnings.warn(text, ModelInadequacyWarning, stacklevel=2)
     if res.get("poorly_excited"):
-        warnings.warn(warning_text(res["poorly_excited"], res["f_rse"]), PoorExcitationWarning,
+        warnings.warn(excitation_text(res), PoorExcitationWarning,
                       stacklevel=2)
     return res
+
+
+class SearchBoundWarning(UserWarning):
+    """The identified point lies on the search box (issue 22): the optimum may lie outside it.
+
+    The names are in the result's ``at_bounds``.
+    """
+
+
+#: A parameter within this fraction of its range of a bound is "at the bound".
+AT_BOUND_FRACTION = 1e-6
+
+
+def at_bounds(res) -> list:
+    """Names of the searched parameters that ended on their search bound.
+
+    Parameters
+    ----------
+    res : IdentificationResult or dict
+        With ``x`` (k,), ``bounds`` (k, 2) and ``x_names`` (k).
+
+    Returns
+    -------
+    list of str
+        ``'f3 (upper)'``-style entries: within ``AT_BOUND_FRACTION`` (1e-6) of
+        the range of a bound.  A fixed parameter (empty range) and a bound
+        at exactly 0 (a physical limit: a mass, an inertia or a friction
+        constant cannot be negative) are not flagged.
+    """
+    x = res.get("x")
+    xb = res.get("bounds")
+    names = res.get("x_names")
+    if x is None or xb is None or names is None:
+        return []
+    x = np.asarray(x, dtype=float).ravel()
+    xb = np.asarray(xb, dtype=float).reshape(-1, 2)
+    if not (len(x) == len(xb) == len(names)):
+        return []
+    out = []
+    for name, xi, (lo, hi) in zip(names, x, xb):
+        span = hi - lo
+        if not span > 0:
+            continue
+        if xi <= lo + AT_BOUND_FRACTION * span and lo != 0.0:
+            out.append(f"{name} (lower)")
+        elif xi >= hi - AT_BOUND_FRACTION * span and hi != 0.0:
+            out.append(f"{name} (upper)")
+    return out
+
+
+def bounds_text(names) -> str:
+    """The one-line warning for parameters at their search bound.
+
+    Parameters
+    ----------
+    names : list of str
+        Entries of :func:`at_bounds`.
+
+    Returns
+    -------
+    str
+    """
+    return (f"fit at the search bound: {', '.join(names)} -- the optimum may lie outside "
+            "the search ranges (widen f_search_ranges in the sidecar, or check the log)")
 
 
 class ModelInadequacyWarning(UserWarning):
@@ -315,6 +397,25 @@ class ModelInadequacyWarning(UserWarning):
     result's ``model_choice['adequate']`` is False and its ``f_std``
     includes the model-form error.
     """
+
+
+def excitation_text(res) -> str:
+    """The poor-excitation warning of a result, naming the parameters it was judged on.
+
+    Parameters
+    ----------
+    res : IdentificationResult or dict
+
+    Returns
+    -------
+    str
+    """
+    unc = res.get("uncertainty") or {}
+    names = unc.get("rse_names")
+    rse = res.get("poorly_excited_rse")
+    if names is not None and rse is not None:
+        return warning_text(res["poorly_excited"], rse, all_names=names)
+    return warning_text(res["poorly_excited"], res["f_rse"])
 
 
 def _user_callback(callback, stage, nfev):
@@ -426,7 +527,8 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
             refinement["initial_state"] = ref.x[k:]
         # warned about once, for the final result (identify(), after the model choice)
         unc = uncertainty_entries(ref.jac, ref.residuals, ref.x, lambda X: space.to_f(X, log),
-                                  k=k, names=space.names(log), a3=log.rig.a3_m, warn=False)
+                                  k=k, names=space.names(log), a3=log.rig.a3_m, warn=False,
+                                  judge_x=getattr(space, "name", None) == "payload")
 
     f = space.to_f(x, log)
     # the GA's best was evaluated already; a refined point is evaluated once here

@@ -66,6 +66,8 @@ from pathlib import Path
 
 import numpy as np
 
+from . import _sigint
+
 __all__ = ["main", "build_parser", "format_result_table"]
 
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT).
@@ -303,9 +305,9 @@ def format_result_table(result, log=None) -> str:
     lines.append(f"simulations: {result.nfev}{nit}   "
                  f"wall time: {float(result.get('wall_time_s') or 0.0):.2f} s")
     if result.get("poorly_excited"):
-        from .uncertainty import warning_text
+        from .api import excitation_text
 
-        lines.append("warning: " + warning_text(result["poorly_excited"], result["f_rse"]))
+        lines.append("warning: " + excitation_text(result))
     if result.get("interrupted"):
         lines.append(f"INTERRUPTED: {result.get('message')} (best so far)")
     return "\n".join(lines)
@@ -411,6 +413,8 @@ class _Status:
                 g = "" if gen is None else f" {gen}{of}"
                 self.say(f"GA generation{g}: best output error {float(r.get('fun')):.6g} "
                          "pulses^2")
+        if _sigint.seen():
+            self.ctrl_c.requested = True
         return self.ctrl_c.requested
 
 
@@ -421,8 +425,11 @@ def _wrote(status, info, what="wrote"):
     status.say(f"{what} {info.path}{via}")
 
 
-def _save_plots(result, directory: Path, status) -> list:
-    """Write PLOT_FILES into ``directory`` atomically (plant.fileio policy)."""
+def _save_plots(result, directory: Path, status, written=None) -> list:
+    """Write PLOT_FILES into ``directory`` atomically (plant.fileio policy).
+
+    ``written`` (a list) receives each path once it is complete.
+    """
     from plant.fileio import atomic_output, check_output_path
 
     paths = []
@@ -434,6 +441,8 @@ def _save_plots(result, directory: Path, status) -> list:
             fig.savefig(tmp, dpi=120, format="png")
         _wrote(status, info)
         paths.append(path)
+        if written is not None:
+            written.append(str(path))
     return paths
 
 
@@ -452,6 +461,9 @@ def _run(args, stdout, stderr) -> int:
     _check_output_targets(out, plot_dir, [p for p in inputs if p is not None])
     prior = _load_prior(args.prior) if args.prior else None
     log = plant.load_log(log_path)
+    from plant.sanity import check_experiment  # identify() checks too; here before any output
+
+    check_experiment(log, n_parameters=4 if args.payload else 9 + len(log.rig.unknown_friction))
     if args.lowpass == "auto":
         from .diagnostics import suggest_lowpass
 
@@ -483,10 +495,15 @@ def _run(args, stdout, stderr) -> int:
                f"seed {args.seed}")
     if hasattr(plant, "warm_up"):  # compile the numerical kernels once, saying so
         plant.warm_up(announce=None if args.quiet else status.say, closed_loop=False)
+    if _sigint.seen():  # a Ctrl-C that a finaliser swallowed: nothing has been searched yet
+        raise KeyboardInterrupt
     with ctrl_c, warnings.catch_warnings():  # the table's warning line says it
         warnings.simplefilter("ignore", PoorExcitationWarning)
         warnings.simplefilter("ignore", api.ModelInadequacyWarning)  # said below
+        warnings.simplefilter("ignore", api.SearchBoundWarning)  # said below
         result = api.identify(log, callback=status, **kwargs)
+    if _sigint.seen() and not result.get("interrupted"):
+        raise KeyboardInterrupt  # swallowed after the last step: never write over an output
     if ctrl_c.requested and result.get("interrupted"):
         result["message"] = str(result.get("message", "")).replace(
             "stopped by callback", "interrupted by Ctrl-C")
@@ -497,13 +514,16 @@ def _run(args, stdout, stderr) -> int:
         status.say(f"model: {result.get('model', 'rigid')} ({choice['reason']})")
     for text in result.get("warnings") or []:
         print(f"warning: {text}", file=stderr, flush=True)
+    if result.get("at_bounds"):
+        print(f"warning: {api.bounds_text(result['at_bounds'])}", file=stderr, flush=True)
     if not result.get("success", True) and not result.get("interrupted"):
         # a diverged or rejected fit is never written as a result (issue 20)
         raise CLIError(f"no valid result: {result.get('message', '')}")
     if out is not None:
         _wrote(status, result.save_json(out, create_dirs=True))
+        args.written.append(str(out))
     if plot_dir is not None:
-        _save_plots(result, plot_dir, status)
+        _save_plots(result, plot_dir, status, args.written)
     return EXIT_INTERRUPTED if result.get("interrupted") else 0
 
 
@@ -517,6 +537,7 @@ def _interrupted(stderr) -> int:
 
 def _main(argv, stdout, stderr) -> int:
     args = build_parser().parse_args(argv)
+    args.written = []  # output files completed so far (said if a later one fails)
     import plant
     from plant.fileio import OutputFileError
 
@@ -526,7 +547,8 @@ def _main(argv, stdout, stderr) -> int:
             OSError) as e:
         if _is_wrapped_interrupt(e):
             return _interrupted(stderr)
-        print(f"error: {_one_line(e)}", file=stderr)
+        done = f" (written before the failure: {', '.join(args.written)})" if args.written else ""
+        print(f"error: {_one_line(e)}{done}", file=stderr)
         return 1
 
 
@@ -548,6 +570,7 @@ def main(argv=None) -> int:
         :data:`INTERRUPTED_LINE`, never a traceback).
     """
     stdout, stderr = sys.stdout, sys.stderr
+    _sigint.install()
     try:
         return _main(argv, stdout, stderr)
     except KeyboardInterrupt:

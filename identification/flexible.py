@@ -75,6 +75,7 @@ friction within 0.5 %, backlash 2.00 mrad for 2 (tested).
 """
 from __future__ import annotations
 
+import contextvars
 import math
 
 import numpy as np
@@ -495,7 +496,8 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
         R = fit.residuals(X)
         costs = np.einsum("ij,ij->i", R, R)
         S = np.vstack([S, X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]])
-    ref = refine(fit, S, xb, max_iter=max_iter, ftol=ftol)
+    ref = refine(fit, S, xb, max_iter=max_iter, ftol=ftol, callback=_stop_callback())
+    _raise_if_stopped(ref)
     return dict(x=ref.x, f=space.to_f(ref.x, log), cost=ref.fun, refine=ref,
                 substeps=substeps, space=space, grid_costs=costs)
 
@@ -620,7 +622,8 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
     rp = _rigid_problem(log, space, rigid, workers, gain)
     mask_fit, held = _hold_mask(log)
     ref_r = refine(_Masked(rp, mask_fit), np.atleast_2d(_rigid_x(rigid)), space.bounds(log),
-                   max_iter=20)
+                   max_iter=20, callback=_stop_callback())
+    _raise_if_stopped(ref_r)
     r_rigid = rp.residuals(ref_r.x)
     c_rigid = float(r_rigid[held] @ r_rigid[held])
     flex = identify_flexible(log, rigid, workers=workers, gain=gain, hold_back=True)
@@ -703,7 +706,29 @@ def _diverged(result) -> bool:
     return not np.isfinite(float(result.get("fun", np.inf)))
 
 
-def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
+class _Stopped(Exception):
+    """The caller asked the model choice to stop (a Ctrl-C in the command line)."""
+
+
+#: The stop request of the running :func:`apply_model` (a callable -> bool, or None).
+_STOP = contextvars.ContextVar("identification_flexible_stop", default=None)
+
+
+def _stop_callback():
+    """refine()'s callback: stop when the caller's stop request says so."""
+    stop = _STOP.get()
+    if stop is None:
+        return None
+    return lambda *args: bool(stop())
+
+
+def _raise_if_stopped(ref):
+    stop = _STOP.get()
+    if getattr(ref, "interrupted", False) or (stop is not None and stop()):
+        raise _Stopped
+
+
+def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, stop=None):
     """The result for ``identify(model=...)`` from the rigid identification of the log.
 
     Parameters
@@ -722,6 +747,10 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
         raises.
     space : Parameterisation, optional
         The rigid fit's parameterisation (with the friction when unknown).
+    stop : callable, optional
+        ``stop() -> bool``, polled between refinement steps of the model
+        choice and the flexible fit; True ends them early and returns the
+        rigid result with ``interrupted`` True (a Ctrl-C in the CLI).
 
     Returns
     -------
@@ -736,6 +765,21 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
     ValueError
         On an unknown model, or ``'flexible'`` with options that rule it out.
     """
+    token = _STOP.set(stop)
+    try:
+        return _apply_model(rigid, log, model, workers=workers, eligible=eligible, space=space)
+    except _Stopped:
+        rigid["interrupted"] = True
+        rigid["message"] = (str(rigid.get("message") or "") +
+                            "; model choice interrupted: the rigid result is kept").lstrip("; ")
+        rigid["model_choice"] = dict(model="rigid", reason="model choice interrupted")
+        return rigid
+    finally:
+        _STOP.reset(token)
+
+
+def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
+    """The body of :func:`apply_model` (without the stop handling)."""
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     if model == "rigid":
@@ -744,8 +788,10 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
         if model == "flexible":
             raise ValueError("model='flexible' identifies the default or unknown-friction "
                              "parameterisation with the default method and no low-pass filter")
-        rigid["model_choice"] = dict(model="rigid", reason="options other than the default "
-                                     "search (low-pass, parameterisation or method): rigid model")
+        why = ("the search was interrupted: the rigid result so far" if rigid.get("interrupted")
+               else "options other than the default search (low-pass, parameterisation or "
+                    "method): rigid model")
+        rigid["model_choice"] = dict(model="rigid", reason=why)
         return rigid
     ref = rigid.get("refinement") or {}
     floor = quantisation_floor(2 * log.n_samples)

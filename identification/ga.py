@@ -95,7 +95,8 @@ class GAResult:
         ``'best'``: best objective in the population after each generation
         (index 0: initial population); ``'best_so_far'``: best ever
         evaluated (equal to ``'best'`` with elitism, i.e. ggap < 1);
-        ``'mean'``: mean of the finite objectives in the population;
+        ``'mean'``: mean of the finite objectives in the population (a
+        few penalised candidates dominate it); ``'median'``: their median;
         ``'nfev'``: cumulative evaluation count.
     interrupted : bool
         True when stopped early by ``callback`` or KeyboardInterrupt.
@@ -126,6 +127,13 @@ def _cap(objv: np.ndarray, early_stop: Optional[float]) -> Optional[float]:
         return None
     finite = objv[np.isfinite(objv)]
     return float(np.quantile(finite, float(early_stop))) if finite.size else None
+
+
+def _finite_median(objv) -> float:
+    """Median of the finite objectives (nan if none)."""
+    v = np.asarray(objv, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else float("nan")
 
 
 def _finite_mean(o: np.ndarray) -> float:
@@ -275,7 +283,7 @@ def run_ga(
     # a KeyboardInterrupt arriving anywhere leaves a consistent "best so far".
     pop = (chrom, objv)
     best = (float(objv.reshape(-1)[ib]), enc.decode(chrom.reshape(-1, L)[ib]), n_total)
-    hist = [(float(objv.min()), best[0], _finite_mean(objv), n_total)]
+    hist = [(float(objv.min()), best[0], _finite_mean(objv), n_total, _finite_median(objv))]
 
     interrupted = False
     message = f"completed {n_gen} generations"
@@ -311,7 +319,8 @@ def run_ga(
                     new_chrom, new_objv = migrate(new_chrom, new_objv, migration_rate, rng,
                                                   topology=topology, immigrants=immigrants)
                 pop = (new_chrom, new_objv)
-                hist.append((float(new_objv.min()), best[0], _finite_mean(new_objv), n_eval))
+                hist.append((float(new_objv.min()), best[0], _finite_mean(new_objv), n_eval,
+                             _finite_median(new_objv)))
                 bar.update(1)
                 bar.set_postfix(best=f"{best[0]:.6g}")
                 if callback is not None and callback(GAState(
@@ -328,7 +337,7 @@ def run_ga(
         bar.close()
 
     chrom, objv = pop
-    h = np.asarray(hist, dtype=float).reshape(-1, 4)
+    h = np.asarray(hist, dtype=float).reshape(-1, 5)
     return GAResult(
         x=np.asarray(best[1], dtype=float),
         fun=best[0],
@@ -343,6 +352,7 @@ def run_ga(
             "best_so_far": h[:, 1].copy(),
             "mean": h[:, 2].copy(),
             "nfev": h[:, 3].astype(np.int64),
+            "median": h[:, 4].copy(),
         },
         interrupted=interrupted,
     )

@@ -19,8 +19,9 @@ __all__ = ["MODEL_KEYS", "result_entries"]
 
 #: Keys every result carries (see the module docstring).
 MODEL_KEYS = ("model", "joint_stiffness_Nm_per_rad", "joint_damping_Nms_per_rad",
-              "motor_inertia_reflected_kgm2", "joint_backlash_rad", "stage_times_s", "viscous_friction_Nms_per_rad",
-              "coulomb_friction_Nm", "friction_identified", "model_choice")
+              "motor_inertia_reflected_kgm2", "joint_backlash_rad", "stage_times_s",
+              "viscous_friction_Nms_per_rad", "coulomb_friction_Nm", "friction_identified",
+              "model_choice", "at_bounds")
 
 
 def result_entries(space, x, log) -> dict:

@@ -552,15 +552,20 @@ class IdentificationResult(OptimizeResult):
         evals = np.asarray(h.get("nfev", []), dtype=float)
         target_ax.semilogy(evals, np.asarray(h.get("best", []), dtype=float), "-",
                            label="GA best")
-        target_ax.semilogy(evals, np.asarray(h.get("mean", []), dtype=float), "-", alpha=0.6,
-                           label="GA mean")
+        if h.get("median") is not None and len(h.get("median")) == len(evals):
+            # the population's median: its mean is dominated by a few penalised candidates
+            target_ax.semilogy(evals, np.asarray(h["median"], dtype=float), "-", alpha=0.6,
+                               label="GA population median")
+        else:
+            target_ax.semilogy(evals, np.asarray(h.get("mean", []), dtype=float), "-", alpha=0.6,
+                               label="GA population mean")
         if self.get("refinement"):
             target_ax.semilogy([self.nfev], [self.fun], "o", label="after refinement")
         target_ax.set_xlabel("simulations")
         target_ax.set_ylabel("output error Y (pulses$^2$, eq. 4)")
-        target_ax.set_title(f"{self.get('log_name') or ''}: method {self.get('method')}, "
-                            f"Y = {_fmt_y(self.fun)} pulses$^2$\n({self.setting_text()})",
-                            fontsize="medium")
+        target_ax.set_title(f"{self.get('log_name') or ''}: convergence of {self.get('method')}, "
+                            f"final Y = {_fmt_y(self.fun)} pulses$^2$\n"
+                            f"model simulated with {self.setting_text()}", fontsize="medium")
         target_ax.grid(True, which="both", alpha=0.3)
         target_ax.legend()
         return out
@@ -671,7 +676,9 @@ class IdentificationResult(OptimizeResult):
                                                    lowpass_hz=lowpass_hz)
         return plant.plot_tracking_errors(
             log.t, log.e_pulses, e, labels=("logged", "identified model"),
-            title=f"{log.name}: output error {_fmt_y(y)} pulses$^2$ ({setting})",
+            title=(f"{log.name}: logged and identified-model tracking errors\n"
+                   f"output error Y (eq. 4) = {_fmt_y(y)} pulses$^2$, model simulated with "
+                   f"{setting}"),
             fig=fig, ax=ax,
         )
 

@@ -310,7 +310,7 @@ def poorly_excited(f_rse, names=F_NAMES, threshold=RSE_WARN):
     return [n for n, v in zip(names, rse) if not (v <= threshold)]
 
 
-def warning_text(names, f_rse, threshold=RSE_WARN):
+def warning_text(names, f_rse, threshold=RSE_WARN, all_names=F_NAMES):
     """The one-line warning naming the poorly excited parameters (empty if none).
 
     Parameters
@@ -318,9 +318,13 @@ def warning_text(names, f_rse, threshold=RSE_WARN):
     names : list of str
         Output of :func:`poorly_excited`.
     f_rse : array_like, shape (9,)
-        Relative standard errors of f1..f9.
+        Relative standard errors of f1..f9 (or of the parameters named
+        ``all_names``).
     threshold : float
         The threshold used.
+    all_names : sequence of str
+        The names of ``f_rse``'s entries (default f1..f9; the payload's
+        ``m, xp, yp, Jc`` in payload mode).
 
     Returns
     -------
@@ -328,13 +332,14 @@ def warning_text(names, f_rse, threshold=RSE_WARN):
     """
     if not names:
         return ""
-    rse = dict(zip(F_NAMES, np.asarray(f_rse, dtype=float)))
+    rse = dict(zip(all_names, np.asarray(f_rse, dtype=float)))
     items = ", ".join(f"{n} ({100 * rse[n]:.0f} %)" if n in rse else n for n in names)
     return (f"relative standard error above {100 * threshold:.0f} %: {items} -- "
             "poorly excited by this trajectory")
 
 
-def uncertainty_entries(jac, residuals, x, to_f, *, k, names, a3=None, warn=True):
+def uncertainty_entries(jac, residuals, x, to_f, *, k, names, a3=None, warn=True,
+                        judge_x=False):
     """Result entries of :func:`identification.identify` (and the warning).
 
     Parameters
@@ -355,13 +360,18 @@ def uncertainty_entries(jac, residuals, x, to_f, *, k, names, a3=None, warn=True
     warn : bool
         Issue a :class:`PoorExcitationWarning` naming every parameter of f
         whose relative standard error exceeds :data:`RSE_WARN`.
+    judge_x : bool
+        Judge the excitation on the searched parameters ``names`` instead of
+        f (payload mode: the user asked for ``m, xp, yp, Jc``, not for f).
 
     Returns
     -------
     dict
         ``f_std``, ``f_rse``, ``f_correlation``, ``x_std``,
         ``x_correlation``, ``initial_state_std`` (with an estimated state),
-        ``poorly_excited`` (names) and ``uncertainty`` (method, lag,
+        ``poorly_excited`` (names), ``poorly_excited_rse`` (the relative
+        standard errors they were judged on, named in
+        ``uncertainty["rse_names"]``) and ``uncertainty`` (method, lag,
         hac_factor, sigma); empty if the Jacobian is missing or singular.
     """
     if jac is None or residuals is None:
@@ -371,17 +381,25 @@ def uncertainty_entries(jac, residuals, x, to_f, *, k, names, a3=None, warn=True
                                   a3=a3)
     except (ValueError, np.linalg.LinAlgError):
         return {}
-    bad = poorly_excited(u["f_rse"])
+    if judge_x:
+        xk = np.abs(np.asarray(x, dtype=float)[:k])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rse = np.where(xk > 0, np.asarray(u["x_std"][:k], dtype=float) / xk, np.inf)
+        rse_names = list(names)
+    else:
+        rse, rse_names = np.asarray(u["f_rse"], dtype=float), list(F_NAMES)
+    bad = poorly_excited(rse, names=rse_names)
     out = dict(f_std=u["f_std"], f_rse=u["f_rse"], f_correlation=u["f_correlation"],
                x_std=u["x_std"][:k], x_correlation=u["x_correlation"][:k, :k],
-               poorly_excited=bad,
+               poorly_excited=bad, poorly_excited_rse=rse,
                uncertainty=dict(method="Gauss-Newton sandwich, Newey-West (Bartlett) HAC",
                                 lag=u["info"]["lag"], hac_factor=u["info"]["hac_factor"],
                                 sigma_pulses=u["info"]["sigma"], x_names=list(names),
                                 scale=u["info"]["scale"], wald=u["info"]["wald"],
-                                rse_threshold=RSE_WARN))
+                                rse_threshold=RSE_WARN, rse_names=rse_names))
     if np.size(x) > k:
         out["initial_state_std"] = u["x_std"][k:]
     if warn and bad:
-        warnings.warn(warning_text(bad, u["f_rse"]), PoorExcitationWarning, stacklevel=3)
+        warnings.warn(warning_text(bad, rse, all_names=rse_names), PoorExcitationWarning,
+                      stacklevel=3)
     return out

@@ -49,6 +49,7 @@ import errno
 import os
 import secrets
 import stat
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Optional, Tuple
@@ -207,8 +208,26 @@ def check_output_path(path, *, create_dirs: bool = False) -> OutputTarget:
         If the target is not a regular file (directory, device, FIFO,
         socket) or is read-only, a symlink loop, or its directory is missing
         (and ``create_dirs`` is False), not a directory or not writable.
+        Writability is probed: a temporary file (or, for a missing directory,
+        a temporary directory) is created in the nearest existing directory
+        and removed at once, so a file system that the permission bits do not
+        describe (``/proc``, a read-only mount) fails here, not after the work.
     """
-    return _plan(path, create_dirs)[0]
+    info = _plan(path, create_dirs)[0]
+    base = info.created_dirs[0].parent if info.created_dirs else info.target.parent
+    try:
+        if info.created_dirs:
+            probe = Path(tempfile.mkdtemp(prefix=".probe-", dir=base))
+            probe.rmdir()
+        else:
+            fd, probe = _open_temp(base, info.target.name)
+            os.close(fd)
+            os.unlink(probe)
+    except OSError as e:
+        what = (f"cannot create directory {info.created_dirs[0]}" if info.created_dirs
+                else f"cannot write {info.path}")
+        raise OutputFileError(f"{what}: {e.strerror or e}") from None
+    return info
 
 
 def _open_temp(directory: Path, name: str) -> Tuple[int, Path]:
@@ -276,9 +295,9 @@ def atomic_output(path, *, create_dirs: bool = False) -> Iterator[Path]:
     Raises
     ------
     OutputFileError
-        If the target is refused by the policy (nothing is written).
-    OSError
-        If writing or renaming fails (the temporary file is removed).
+        If the target is refused by the policy (nothing is written), or
+        writing or renaming fails (the temporary file is removed; the message
+        names the target).
     """
     with _atomic(path, create_dirs) as (tmp, _info):
         yield tmp
@@ -306,6 +325,12 @@ def _atomic(path, create_dirs):
                     pass
             os.chmod(tmp, stat.S_IMODE(st.st_mode))
         os.replace(tmp, target)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        # name the file the user asked for (a full disk names only a temporary one, or none)
+        raise OutputFileError(f"cannot write {info.path}: {e.strerror or e} "
+                              "(the previous file, if any, is unchanged)") from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -384,6 +409,9 @@ def read_json_object(path, what):
         data = json.loads(text)
     except json.JSONDecodeError as e:
         raise ValueError(f"{p}: invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+    except RecursionError:
+        raise ValueError(f"{p}: {what} is nested too deeply to be read (JSON nesting beyond "
+                         f"Python's recursion limit)") from None
     if not isinstance(data, dict):
         raise ValueError(f"{p}: {what} must hold a JSON object")
     return data

@@ -335,6 +335,9 @@ def _read_sidecar(path: Path) -> dict:
         data = json.loads(text)
     except json.JSONDecodeError as e:
         raise _err(path, f"invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+    except RecursionError:
+        raise _err(path, "sidecar is nested too deeply to be read (JSON nesting beyond "
+                         "Python's recursion limit)") from None
     if not isinstance(data, dict):
         raise _err(path, f"sidecar must be a JSON object, got {type(data).__name__}")
     return data

@@ -87,7 +87,7 @@ def test_flexible_result_builds_the_flexible_ctc(held_out):
     jk = flex.reflected_inertia(log.rig)
     res = result_of(f, model="flexible",
                     joints=(flex.stiffness_Nm_per_rad, flex.damping_Nms_per_rad, jk))
-    c = ComputedTorqueController.from_result(res.to_dict(), log)
+    c = ComputedTorqueController.from_result(res.to_dict(), log, robust=None)  # the default design
     assert isinstance(c, FlexibleJointComputedTorqueController)
     np.testing.assert_allclose(c.link_f, flex.link_parameters(f, log.rig))
     assert c.flexible_parameters.stiffness == flex.stiffness_Nm_per_rad
@@ -106,7 +106,11 @@ def test_flexible_ctc_tracks_a_held_out_flexible_robot_to_a_pulse(held_out):
     res = result_of(f, model="flexible",
                     joints=(flex.stiffness_Nm_per_rad, flex.damping_Nms_per_rad, jk))
     n = 2000
-    c = ComputedTorqueController.from_result(res, log)
+    robust = ComputedTorqueController.from_result(res, log)  # the default, robust design
+    r = plant.simulate_closed_loop(log, f, robust, flexible=flex, n_samples=n)
+    assert r.success and robust.robustness["robust"]
+    assert np.all(max_error_after(r) <= 1), max_error_after(r)
+    c = ComputedTorqueController.from_result(res, log, robust=None)  # the default design
     r = plant.simulate_closed_loop(log, f, c, flexible=flex, n_samples=n)
     assert r.success
     assert np.all(max_error_after(r) <= 1), max_error_after(r)
@@ -258,13 +262,17 @@ def test_robustness_check_reports_and_the_fallback_is_minimax(drill_log, drill_r
     from ctc.flexible import ROBUSTNESS_SCENARIOS, _worst
 
     log, res = drill_log, drill_result[0]
-    c = ComputedTorqueController.from_result(res, log)
+    c = ComputedTorqueController.from_result(res, log, robust=None)
     assert isinstance(c, FlexibleJointComputedTorqueController) and not hasattr(c, "robustness")
+    # the default is the robust design: never a worse worst case than the default design
+    d = ComputedTorqueController.from_result(res, log)
+    assert hasattr(d, "robustness")
     with _w.catch_warnings(record=True):
         _w.simplefilter("always")
         checked = ComputedTorqueController.from_result(res, log, robust="check")
         fb = ComputedTorqueController.from_result(res, log, robust="fallback")
     rep = checked.robustness
+    assert _worst(d.robustness) <= _worst(rep) or not isinstance(d, FlexibleJointComputedTorqueController)
     assert [s["name"] for s in rep["scenarios"]] == [s["name"] for s in ROBUSTNESS_SCENARIOS]
     assert rep["scenarios"][0]["success"]  # the nominal model holds the bound
     if not rep["robust"]:

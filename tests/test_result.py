@@ -20,7 +20,7 @@ from identification.objective import OutputError
 from identification.result import ResultFileError
 
 WINDOW = (1.0, 1.15)  # a short window of the paper log keeps every simulation fast
-TITLE_Y = re.compile(r"output error ([0-9.eE+-]+) pulses")
+TITLE_Y = re.compile(r"output error Y \(eq\. 4\) = ([0-9.eE+-]+) pulses")
 
 
 @pytest.fixture(scope="module")
@@ -214,9 +214,14 @@ def test_tracking_errors_title_equals_fun_at_identification_setting(small_log, f
     axes = Figure().subplots(2, 1)
     assert res.plot_tracking_errors(ax=axes) is axes
     assert title_y(axes[0].get_title()) == pytest.approx(res.fun, rel=1e-6)
-    assert len(axes[0].get_lines()) == len(axes[1].get_lines()) == 2
+    # logged, model and their residual per joint
+    assert len(axes[0].get_lines()) == len(axes[1].get_lines()) == 3
     one = Figure().subplots()
-    assert res.plot_tracking_errors(ax=one) is one and len(one.get_lines()) == 4
+    assert res.plot_tracking_errors(ax=one) is one and len(one.get_lines()) == 6
+    # its own figure: an overlay and a residual panel per joint, integer pulse ticks
+    assert len(fig.axes) == 4
+    ticks = fig.axes[1].get_yticks()
+    assert np.allclose(ticks, np.round(ticks))
 
 
 def test_exact_reproduction_title_says_so(small_log, f_true):
