@@ -54,7 +54,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing as mp
 import sys
 import time
 import traceback
@@ -478,17 +477,7 @@ def main(argv=None):
         opts["latency_s"] = a.latency
     indices = range(a.n) if a.cases is None else [int(c) for c in a.cases.split(",")]
     jobs = [(a.seed, i, str(a.out), str(a.robust_out), i == 0, opts) for i in indices]
-    t0 = time.perf_counter()
-    rows = []
-    if a.jobs > 1:
-        with mp.get_context("spawn").Pool(min(a.jobs, 2)) as pool:
-            for row in pool.imap(_job, jobs):
-                rows.append(row)
-                print(f"[{time.perf_counter() - t0:7.1f} s] {row['stem']} done", flush=True)
-    else:
-        for j in jobs:
-            rows.append(_job(j))
-            print(f"[{time.perf_counter() - t0:7.1f} s] {rows[-1]['stem']} done", flush=True)
+    rows = br.run_jobs(_job, jobs, a.jobs)
     skipped = [r for r in rows if "skipped" in r]
     rows = [r for r in rows if "skipped" not in r]
     print()

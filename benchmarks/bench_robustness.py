@@ -661,6 +661,22 @@ def _job(args):
     return evaluate(csv, out)
 
 
+def run_jobs(fn, jobs, n_jobs) -> list:
+    """``fn`` over ``jobs`` in order, on up to two spawned processes; a line per finished job."""
+    t0 = time.perf_counter()
+    rows = []
+    if n_jobs > 1:
+        with mp.get_context("spawn").Pool(min(n_jobs, 2)) as pool:
+            for row in pool.imap(fn, jobs):
+                rows.append(row)
+                print(f"[{time.perf_counter() - t0:7.1f} s] {row['stem']} done", flush=True)
+    else:
+        for j in jobs:
+            rows.append(fn(j))
+            print(f"[{time.perf_counter() - t0:7.1f} s] {rows[-1]['stem']} done", flush=True)
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=20)
@@ -685,17 +701,7 @@ def main(argv=None):
     # (--evaluate-only / --ctc-only: a log not generated yet is generated; a draw
     # without a stable loop is reported as such, as in a full run)
     jobs = [(task, a.seed, i, str(a.out)) for i in indices]
-    t0 = time.perf_counter()
-    rows = []
-    if a.jobs > 1:
-        with mp.get_context("spawn").Pool(min(a.jobs, 2)) as pool:
-            for row in pool.imap(_job, jobs):
-                rows.append(row)
-                print(f"[{time.perf_counter() - t0:7.1f} s] {row['stem']} done", flush=True)
-    else:
-        for j in jobs:
-            rows.append(_job(j))
-            print(f"[{time.perf_counter() - t0:7.1f} s] {rows[-1]['stem']} done", flush=True)
+    rows = run_jobs(_job, jobs, a.jobs)
     if task == "generate":
         print(f"generated {len(rows)} logs in {a.out / 'logs'}")
         return 0

@@ -80,9 +80,15 @@ change in a linear-Gaussian regression):
    that of the window that triggered the update (and of one pulse^2), the
    update made the arm track clearly worse and the controller returns to the
    last good model (event ``'rollback'``).
-5. **Persistence.**  A change that is neither explained nor plausible in one
-   window is reported only when the next identified window says the same
-   (a window that spans a pick-up is half old robot, half new).
+5. **Persistence and consistency.**  A change that is neither explained nor
+   plausible in one window is reported only when the next identified window
+   says the same (a window that spans a pick-up is half old robot, half
+   new).  The first identified window under an update must confirm it: when
+   it shows a change again and its estimate's mass differs from the update's
+   by more than 25 % + 50 g, twice in a row, the estimates are not one
+   constant payload -- the controller returns to the last good model (the
+   last one a window found without change), reports the change
+   (``'unexplained'``) and makes no update until a window shows no change.
 
 So an update reaches the arm only when the window shows it, a payload
 describes it and the arm tracks better with it; otherwise the controller
@@ -599,12 +605,12 @@ class AdaptiveComputedTorqueController:
             self._quiet.append(per_value_now)
             self.baseline = max(1.0 / stats["n_values"], per_value_now)
         if decision in ("no change", "baseline"):
-            # the model in use describes this window: it is the last good model (steps 4, 6)
+            # the model in use describes this window: it is the last good model (steps 4, 5)
             self._good = (f_used, self.payload if f_used is self.f else self._good[1])
             self._strikes = 0
             self._frozen = False
         elif self._validating is not None and f_used is self._validating[0] and decision == "update":
-            # step 6: the first identified window under an update must confirm it
+            # step 5: the first identified window under an update must confirm it
             m_applied = self._validating[1]
             if abs(mass - m_applied) > 0.25 * max(mass, m_applied) + 0.05:
                 self._strikes += 1

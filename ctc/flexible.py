@@ -112,7 +112,7 @@ from .computed_torque import (
 )
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
-           "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS",
+           "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
            "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING"]
 
@@ -701,7 +701,11 @@ def controller_from_result(result, log, **options):
         :data:`ROBUST_DESIGNS` (faster motor loops) on the same set and
         keeps the one with the smallest worst case; when that one does not
         hold the bound either, it checks the rigid-equivalent CTC and returns
-        the one with the smaller worst case (minimax), with a warning (issue 21, item 3: when the flexible design cannot hold the
+        the one with the smaller worst case (minimax), with a warning -- unless
+        the rigid CTC cannot track the identified robot itself (nominal error
+        beyond :data:`FALLBACK_P_FRACTION` of the log's largest P-control
+        error and 3 pulses, and beyond the flexible CTC's), when the
+        flexible-joint CTC is kept, with the warning (issue 21, item 3: when the flexible design cannot hold the
         uncertainty set, the design says so and falls back).
 
     Returns
@@ -712,6 +716,13 @@ def controller_from_result(result, log, **options):
     ------
     ValueError
         See :meth:`ctc.ComputedTorqueController.from_result`.
+
+    Warns
+    -----
+    RuntimeWarning
+        When the result's ``model_choice['adequate']`` is False (the
+        identification found that its model does not describe the log), and
+        when the flexible-joint design cannot hold the uncertainty set.
     """
     robust = options.pop("robust", "fallback")  # flexible results only; a rigid CTC needs no check
     if robust not in (None, "check", "fallback"):
@@ -720,6 +731,15 @@ def controller_from_result(result, log, **options):
     if "f" not in d:
         raise ValueError("the result has no 'f' (not an identification result?)")
     f = np.asarray(d["f"], dtype=float)
+    choice = d.get("model_choice") or {}
+    if choice.get("adequate") is False:
+        # the identification said its model does not describe the log: a controller
+        # built on it (and its robustness check, which trusts it) may not hold
+        import warnings
+
+        warnings.warn("the result's model does not describe its log (model_choice['adequate'] "
+                      "is False): this controller's tracking rests on a model known to be off; "
+                      "check it on the robot at low speed first", RuntimeWarning, stacklevel=3)
     rig = _rig_friction(log.rig, d)
     target = log if rig is log.rig else log.replace(rig=rig)
     model = d.get("model") or "rigid"
@@ -771,11 +791,22 @@ def controller_from_result(result, log, **options):
         k: v for k, v in options.items() if k not in ("link_substeps", "link_damping")})
     rep_rigid = robustness_check(rigid, d, target)
     rigid.robustness = rep_rigid
-    chosen, other = (rigid, ctrl) if _worst(rep_rigid) <= _worst(report) else (ctrl, rigid)
-    what = ("the rigid-equivalent CTC is used instead (worst case "
-            f"{_worst(rep_rigid)} vs {_worst(report)} pulses)" if chosen is rigid else
-            f"the rigid-equivalent CTC is worse there ({_worst(rep_rigid)} vs "
-            f"{_worst(report)} pulses): the flexible-joint CTC is kept")
+    nominal_flex, nominal_rigid = _nominal(report), _nominal(rep_rigid)
+    e_p = np.abs(np.asarray(target.e_pulses))
+    p_max = int(e_p.max()) if e_p.size else 0
+    if nominal_rigid > max(FALLBACK_P_FRACTION * p_max, 3) and nominal_rigid > nominal_flex:
+        # the rigid CTC cannot track the identified robot itself: not a fallback
+        chosen = ctrl
+        what = (f"the rigid-equivalent CTC tracks the identified robot far worse ({nominal_rigid} "
+                f"vs {nominal_flex} pulses without model error): the flexible-joint CTC is kept")
+    elif _worst(rep_rigid) <= _worst(report):
+        chosen = rigid
+        what = ("the rigid-equivalent CTC is used instead (worst case "
+                f"{_worst(rep_rigid)} vs {_worst(report)} pulses)")
+    else:
+        chosen = ctrl
+        what = (f"the rigid-equivalent CTC is worse there ({_worst(rep_rigid)} vs "
+                f"{_worst(report)} pulses): the flexible-joint CTC is kept")
     warnings.warn(f"the flexible-joint CTC does not hold {report['bound_pulses']} pulses over "
                   f"the model-error set ({report['reason']}); {what}", RuntimeWarning,
                   stacklevel=3)
@@ -794,6 +825,21 @@ _DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_band
 #: where the default design lets it swing by hundreds.
 ROBUST_DESIGNS = ((1.4, DEFAULT_LINK_OBSERVER_DAMPING), (2.0, DEFAULT_LINK_OBSERVER_DAMPING),
                   (2.0, 0.7))
+
+
+#: A rigid fallback must track the identified robot (the nominal scenario) within
+#: this fraction of the largest logged P-control error (or 3 pulses): a CTC no better
+#: than half the P controller is no fallback, and a soft arm that the rigid CTC cannot
+#: follow keeps its flexible-joint CTC.
+FALLBACK_P_FRACTION = 0.5
+
+
+def _nominal(report) -> int:
+    """Max abs(e) (pulses) of a robustness report's nominal scenario (failed: 10^9)."""
+    for sc in report["scenarios"]:
+        if sc["name"] == "nominal":
+            return max(sc["max_abs_e"]) if sc["completed"] else 10 ** 9
+    return 0
 
 
 def _worst(report) -> int:

@@ -17,7 +17,7 @@ The figures, every run's f and the per-method statistics are saved as JSON
 (``out/alteration/alteration.json``); ``docs/alteration.rst`` shows them
 beside the paper's numbers.
 
-Run from the repository root (a few minutes on 2 cores)::
+Run from the repository root (about 10 s on 2 cores, kernels compiled)::
 
     python examples/alteration_study.py
     python examples/alteration_study.py --truth tests/data/puma560_paper_rigid.truth.json \

@@ -35,7 +35,7 @@ supplies the spring constants).  ``--no-flex`` skips this part.
 
 Usage (from the repository root)::
 
-    python examples/ctc_vs_p.py                       # identifies f (about 30 s)
+    python examples/ctc_vs_p.py                       # identifies f (about 8 s)
     python examples/ctc_vs_p.py --truth tests/data/puma560_paper_rigid.truth.json \
         --drill-truth tests/data/puma560_paper_drill_flex.truth.json
     python examples/ctc_vs_p.py --f-identified 0.9385,0.3618,0.01087,-0.3860,0.02538,-0.8942,4.4358,-0.1040,3.7952

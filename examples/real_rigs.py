@@ -29,7 +29,7 @@ log's ``tests/data/puma560_paper_drill_flex.truth.json`` in a clone of the
 repository); the example needs nothing but the installed library.  Run from
 the repository root::
 
-    python examples/real_rigs.py                 # about 2 min on 2 cores
+    python examples/real_rigs.py                 # about 6 s on 2 cores
     python examples/real_rigs.py --skip-full     # spectrum and payload part only
     python examples/real_rigs.py --truth tests/data/puma560_paper_drill_flex.truth.json
     python examples/real_rigs.py --quick         # a smoke run (seconds)

@@ -28,8 +28,9 @@ from .result import IdentificationResult
 from .uncertainty import PoorExcitationWarning, uncertainty_entries, warning_text
 from .window import estimate_initial_state
 
-__all__ = ["identify", "SearchBoundWarning", "at_bounds", "bounds_text", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
-           "ModelInadequacyWarning", "GA_OPTION_KEYS"]
+__all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
+           "ModelInadequacyWarning", "SearchBoundWarning", "GA_OPTION_KEYS", "at_bounds",
+           "bounds_text", "excitation_text"]
 
 #: Identification methods: the paper's GA alone, and GA + prediction-error
 #: refinement (the default).
@@ -320,8 +321,7 @@ def identify(
     for text in res.get("warnings") or []:
         warnings.warn(text, ModelInadequacyWarning, stacklevel=2)
     if res.get("poorly_excited"):
-        warnings.warn(excitation_text(res), PoorExcitationWarning,
-                      stacklevel=2)
+        warnings.warn(excitation_text(res), PoorExcitationWarning, stacklevel=2)
     return res
 
 

@@ -42,7 +42,11 @@ Exit status
     Success.
 1
     A bad log or a bad option value: one line ``error: ...`` on stderr, no
-    traceback, and no output file.
+    traceback, and no output file.  A log whose signals cannot carry an
+    identification (:func:`plant.sanity.check_experiment`) is refused the
+    same way, before any work.  A write that fails after an earlier output
+    was completed (the JSON, then a plot on a full disk) names the files
+    already written in that line.
 2
     A command-line usage error (argparse's own message).
 130
@@ -53,7 +57,12 @@ Exit status
     other time (while importing, compiling the numerical kernels, loading
     the log or writing files), or when no result exists yet, ends with the
     single line ``error: interrupted ...`` on stderr and no traceback;
-    files are then either complete or not written at all.
+    files are then either complete or not written at all.  A Ctrl-C that
+    arrives while Python runs a finaliser or a ctypes callback (where it can
+    only be printed as "Exception ignored") is remembered
+    (``identification._sigint``) and honoured at the next checkpoint:
+    before the search, after each search step, and before any output is
+    written.
 """
 from __future__ import annotations
 

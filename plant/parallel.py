@@ -206,7 +206,7 @@ def warm_up(*, announce=None, closed_loop=True) -> float:
 
     t0 = time.perf_counter()
     if announce is not None and not kernels_cached():
-        announce("compiling the numerical kernels once (about 7 s on 2 cores); "
+        announce("compiling the numerical kernels once (about 5 s on 2 cores); "
                  "later runs load them from numba's cache")
     sim._warm()  # the P experiment and the replay: one kernel
     if closed_loop:

@@ -259,7 +259,7 @@ def test_robustness_check_reports_and_the_fallback_is_minimax(drill_log, drill_r
     its report on the controller, and robust='fallback' picking the smaller worst case."""
     import warnings as _w
 
-    from ctc.flexible import ROBUSTNESS_SCENARIOS, _worst
+    from ctc.flexible import ROBUSTNESS_SCENARIOS, _nominal, _worst
 
     log, res = drill_log, drill_result[0]
     c = ComputedTorqueController.from_result(res, log, robust=None)
@@ -277,6 +277,25 @@ def test_robustness_check_reports_and_the_fallback_is_minimax(drill_log, drill_r
     assert rep["scenarios"][0]["success"]  # the nominal model holds the bound
     if not rep["robust"]:
         assert _worst(fb.robustness["rigid"]) >= _worst(fb.robustness["flexible"]) or \
-            not isinstance(fb, FlexibleJointComputedTorqueController)
+            not isinstance(fb, FlexibleJointComputedTorqueController) or \
+            _nominal(fb.robustness["rigid"]) > max(3, 0.5 * np.abs(log.e_pulses).max())
+    if not isinstance(d, FlexibleJointComputedTorqueController):
+        # a rigid fallback tracks the identified robot itself (no worse than half P control)
+        assert _nominal(d.robustness) <= max(3, 0.5 * np.abs(log.e_pulses).max())
     with pytest.raises(ValueError, match="robust must be"):
         ComputedTorqueController.from_result(res, log, robust="yes")
+
+
+def test_a_result_that_says_its_model_is_off_makes_a_controller_that_says_so(paper_log, truth):
+    """Issue 21: a controller says when its model no longer fits (here: from the start)."""
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    d = result_of(f).to_dict()
+    d["model_choice"] = {"model": "rigid", "adequate": False, "reason": "held-back cost 30 floors"}
+    with pytest.warns(RuntimeWarning, match="does not describe its log"):
+        ComputedTorqueController.from_result(d, paper_log)
+    d["model_choice"]["adequate"] = True
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        ComputedTorqueController.from_result(d, paper_log)
