@@ -14,10 +14,11 @@ own drive, DOP853; no code shared with the library's plant):
 * ``P`` -- the rig's own P law;
 * ``static`` -- ``ctc.ComputedTorqueController.from_result(prior, log)``
   (the flexible-joint CTC on a flexible result);
-* ``adaptive`` -- ``ctc.AdaptiveComputedTorqueController.from_log`` with the
-  default fixed latency (0.2 s) and its supervisor; its prior is the rigid
-  identification of the log (``model='rigid'``: the adaptive CTC's inner
-  controller is the rigid CTC).
+* ``adaptive`` -- ``ctc.AdaptiveComputedTorqueController.from_log`` of the
+  same result, with the default window and fixed latency (0.1 s) and its
+  supervisor; on a flexible result its inner controller is the
+  flexible-joint CTC and the payload is identified through the two-mass
+  plant.
 
 Changes (``kind``):
 
@@ -180,8 +181,8 @@ def changed_settings(s: ir.RobotSettings, ch: dict) -> list[ir.RobotSettings]:
 
 
 # ----------------------------------------------------------------------------- evaluation
-def _prior(seed, index, csv, robust_out: Path, out: Path, log):
-    """The default identification of the log (the robustness suite's cache) and a rigid one."""
+def _prior(csv, robust_out: Path, out: Path, log):
+    """The default identification of the log (the robustness suite's cache, else computed)."""
     import identification
 
     stem = csv.stem
@@ -192,19 +193,10 @@ def _prior(seed, index, csv, robust_out: Path, out: Path, log):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if path.exists():
-            res = identification.IdentificationResult.load_json(path)
-        else:
-            res = identification.identify(log, rng=0, progress=False)
-            res.save_json(path)
-        if res.get("model", "rigid") == "rigid":
-            return res, res
-        rpath = res_dir / f"{stem}.rigid.result.json"
-        if rpath.exists():
-            rigid = identification.IdentificationResult.load_json(rpath)
-        else:
-            rigid = identification.identify(log, rng=0, progress=False, model="rigid")
-            rigid.save_json(rpath)
-    return res, rigid
+            return identification.IdentificationResult.load_json(path)
+        res = identification.identify(log, rng=0, progress=False)
+        res.save_json(path)
+    return res
 
 
 def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = False,
@@ -220,7 +212,7 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
     row = dict(stem=csv.stem, index=index, joints="flexible" if s.flexible else "rigid",
                traj=truth["draw"]["trajectory"].get("kind", "?"), ppr=list(s.encoder_ppr),
                change=ch)
-    prior, rigid_prior = _prior(seed, index, csv, robust_out, out, log)
+    prior = _prior(csv, robust_out, out, log)
     row["prior_model"] = prior.get("model", "rigid")
     ts = s.sample_time_s
     n = log.n_total
@@ -234,7 +226,7 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
         controllers = {
             "P": ir.PCard(s.p_gain),
             "static": ctc.ComputedTorqueController.from_result(prior, log),
-            "adaptive": ctc.AdaptiveComputedTorqueController.from_log(rigid_prior, log,
+            "adaptive": ctc.AdaptiveComputedTorqueController.from_log(prior, log,
                                                                       **(adaptive_options or {})),
         }
     row["build_warnings"] = [str(w.message)[:160] for w in caught]
@@ -262,7 +254,7 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
                 decisions=[(round(r["window_s"][0], 3), r["decision"], round(r["mass_kg"], 3))
                            for r in c.identifications])
             if repeat:
-                c2 = ctc.AdaptiveComputedTorqueController.from_log(rigid_prior, log,
+                c2 = ctc.AdaptiveComputedTorqueController.from_log(prior, log,
                                                                    **(adaptive_options or {}))
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")

@@ -3,7 +3,8 @@
 The paper's closing proposal, in three stages, as one sampled controller
 (:class:`AdaptiveComputedTorqueController`):
 
-1. run the CTC with the unloaded robot's identified model (the *prior*) and
+1. run the CTC with the unloaded robot's identified model (the *prior*;
+   the flexible-joint CTC for a flexible one) and
    keep the last window (``window_s``, default 100 ms) of its own
    measurements, pulse errors, commands and estimator states;
 2. identify the payload on that window with the CTC itself in the loop
@@ -63,9 +64,9 @@ change in a linear-Gaussian regression):
    every elbow angle.
 3. **Explanation.**  A window shows a change when the current model's
    residual per value exceeds ``explain_factor`` times the *baseline* (the
-   median residual per value of the first identified window -- which only
-   sets it, never updates -- and of the windows whose estimate was not
-   significant); an estimate that is significant but shows no change
+   largest residual per value of the first :data:`CALIBRATION_WINDOWS`
+   identified windows -- which only set it, never update -- then the median
+   of those and of the windows whose estimate was not significant); an estimate that is significant but shows no change
    is not material and leaves the model alone.  A payload explains the
    change when the estimate's residual per value is back within
    ``explain_factor`` times the larger of the baseline and 1/6 pulse^2 (the
@@ -79,7 +80,12 @@ change in a linear-Gaussian regression):
    when its mean squared tracking error exceeds ``explain_factor`` times
    that of the window that triggered the update (and of one pulse^2), the
    update made the arm track clearly worse and the controller returns to the
-   last good model (event ``'rollback'``).
+   last good model (event ``'rollback'``).  On every window, tracking that
+   grows from one whole window to the next under a model other than the last
+   good one, beyond :data:`DIVERGE_FACTOR` times the largest mean square of
+   any window without change and beyond the window that brought the model
+   in, rolls back at once and pauses updates until a window shows no change
+   (a wrong payload can destabilise a lightly damped flexible-joint loop).
 5. **Persistence and consistency.**  A change that is neither explained nor
    plausible in one window is reported only when the next identified window
    says the same (a window that spans a pick-up is half old robot, half
@@ -116,7 +122,7 @@ import numpy as np
 from .computed_torque import ComputedTorqueController, reference_of
 
 __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledChangeWarning",
-           "QUANTISATION_VARIANCE", "window_statistics"]
+           "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "DIVERGE_FACTOR", "window_statistics"]
 
 #: Default identification latency (s): the per-window budget of a 100 ms window
 #: (``benchmarks/bench_online_payload.py`` measures 0.01-0.07 s per window on the
@@ -127,6 +133,14 @@ DEFAULT_LATENCY_S = 0.1
 #: truncations (two uniform errors of variance 1/12): the pulse residual of an
 #: exact model.
 QUANTISATION_VARIANCE = 1.0 / 6.0
+
+#: A window whose tracking mean square exceeds this multiple of the largest one seen
+#: without change (and 1 pulse^2), under a model other than the last good one, rolls
+#: the model back at once (RMS 4 x the normal).
+DIVERGE_FACTOR = 16.0
+
+#: Identified windows at the start that only set the baseline (their largest residual).
+CALIBRATION_WINDOWS = 3
 
 #: Number of payload parameters (m, xp, yp, Jc): the test's degrees of freedom.
 _N_PAYLOAD = 4
@@ -160,6 +174,11 @@ def _integrated_autocorrelation_time(r) -> float:
         last = int(neg[0]) if neg.size else n - 1
         tau = max(tau, 1.0 + 2.0 * float(np.sum(ac[1:1 + last])))
     return float(min(tau, max(1.0, n / 10.0)))
+
+
+def _same_mass(a, b) -> bool:
+    """Two payload masses (kg) that are one payload: within 25 % of the larger + 50 g."""
+    return abs(a - b) <= 0.25 * max(abs(a), abs(b)) + 0.05
 
 
 def window_statistics(e_log, e_now, e_new, n_parameters=_N_PAYLOAD) -> dict:
@@ -202,25 +221,46 @@ def window_statistics(e_log, e_now, e_new, n_parameters=_N_PAYLOAD) -> dict:
                 lr=(y_now - y_new) / (var * tau))
 
 
-def _refuse_flexible_prior(prior):
-    """A flexible identification cannot be this controller's prior: say so in one line.
-
-    The adaptive CTC runs the rigid CTC and identifies the payload with the
-    rigid plant in the loop; reducing a two-mass prior to its rigid-equivalent
-    f would drop K, D and Jm k^2 silently (issue 21, item 2).
-    """
+def _prior_entries(prior):
+    """The prior as a mapping (a result, its dict or its JSON file), or None for a bare f."""
     import os
 
+    if isinstance(prior, (np.ndarray, list, tuple)):
+        return None
     d = prior
     if isinstance(prior, (str, os.PathLike)):
         from plant.fileio import read_json_object
 
         d = read_json_object(prior, "prior result file")
-    model = d.get("model") if isinstance(d, dict) else getattr(d, "get", lambda k: None)("model")
-    if model is not None and model != "rigid":
-        raise ValueError(f"the adaptive CTC takes a rigid prior; this prior's model is {model!r} "
-                         "(use ComputedTorqueController.from_result for a flexible robot, or "
-                         "identify the prior with model='rigid')")
+    return d if hasattr(d, "get") else None
+
+
+def _flexible_joints(d):
+    """``(joints (6,), backlash (2,))`` of a flexible prior, or None for a rigid one.
+
+    A flexible prior without its joints cannot be used and is refused in one
+    line, never reduced to its rigid-equivalent f (issue 21, item 2).
+    """
+    if d is None:
+        return None
+    model = d.get("model")
+    if model is None or model == "rigid":
+        return None
+    if model != "flexible":
+        raise ValueError(f"the adaptive CTC takes a rigid or flexible prior; this prior's model "
+                         f"is {model!r}")
+    try:
+        k = np.asarray(d["joint_stiffness_Nm_per_rad"], dtype=float).reshape(2)
+        c = np.asarray(d["joint_damping_Nms_per_rad"], dtype=float).reshape(2)
+        j = np.asarray(d["motor_inertia_reflected_kgm2"], dtype=float).reshape(2)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError("a flexible prior needs joint_stiffness_Nm_per_rad, "
+                         "joint_damping_Nms_per_rad and motor_inertia_reflected_kgm2 (2 values "
+                         "each); this one cannot be used (it is never reduced to its rigid f)") \
+            from None
+    b = d.get("joint_backlash_rad")
+    b = np.zeros(2) if b is None else np.asarray(b, dtype=float).reshape(2)
+    return np.concatenate([k, c, j]), b
 
 
 class AdaptiveComputedTorqueController:
@@ -234,7 +274,8 @@ class AdaptiveComputedTorqueController:
     ----------
     prior_f : IdentificationResult, dict, path or array_like (9,)
         The unloaded robot's identification or its f; a result's identified
-        friction (``friction_identified``) replaces the log's.
+        friction (``friction_identified``) replaces the log's; a flexible
+        result brings its joints (see Notes).
     log : plant.ExperimentLog
         Rig and reference (as :meth:`ctc.ComputedTorqueController.from_log`).
     window_s : float
@@ -274,7 +315,7 @@ class AdaptiveComputedTorqueController:
         Every identification: window, wall time, mass, output errors
         (``fun``, ``fun_current``), the test's ``lr``, ``threshold``,
         ``tau``, the supervisor's ``decision`` (``'baseline'`` for the first
-        window, ``'update'``, ``'no change'``, ``'implausible'``,
+        :data:`CALIBRATION_WINDOWS` windows, ``'update'``, ``'no change'``, ``'implausible'``,
         ``'unexplained'``, ``'inconsistent'``), its ``reason`` and ``accepted``.
     events : list of dict
         Supervisor events: ``t_s``, ``kind`` (``'update'``,
@@ -285,9 +326,20 @@ class AdaptiveComputedTorqueController:
     Raises
     ------
     ValueError
-        On a bad prior, window or option, or a flexible prior (the inner
-        controller is the rigid CTC: a two-mass prior is refused, never
-        reduced to its rigid-equivalent f).
+        On a bad prior, window or option, or a flexible prior without its
+        joints (never reduced to its rigid-equivalent f).
+
+    Notes
+    -----
+    A flexible prior (a result with ``model == "flexible"``) runs the
+    flexible-joint CTC of :meth:`ctc.ComputedTorqueController.from_result`
+    (its robust design; its warnings are kept in ``design_warnings``) as the
+    inner controller, and each window's payload is identified through the
+    two-mass plant with that controller in the loop
+    (:class:`identification.flexible.FlexiblePayloadParameters`; the link's
+    start state is the motor's plus the deflection of the controller's own
+    link model).  A model switch replaces the link model's f; the link
+    observer keeps its gains.
     """
 
     def __init__(self, prior_f, log, *, window_s=0.1, improvement=0.2, false_alarm=1e-3,
@@ -295,21 +347,15 @@ class AdaptiveComputedTorqueController:
                  trajectory=None, **ctc_options):
         from identification.parameters import prior_f as as_prior_f
 
-        _refuse_flexible_prior(prior_f)
+        d = _prior_entries(prior_f)
+        flex = _flexible_joints(d)
         self.prior_f = as_prior_f(prior_f)
-        if not isinstance(prior_f, (np.ndarray, list, tuple)):
+        if d is not None:
             # a result: its identified friction (friction unknown in the sidecar) goes into
             # the inner CTC and the window's simulated plant, as from_result does
-            import os
-
             from .flexible import _rig_friction
 
-            d = prior_f
-            if isinstance(prior_f, (str, os.PathLike)):
-                from plant.fileio import read_json_object
-
-                d = read_json_object(prior_f, "prior result file")
-            rig = _rig_friction(log.rig, d) if hasattr(d, "get") else log.rig
+            rig = _rig_friction(log.rig, d)
             if rig is not log.rig:
                 log = log.replace(rig=rig)
         ts = float(log.rig.sample_time_s)
@@ -343,8 +389,30 @@ class AdaptiveComputedTorqueController:
         self._ts = ts
         self._n_window = int(round(self.window_s / ts))
         self.trajectory = reference_of(log, trajectory)
-        self._ctc = ComputedTorqueController.from_log(self.prior_f, log, trajectory=self.trajectory,
-                                                      **ctc_options)
+        #: ``(joints (6,), backlash (2,))`` of a flexible prior, else None
+        self.flexible_joints = flex
+        self.design_warnings = []
+        if flex is None:
+            self._ctc = ComputedTorqueController.from_log(self.prior_f, log,
+                                                          trajectory=self.trajectory, **ctc_options)
+        else:
+            # the flexible-joint CTC as the inner controller, designed as from_result does
+            # (robust over the model-error set; the payload is identified through the
+            # two-mass plant with it in the loop); a rigid fallback runs as the rigid CTC
+            from .flexible import FlexibleJointComputedTorqueController, controller_from_result
+
+            import warnings
+
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                inner = controller_from_result(d, log, trajectory=self.trajectory, **ctc_options)
+            #: what the inner controller's design said (warnings), kept, not raised
+            self.design_warnings = [str(w.message) for w in caught]
+            if isinstance(inner, FlexibleJointComputedTorqueController):
+                self._ctc = inner
+            else:
+                self.flexible_joints = None
+                self._ctc = inner
         self._window_rig = dataclasses.replace(log.rig, q0_rad=None, qd0_rad_per_s=None,
                                                payload_mass_kg=None)
         self.reset()
@@ -364,12 +432,12 @@ class AdaptiveComputedTorqueController:
         # a window of one-pulse errors (a still one is refused as having nothing to identify)
         rows = [(k, k % 2, k % 2, 0.0, 0.0, self._ctc.estimator_state(), self.f) for k in range(n)]
         window = self.window_log(rows)
-        law = self._ctc.logged_controller(window, state=rows[0][5])
+        law = self._law(window, rows[0][5], self.f)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                identification.identify(window, payload=True, prior=self.prior_f, controller=law,
-                                        rng=0, progress=False, workers=1,
+                identification.identify(window, parameters=self._space(rows[0][5]),
+                                        controller=law, rng=0, progress=False, workers=1,
                                         refine_options=dict(max_iter=1, n_starts=1))
             except ValueError:
                 pass  # a still window may be refused; the kernels are compiled by then
@@ -398,17 +466,65 @@ class AdaptiveComputedTorqueController:
         """
         return cls(prior, log, window_s=window_s, **options)
 
+    def _install(self, f):
+        """Put ``f`` (rigid-equivalent) into the inner controller; ``self.f`` is its array."""
+        f = np.ascontiguousarray(f, dtype=float)
+        self._ctc.f = f
+        if self.flexible_joints is not None:  # the link model: f minus Jm k^2 in f7, f1
+            jk2 = self.flexible_joints[0][4:6]
+            link = f.copy()
+            link[6] -= jk2[0]
+            link[0] -= jk2[1]
+            self._ctc.link_f = np.ascontiguousarray(link)
+        self.f = f
+
+    def _law(self, window, state, f):
+        """The inner controller with model ``f`` as a compiled law on ``window``."""
+        law = self._ctc.logged_controller(window, state=state)
+        if self.flexible_joints is None:
+            return dataclasses.replace(law, parameters=law.parameters._replace(
+                f=np.ascontiguousarray(f)))
+        jk2 = self.flexible_joints[0][4:6]
+        link = np.array(f, dtype=float)
+        link[6] -= jk2[0]
+        link[0] -= jk2[1]
+        return dataclasses.replace(law, parameters=law.parameters._replace(
+            link_f=np.ascontiguousarray(link)))
+
+    def _space(self, state):
+        """The window's parameterisation: the payload on the prior, rigid or two-mass plant."""
+        from identification.parameters import PayloadParameters
+
+        opts = self.identify_options
+        bounds = opts.get("payload_bounds")
+        if self.flexible_joints is None:
+            return PayloadParameters(self.prior_f, bounds)
+        from identification.flexible import FlexiblePayloadParameters
+
+        from .flexible import _S_LQ
+
+        st = np.asarray(state, dtype=float)
+        # link minus motor estimate at the window's start, from the controller's own models
+        offset = st[_S_LQ:_S_LQ + 4] - np.concatenate([st[1:3], st[3:5]])
+        if not np.all(np.isfinite(offset)) or st[0] == 0.0:
+            offset = np.zeros(4)
+        joints, backlash = self.flexible_joints
+        return FlexiblePayloadParameters(self.prior_f, joints, backlash, offset, bounds)
+
     # ------------------------------------------------------------ protocol
     def reset(self) -> None:
         """Back to the prior model; forget the window, the history and any pending model."""
         self._ctc.reset()
-        self._ctc.f = np.ascontiguousarray(self.prior_f)
-        self.f = self._ctc.f
+        self._install(self.prior_f)
         self.payload = None
         self.payload_history = []
         self.identifications = []
         self.events = []
         self.baseline = None
+        self._calibration = []  # residual per value of the first CALIBRATION_WINDOWS windows
+        self._mse_normal = None  # largest tracking mean square of a window without change
+        self._last_window = None  # (f, tracking mean square) of the last whole window
+        self._model_trigger_mse = None  # tracking mean square of the window that brought f in
         self._quiet = []  # residual per value of the no-change windows
         self._good = (self.f, None)  # last good model: (f, payload)
         self._validating = None  # (f, mass) of the update the next identified window checks
@@ -443,14 +559,16 @@ class AdaptiveComputedTorqueController:
         """
         if self._pending is not None and k >= self._pending[0]:
             _, f, payload, kind = self._pending
-            self._ctc.f = np.ascontiguousarray(f)
-            self.f = self._ctc.f
+            self._install(f)
             self.payload = payload
             mass = 0.0 if payload is None else payload["mass_kg"]
             self.payload_history.append((k * self._ts, mass))
             if kind == "update":
                 self._probation = (self.f, self._pending_trigger_mse)
                 self._validating = (self.f, mass)
+                self._model_trigger_mse = self._pending_trigger_mse
+            else:
+                self._model_trigger_mse = None
             self._pending = None
         state = self._ctc.estimator_state()
         i = self._ctc(k, t, q_meas, e_pulses)
@@ -472,15 +590,41 @@ class AdaptiveComputedTorqueController:
         self.events.append(dict(t_s=k * self._ts, kind=kind, message=message, **details))
 
     def _supervise_tracking(self, rows, k_end) -> bool:
-        """Probation of the last update (supervisor step 4); True when it was rolled back."""
+        """Supervisor step 4 on a completed window; True when it rolled the model back.
+
+        The divergence guard first: tracking far worse than in any window the
+        supervisor found without change, under a model that is not the last
+        good one, sends the controller back to it at once.  Then the probation
+        of the last update.
+        """
+        e = np.array([[r[1], r[2]] for r in rows], dtype=float)
+        mse = float(np.mean(e * e))
+        prev = self._last_window
+        one_model = all(r[6] is self.f for r in rows)
+        self._last_window = (self.f, mse) if one_model else None
+        # diverging: two whole windows under this model, the second worse than the first,
+        # than the window that brought the model in, and DIVERGE_FACTOR x the normal level
+        if (one_model and prev is not None and prev[0] is self.f and mse > prev[1]
+                and self._mse_normal is not None and self.f is not self._good[0]
+                and self._pending is None and mse > (self._model_trigger_mse or 0.0)
+                and mse > DIVERGE_FACTOR * max(self._mse_normal, 1.0)):
+            f_good, payload_good = self._good
+            self._pending = (k_end + 1, f_good, payload_good, "rollback")
+            self._probation = None
+            self._frozen = True
+            mass = 0.0 if payload_good is None else payload_good["mass_kg"]
+            self._event(k_end + 1, "rollback",
+                        f"tracking diverging ({mse:.3g} pulses^2 mean square, {DIVERGE_FACTOR:g} x "
+                        f"the largest without change, {self._mse_normal:.3g}): back to the last "
+                        f"good model ({mass:.3g} kg), updates paused", mse_after=mse,
+                        mse_before=self._mse_normal)
+            return True
         if self._probation is None or rows[0][6] is not self._probation[0]:
             return False
         if any(r[6] is not rows[0][6] for r in rows):
             return False
         f_new, trigger_mse = self._probation
         self._probation = None
-        e = np.array([[r[1], r[2]] for r in rows], dtype=float)
-        mse = float(np.mean(e * e))
         if mse > self.explain_factor * max(trigger_mse, 1.0):
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
@@ -550,24 +694,25 @@ class AdaptiveComputedTorqueController:
             return  # the model changed inside the window: not one controller
         if self._pending is not None:
             return  # a rollback is on its way
-        law = self._ctc.logged_controller(window, state=rows[0][5])
-        law = dataclasses.replace(law, parameters=law.parameters._replace(f=np.ascontiguousarray(f_used)))
+        law = self._law(window, rows[0][5], f_used)
+        space = self._space(rows[0][5])
         opts = dict(rng=0, progress=False, workers=1)
-        opts.update(self.identify_options)
+        opts.update({k: v for k, v in self.identify_options.items() if k != "payload_bounds"})
         import warnings
 
         with warnings.catch_warnings(record=True) as caught:  # kept in the record, not raised
             warnings.simplefilter("always")
-            res = identification.identify(window, payload=True, prior=self.prior_f,
-                                          controller=law, **opts)
+            res = identification.identify(window, parameters=space, controller=law, **opts)
         substeps = res.settings["substeps"]
         x0_new = np.asarray(res.refinement["initial_state"], dtype=float)
         # a fair test: the current model gets its own start state, refined as the
         # estimate's was (else the nuisance state tuned for the estimate favours it)
-        x0_now = self._start_state_of(window, law, substeps, x0_new)
-        sim = plant.simulate_batch(window, np.stack([self.f, np.asarray(res.f, dtype=float)]),
-                                   substeps=substeps, errors=True, workers=1,
-                                   initial_state=np.stack([x0_now, x0_new]), controller=law)
+        x0_now = self._start_state_of(window, law, substeps, x0_new, space)
+        F = np.stack([self.f, np.asarray(res.f, dtype=float)])
+        sim = plant.simulate_batch(window, F, substeps=substeps, errors=True, workers=1,
+                                   initial_state=np.stack([x0_now, x0_new]), controller=law,
+                                   plant=space.plant(window),
+                                   plant_parameters=space.plant_parameters(F, window))
         stats = window_statistics(window.e_pulses, sim.e_pulses[0], sim.e_pulses[1])
         wall = time.perf_counter() - t0
         mass = float(res.payload["mass_kg"])
@@ -577,8 +722,8 @@ class AdaptiveComputedTorqueController:
         per_value_new = stats["y_new"] / stats["n_values"]
         significant = bool(stats["lr"] > self._lr_threshold
                            and stats["y_new"] < (1.0 - self.improvement) * stats["y_now"])
-        first = self.baseline is None
-        baseline = QUANTISATION_VARIANCE if first else self.baseline
+        first = len(self._calibration) < CALIBRATION_WINDOWS
+        baseline = QUANTISATION_VARIANCE if self.baseline is None else self.baseline
         # the current model no longer describes the window
         misfit = not first and per_value_now > self.explain_factor * baseline
         reason = None
@@ -599,11 +744,13 @@ class AdaptiveComputedTorqueController:
             reason = (f"the model leaves {per_value_now:.3g} pulses^2 per value (baseline "
                       f"{baseline:.3g}) and no payload reduces it significantly")
         if first:
-            # the first identified window sets the baseline: how well the prior describes
+            # the first identified windows set the baseline: how well the prior describes
             # this robot under this controller (a prior that fits only roughly -- a rigid
-            # model of a compliant arm -- gets a baseline to match, never an update here)
+            # model of a compliant arm, a two-mass model whose link state a window must
+            # guess -- gets a baseline to match, never an update here); their largest
+            self._calibration.append(per_value_now)
             self._quiet.append(per_value_now)
-            self.baseline = max(1.0 / stats["n_values"], per_value_now)
+            self.baseline = max(1.0 / stats["n_values"], max(self._calibration))
         if decision in ("no change", "baseline"):
             # the model in use describes this window: it is the last good model (steps 4, 5)
             self._good = (f_used, self.payload if f_used is self.f else self._good[1])
@@ -612,7 +759,7 @@ class AdaptiveComputedTorqueController:
         elif self._validating is not None and f_used is self._validating[0] and decision == "update":
             # step 5: the first identified window under an update must confirm it
             m_applied = self._validating[1]
-            if abs(mass - m_applied) > 0.25 * max(mass, m_applied) + 0.05:
+            if not _same_mass(mass, m_applied):
                 self._strikes += 1
                 if self._strikes >= 2:
                     decision = "inconsistent"
@@ -623,6 +770,8 @@ class AdaptiveComputedTorqueController:
             reason = "the robot changed in a way no payload explained; updates resume after a window the model describes"
         if self._validating is not None and f_used is self._validating[0]:
             self._validating = None
+        if decision in ("baseline", "no change"):
+            self._mse_normal = mse if self._mse_normal is None else max(self._mse_normal, mse)
         if decision == "no change" and not significant:
             self._quiet.append(per_value_now)
             self.baseline = max(1.0 / stats["n_values"], float(np.median(self._quiet)))
@@ -674,16 +823,18 @@ class AdaptiveComputedTorqueController:
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "
                         f"{self._lr_threshold:.3g})", mass_kg=mass, lr=stats["lr"])
 
-    def _start_state_of(self, window, law, substeps, guess):
-        """The current model's start state on a window, refined by prediction error (4 nuisances)."""
+    def _start_state_of(self, window, law, substeps, guess, space):
+        """The current model's start state on a window, refined by prediction error (nuisances)."""
         from identification.refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
-        from identification.window import estimate_initial_state
 
         f_now = np.asarray(self.f, dtype=float)
-        trend, box = estimate_initial_state(window)
+        trend, box = space.initial_state(window)
         problem = PredictionErrorProblem(window, to_f=lambda X: np.tile(f_now, (len(X), 1)),
                                          to_state=lambda X: X, gain=DEFAULT_GAIN,
-                                         substeps=substeps, workers=1, controller=law)
+                                         substeps=substeps, workers=1, controller=law,
+                                         plant=space.plant(window),
+                                         to_plant_parameters=lambda X: space.plant_parameters(
+                                             X, window))
         lo = np.minimum(box[:, 0], guess)
         hi = np.maximum(box[:, 1], guess)
         ref = refine(problem, np.stack([guess, trend]), np.column_stack([lo, hi]), max_iter=20,

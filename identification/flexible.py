@@ -85,14 +85,15 @@ from plant.plants import FlexibleJoints
 from plant.friction import FRICTION_NAMES, friction_fields
 
 from .friction import default_friction_bounds, full_friction, unknown_friction_indices
-from .parameters import BaseParameters, Parameterisation, check_bounds
+from .parameters import BaseParameters, Parameterisation, PayloadParameters, check_bounds
 from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
 __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "BACKLASH_SIGNIFICANCE", "identify_flexible", "choose_model",
            "apply_model", "held_back_cost", "quantisation_floor", "INADEQUATE_FACTOR",
            "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "CONTINUATION_GAINS", "CONTINUATION_FTOL",
-           "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS"]
+           "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS",
+           "FlexiblePayloadParameters"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
 MODELS = ("rigid", "flexible", "auto")
@@ -887,3 +888,98 @@ def _judge(res, log, choice, alternative):
                 res["warnings"][-1] = text
     res["model_choice"] = choice
     return res
+
+
+class FlexiblePayloadParameters(PayloadParameters):
+    """A payload on a two-mass flexible robot whose joints are known (on-line identification).
+
+    The payload search of :class:`identification.parameters.PayloadParameters`
+    (``x = [m, xp, yp, Jc]``, ``f = f_prior + M(a3) p``, rigid-equivalent),
+    simulated through the flexible plant (:class:`plant.plants.FlexibleJoints`)
+    with the prior's stiffness, damping, reflected motor inertia and backlash
+    fixed in every lane.  The window's start state has eight components:
+    the motor's (what the encoder reads) is estimated from the window as for
+    the rigid plant, the link's is the motor's plus ``link_offset``, the
+    deflection the controller's own link model held at the window's first
+    sample (issue 21, item 2).
+
+    Parameters
+    ----------
+    prior : array_like, shape (9,) or result
+        The robot's rigid-equivalent f without the payload.
+    joints : array_like, shape (6,)
+        ``(K2, K3, D2, D3, Jm2 k2^2, Jm3 k3^2)`` (N m/rad, N m s/rad, kg m^2).
+    backlash : array_like, shape (2,), optional
+        Backlash widths (rad); default none.
+    link_offset : array_like, shape (4,), optional
+        Link minus motor ``(q2, q3, qd2, qd3)`` at the window's first sample
+        (rad, rad/s); default 0 (springs relaxed).
+    bounds : array_like, shape (4, 2), optional
+        Box of ``[m, xp, yp, Jc]``.
+
+    Raises
+    ------
+    ValueError
+        On a malformed prior, joints, backlash, offset or bounds.
+    """
+
+    def __init__(self, prior, joints, backlash=None, link_offset=None, bounds=None):
+        super().__init__(prior, bounds)
+        self.joints = np.asarray(joints, dtype=float).reshape(6)
+        self.backlash = np.zeros(2) if backlash is None else np.asarray(backlash, float).reshape(2)
+        self.link_offset = (np.zeros(4) if link_offset is None
+                            else np.asarray(link_offset, dtype=float).reshape(4))
+        if not (np.all(np.isfinite(self.joints)) and np.all(self.joints[[0, 1, 4, 5]] > 0)
+                and np.all(self.joints[2:4] >= 0)):
+            raise ValueError(f"joints must be 6 finite values with K, Jm k^2 > 0 and D >= 0, "
+                             f"got {self.joints.tolist()}")
+        if not (np.all(np.isfinite(self.backlash)) and np.all(self.backlash >= 0)
+                and np.all(np.isfinite(self.link_offset))):
+            raise ValueError("backlash must be >= 0 and link_offset finite")
+
+    def plant(self, log):
+        """The flexible plant (every lane carries the prior's joints).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return _PLANT
+
+    def plant_parameters(self, x, log):
+        """``{"joints": (m, 6), "backlash": (m, 2)}``: the prior's, in every lane.
+
+        Parameters
+        ----------
+        x : ndarray, shape (m, k)
+        log : plant.ExperimentLog
+        """
+        m = np.atleast_2d(x).shape[0]
+        return {"joints": np.tile(self.joints, (m, 1)), "backlash": np.tile(self.backlash, (m, 1))}
+
+    def initial_state(self, log):
+        """Guess and box of the eight-component state at the window's first sample.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        guess : ndarray, shape (8,)
+            Link (q2, q3, qd2, qd3), then motor (th2, th3, thd2, thd3).
+        box : ndarray, shape (8, 2)
+        """
+        from .window import estimate_initial_state
+
+        g, box = estimate_initial_state(log)
+        half = 0.5 * (box[:, 1] - box[:, 0])
+        link = g + self.link_offset
+        # the link's box: the motor's, widened by half the controller's deflection
+        widen = half + 0.5 * np.abs(self.link_offset)
+        link_box = np.column_stack([link - widen, link + widen])
+        return np.concatenate([link, g]), np.vstack([link_box, box])
+
+    def __repr__(self) -> str:
+        return (f"FlexiblePayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()}, "
+                f"joints={np.round(self.joints, 4).tolist()})")
