@@ -99,14 +99,6 @@ def combine_payloads(p1: dict | None, p2: dict) -> dict:
             "inertia_about_com_kgm2": [float(x) for x in np.diag(inertia)]}
 
 
-def _tool(rng) -> dict:
-    mass = float(rng.uniform(0.5, 5.0))
-    d = rng.normal(size=3)
-    d *= rng.uniform(0.0, 0.15) / np.linalg.norm(d)
-    return {"mass_kg": mass, "com_m_rtb_frame6": [float(x) for x in d],
-            "inertia_about_com_kgm2": [float(x) for x in mass * rng.uniform(2e-4, 2e-3, 3)]}
-
-
 def _feasible(s: ir.RobotSettings) -> bool:
     from plant.trajectory import Trajectory
 
@@ -128,7 +120,7 @@ def draw_change(seed: int, index: int, s: ir.RobotSettings) -> dict:
         kind = "pick-up"
     ch = dict(kind=kind)
     if kind in PAYLOAD_KINDS:
-        tool = _tool(rng)
+        tool = br.random_payload(rng, (0.5, 5.0))
         halvings = 0
         while True:
             loaded = ir.RobotSettings.from_dict(s.to_dict())

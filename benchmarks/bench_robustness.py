@@ -120,6 +120,16 @@ def _paper(rng):
     return Trajectory.paper(T).to_parameters(), T, dict(kind="paper", T_s=T)
 
 
+def random_payload(rng, mass_kg=(0.0, 5.0)) -> dict:
+    """A payload (RTB link-6 frame): mass uniform in ``mass_kg``, centre of mass up to
+    0.15 m from the flange in a random direction, diagonal inertia about it."""
+    mass = float(rng.uniform(*mass_kg))
+    d = rng.normal(size=3)
+    d *= rng.uniform(0.0, 0.15) / np.linalg.norm(d)
+    return {"mass_kg": mass, "com_m_rtb_frame6": [float(x) for x in d],
+            "inertia_about_com_kgm2": [float(x) for x in mass * rng.uniform(2e-4, 2e-3, 3)]}
+
+
 def draw_settings(seed: int, index: int) -> tuple[ir.RobotSettings, dict]:
     """Settings of log ``index`` of the suite ``seed`` (independent of the suite size).
 
@@ -147,11 +157,7 @@ def draw_settings(seed: int, index: int) -> tuple[ir.RobotSettings, dict]:
             s.backlash_rad = (0.0, 0.0)
         else:
             s.backlash_rad = tuple(float(x) for x in rng.uniform(0.5e-3, 3e-3, 2))
-    mass = float(rng.uniform(0.0, 5.0))
-    d = rng.normal(size=3)
-    d *= rng.uniform(0.0, 0.15) / np.linalg.norm(d)
-    s.payload = {"mass_kg": mass, "com_m_rtb_frame6": [float(x) for x in d],
-                 "inertia_about_com_kgm2": [float(x) for x in mass * rng.uniform(2e-4, 2e-3, 3)]}
+    s.payload = random_payload(rng)
     s.encoder_ppr = tuple(int(x) for x in rng.choice(PPR_CHOICES, 2))
     s.sample_time_s = float(rng.uniform(0.5e-3, 1e-3))
     s.gear_ratio = (float(107.8 * rng.uniform(0.8, 1.2)), float(-53.7 * rng.uniform(0.8, 1.2)))
@@ -199,12 +205,7 @@ def draw_settings(seed: int, index: int) -> tuple[ir.RobotSettings, dict]:
         if traj_redraws > 100:
             raise RuntimeError(f"no feasible reference found for log {index}")
         if traj_redraws % 10 == 0:  # the drive cannot carry this payload on any reference
-            mass = float(rng_t.uniform(0.0, 5.0))
-            d = rng_t.normal(size=3)
-            d *= rng_t.uniform(0.0, 0.15) / np.linalg.norm(d)
-            s.payload = {"mass_kg": mass, "com_m_rtb_frame6": [float(x) for x in d],
-                         "inertia_about_com_kgm2": [float(x) for x in
-                                                    mass * rng_t.uniform(2e-4, 2e-3, 3)]}
+            s.payload = random_payload(rng_t)
         if rng_t.random() < 0.5:
             s.trajectory, s.duration_s, traj_info = _paper(rng_t)
         else:

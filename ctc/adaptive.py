@@ -432,7 +432,7 @@ class AdaptiveComputedTorqueController:
         # a window of one-pulse errors (a still one is refused as having nothing to identify)
         rows = [(k, k % 2, k % 2, 0.0, 0.0, self._ctc.estimator_state(), self.f) for k in range(n)]
         window = self.window_log(rows)
-        law = self._law(window, rows[0][5], self.f)
+        law = self._ctc.logged_law_with(window, rows[0][5], self.f)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
@@ -468,28 +468,7 @@ class AdaptiveComputedTorqueController:
 
     def _install(self, f):
         """Put ``f`` (rigid-equivalent) into the inner controller; ``self.f`` is its array."""
-        f = np.ascontiguousarray(f, dtype=float)
-        self._ctc.f = f
-        if self.flexible_joints is not None:  # the link model: f minus Jm k^2 in f7, f1
-            jk2 = self.flexible_joints[0][4:6]
-            link = f.copy()
-            link[6] -= jk2[0]
-            link[0] -= jk2[1]
-            self._ctc.link_f = np.ascontiguousarray(link)
-        self.f = f
-
-    def _law(self, window, state, f):
-        """The inner controller with model ``f`` as a compiled law on ``window``."""
-        law = self._ctc.logged_controller(window, state=state)
-        if self.flexible_joints is None:
-            return dataclasses.replace(law, parameters=law.parameters._replace(
-                f=np.ascontiguousarray(f)))
-        jk2 = self.flexible_joints[0][4:6]
-        link = np.array(f, dtype=float)
-        link[6] -= jk2[0]
-        link[0] -= jk2[1]
-        return dataclasses.replace(law, parameters=law.parameters._replace(
-            link_f=np.ascontiguousarray(link)))
+        self.f = self._ctc.set_model_f(f)
 
     def _space(self, state):
         """The window's parameterisation: the payload on the prior, rigid or two-mass plant."""
@@ -501,12 +480,13 @@ class AdaptiveComputedTorqueController:
             return PayloadParameters(self.prior_f, bounds)
         from identification.flexible import FlexiblePayloadParameters
 
+        from .computed_torque import _S_INIT, _S_Q, _S_W
         from .flexible import _S_LQ
 
         st = np.asarray(state, dtype=float)
         # link minus motor estimate at the window's start, from the controller's own models
-        offset = st[_S_LQ:_S_LQ + 4] - np.concatenate([st[1:3], st[3:5]])
-        if not np.all(np.isfinite(offset)) or st[0] == 0.0:
+        offset = st[_S_LQ:_S_LQ + 4] - np.concatenate([st[_S_Q:_S_Q + 2], st[_S_W:_S_W + 2]])
+        if not np.all(np.isfinite(offset)) or st[_S_INIT] == 0.0:
             offset = np.zeros(4)
         joints, backlash = self.flexible_joints
         return FlexiblePayloadParameters(self.prior_f, joints, backlash, offset, bounds)
@@ -694,7 +674,7 @@ class AdaptiveComputedTorqueController:
             return  # the model changed inside the window: not one controller
         if self._pending is not None:
             return  # a rollback is on its way
-        law = self._law(window, rows[0][5], f_used)
+        law = self._ctc.logged_law_with(window, rows[0][5], f_used)
         space = self._space(rows[0][5])
         opts = dict(rng=0, progress=False, workers=1)
         opts.update({k: v for k, v in self.identify_options.items() if k != "payload_bounds"})

@@ -526,6 +526,40 @@ class ComputedTorqueController:
         """Clear the estimator state (call before a new run)."""
         self._state[:] = 0.0
 
+    def set_model_f(self, f) -> np.ndarray:
+        """Switch the controller's model (D_hat, h_hat, g_hat) to ``f`` (on-line adaptation).
+
+        Parameters
+        ----------
+        f : array_like, shape (9,)
+
+        Returns
+        -------
+        ndarray, shape (9,)
+            The array now held as ``self.f``.
+        """
+        self.f = np.ascontiguousarray(f, dtype=float)
+        return self.f
+
+    def logged_law_with(self, log, state, f):
+        """:meth:`logged_controller` with the model ``f`` in the law (a window run under ``f``).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        state : array_like, shape (9,)
+        f : array_like, shape (9,)
+
+        Returns
+        -------
+        plant.controllers.LoggedController
+        """
+        import dataclasses
+
+        law = self.logged_controller(log, state=state)
+        return dataclasses.replace(law, parameters=law.parameters._replace(
+            f=np.ascontiguousarray(f, dtype=float)))
+
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (2,) A for sample ``k`` at time ``t`` (s).
 

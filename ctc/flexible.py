@@ -93,7 +93,7 @@ import numpy as np
 
 from plant.controllers import CONTROL_LAWS, LoggedController, saturated
 from plant.model import friction_torque, is_positive_definite, joint_acceleration
-from plant.plants import dead_zone
+from plant.plants import dead_zone, link_f as link_model_f
 
 from .computed_torque import (
     _S_A,
@@ -464,9 +464,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         n = int(link_substeps)
         if n < 1:
             raise ValueError(f"link_substeps must be >= 1, got {link_substeps}")
-        link_f = self.f.copy()
-        link_f[6] -= jk2[0]
-        link_f[0] -= jk2[1]
+        link_f = link_model_f(self.f, jk2)
         if not is_positive_definite(link_f):
             raise ValueError("the link model (f minus Jm k^2 in f7 and f1) has a D_link(q) that "
                              "is not positive definite: reflected inertias too large for f")
@@ -490,6 +488,43 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         """Clear the estimator state and the restart count (call before a new run)."""
         self._state[:] = 0.0
         self.n_estimator_resets = 0
+
+    def set_model_f(self, f) -> np.ndarray:
+        """Switch the controller's model to the rigid-equivalent ``f`` (its link model follows).
+
+        The link observer keeps its gains.
+
+        Parameters
+        ----------
+        f : array_like, shape (9,)
+
+        Returns
+        -------
+        ndarray, shape (9,)
+            The array now held as ``self.f``.
+        """
+        f = super().set_model_f(f)
+        self.link_f = np.ascontiguousarray(link_model_f(f, self.motor_inertia_reflected))
+        return f
+
+    def logged_law_with(self, log, state, f):
+        """:meth:`logged_controller` with the model ``f`` (rigid-equivalent) in the law.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        state : array_like, shape (13,)
+        f : array_like, shape (9,)
+
+        Returns
+        -------
+        plant.controllers.LoggedController
+        """
+        import dataclasses
+
+        law = self.logged_controller(log, state=state)
+        link = np.ascontiguousarray(link_model_f(f, self.motor_inertia_reflected))
+        return dataclasses.replace(law, parameters=law.parameters._replace(link_f=link))
 
     @classmethod
     def from_log(cls, f, log, *, stiffness_Nm_per_rad, damping_Nms_per_rad,

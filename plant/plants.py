@@ -38,7 +38,29 @@ from .rig import friction_vector, joint_side_friction
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "rigid_derivative", "flexible_rhs", "RigidKind",
            "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RightHandSide", "RIGHT_HAND_SIDES",
-           "register_plant", "dead_zone", "FLEXIBLE_N_PARAMETERS"]
+           "register_plant", "dead_zone", "FLEXIBLE_N_PARAMETERS", "link_f"]
+
+
+def link_f(f, reflected_inertia) -> np.ndarray:
+    """Link-only f of a two-mass robot: the rigid-equivalent f minus ``Jm k^2``.
+
+    Parameters
+    ----------
+    f : array_like, shape (9,) or (m, 9)
+        Rigid-equivalent base parameters (link plus Jm k^2 in f7 and f1, eq. 3).
+    reflected_inertia : array_like, shape (2,)
+        ``(Jm2 k2^2, Jm3 k3^2)`` (kg m^2).
+
+    Returns
+    -------
+    ndarray, same shape as ``f``
+        ``f7 - Jm2 k2^2`` and ``f1 - Jm3 k3^2``, the rest unchanged (a copy).
+    """
+    jk2 = np.asarray(reflected_inertia, dtype=float)
+    fl = np.array(f, dtype=float)
+    fl[..., 6] -= jk2[0]
+    fl[..., 0] -= jk2[1]
+    return fl
 
 
 class RigidKind(NamedTuple):
@@ -426,11 +448,7 @@ class FlexibleJoints(Plant):
         ndarray, same shape as ``f``
             ``f1 - Jm3 k3^2`` and ``f7 - Jm2 k2^2``, the rest unchanged.
         """
-        jk2 = self.reflected_inertia(rig)
-        fl = np.array(f, dtype=float)
-        fl[..., 6] -= jk2[0]
-        fl[..., 0] -= jk2[1]
-        return fl
+        return link_f(f, self.reflected_inertia(rig))
 
     def lane_parameters(self, F, rig, joints=None, friction=None, backlash=None) -> np.ndarray:
         """Per-lane parameters (23, m): link f, Ks, Ds, Jm k^2, friction, b (see :func:`flexible_rhs`).
