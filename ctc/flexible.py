@@ -801,11 +801,10 @@ def controller_from_result(result, log, **options):
     if robust == "fallback" and not (_DESIGN_KEYS & set(options)):
         # the robust design: the candidate designs over the same uncertainty set,
         # the smallest worst case wins (minimax; the default design on a tie)
-        from .design import BANDWIDTH_FRACTION, design_gains
+        from .design import default_bandwidth_hz, design_gains
 
-        fs = 1.0 / target.rig.sample_time_s
         for factor, link_damping in ROBUST_DESIGNS:
-            gains = design_gains(target.rig, bandwidth_hz=factor * BANDWIDTH_FRACTION * fs)
+            gains = design_gains(target.rig, bandwidth_hz=factor * default_bandwidth_hz(target.rig))
             cand = FlexibleJointComputedTorqueController.from_log(
                 f, target, **joints, gains=gains, link_damping=link_damping, **options)
             rep = robustness_check(cand, d, target)
@@ -854,7 +853,8 @@ _DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_band
                 "delay_samples", "link_damping"}
 
 #: Candidate designs of the robust flexible-joint CTC, besides the default:
-#: (loop bandwidth as a multiple of the default fs / 50, link-observer damping).
+#: (loop bandwidth as a multiple of the default :func:`ctc.design.default_bandwidth_hz`,
+#: link-observer damping).
 #: Measured on the drill robot (``docs/tutorial_real_rigs.rst``): a faster
 #: motor loop keeps the link within a few pulses at stiffness x0.7 and +2 kg
 #: where the default design lets it swing by hundreds.

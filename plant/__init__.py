@@ -6,6 +6,11 @@ closed-loop simulation: one core (:mod:`plant.core`) advancing a plant
 (:mod:`plant.plants`, rigid or flexible), driven by the P experiment
 (:mod:`plant.simulate`), the logged-input replay (:mod:`plant.replay`) and
 the any-controller loop (:mod:`plant.closed_loop`).
+
+Any serial arm (:mod:`plant.robot_model`): :class:`RobotModel` from a DH
+table derives the dynamics, the regressor and the base parameters with
+casadi; the PUMA 560 links 2-3 of the paper are one instance
+(``RobotModel.puma560()``, whose torques are eq. 3's f1..f9).
 """
 from ._errors import LogError, SimulationError
 from .closed_loop import DEFAULT_CLOSED_LOOP_SUBSTEPS, simulate_closed_loop
@@ -27,6 +32,7 @@ from .friction import RIGID_FRICTION
 from .plotting import plot_tracking_errors
 from .replay import measured_counts, prediction_errors
 from .response import ClosedLoopResponse
+from .robot_model import Link, RobotModel
 from .rig import F_NAMES, F_UNITS, Rig, RigConstants, rig_constants
 from .synthetic import emulate_log
 from .simulate import (
@@ -41,6 +47,8 @@ from .simulate import (
 from .trajectory import Trajectory
 
 __all__ = [
+    "RobotModel",
+    "Link",
     "LogError",
     "SimulationError",
     "ExperimentLog",

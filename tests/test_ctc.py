@@ -180,6 +180,27 @@ def test_design_places_the_poles(paper_log):
     assert g.Kv[0] == pytest.approx(2 * zeta * w, rel=0.1)
 
 
+def test_default_bandwidth_follows_the_encoder(paper_log):
+    """fs/50 up to 1000 ppr (the paper's rigs unchanged), sqrt(N/1000) beyond, fs/25 at most."""
+    import dataclasses
+
+    from ctc.design import default_bandwidth_hz
+
+    rig = paper_log.rig
+    fs = 1.0 / rig.sample_time_s
+    np.testing.assert_allclose(default_bandwidth_hz(rig), fs / 50)  # 800 / 1000 ppr
+    np.testing.assert_allclose(default_bandwidth_hz(rig.sample_time_s), fs / 50)
+    fine = dataclasses.replace(rig, encoder_ppr=(250, 2000))
+    np.testing.assert_allclose(default_bandwidth_hz(fine), [fs / 50, fs / 50 * np.sqrt(2.0)])
+    finest = dataclasses.replace(rig, encoder_ppr=(8192, 4096))
+    np.testing.assert_allclose(default_bandwidth_hz(finest), [fs / 25, fs / 25])
+    g = design_gains(fine)
+    np.testing.assert_allclose(g.bandwidth_hz, default_bandwidth_hz(fine))
+    assert g.stable and g.Kp[1] == pytest.approx(2.0 * g.Kp[0], rel=0.05)  # Kp ~ w^2
+    # the paper rig's design is unchanged: the same gains with or without the rule
+    np.testing.assert_array_equal(design_gains(rig).Kp, design_gains(rig, bandwidth_hz=fs / 50).Kp)
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [

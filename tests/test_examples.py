@@ -28,6 +28,7 @@ OUTPUTS = {
                      "drill_window_1000_1200ms.json"),
     "alteration_study.py": ("alteration.json",),
     "online_payload.py": ("errors.png", "results.json"),
+    "your_robot.py": ("base_parameters.json",),
 }
 
 

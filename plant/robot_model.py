@@ -1,0 +1,788 @@
+"""A serial robot as one object: DH table -> symbolic dynamics -> regressor -> base parameters.
+
+:class:`RobotModel` describes a chain of revolute joints by its
+Denavit--Hartenberg table (standard or modified), the links' inertial
+parameters and the drives (gear ratio, motor inertia), with a chosen subset
+of the joints *active* (the others locked at given angles, e.g. the PUMA 560
+joints 2 and 3 of the paper with joint 1 and the wrist locked).  casadi
+derives, once per model:
+
+* the inverse dynamics ``tau = D(q) qdd + c(q, qd) + g(q)`` of the active
+  joints, with the inertia matrix D, the Coriolis/centrifugal vector c and
+  the gravity vector g as casadi functions;
+* the regressor ``Y(q, qd, qdd)``, shape ``(n, 10 L + n)``, linear in the
+  **standard inertial parameters** (Khalil & Dombre, *Modeling,
+  Identification and Control of Robots*, 2002, sec. 9.3): per link, in the
+  link's own DH frame, ``XX XY XZ YY YZ ZZ`` (inertia about the frame
+  origin), ``MX MY MZ`` (first moments, mass x centre of mass) and ``M``;
+  per active joint the reflected motor inertia ``Ia = Jm k^2``;
+* the **base parameters** by the numerical QR method (M. Gautier, "Numerical
+  calculation of the base inertial parameters of robots", *ICRA* 1990; the
+  regressor stacked at random states, QR with column pivoting, the rank from
+  the diagonal of R): the identifiable linear combinations of the standard
+  parameters, each with its expression (:class:`BaseParameterSet`).
+
+Derivation (Newton--Euler in the world frame, every quantity symbolic):
+the forward kinematics give each link frame's origin ``o_i(q)`` and rotation
+``R_i(q)``; velocities and accelerations are their time derivatives by the
+chain rule (``d/dt x(q, qd) = dx/dq qd + dx/dqd qdd``, casadi ``jtimes``);
+the angular velocity is ``vee(dR/dt R^T)``.  Link i exerts, about its frame
+origin, the force ``f_i = M a_i + alpha_i x m_i + w_i x (w_i x m_i)`` and the
+moment ``n_i = I_i alpha_i + w_i x (I_i w_i) + m_i x a_i`` (``m_i = R_i
+[MX, MY, MZ]``, ``I_i = R_i I_o R_i^T``, ``a_i`` the origin's acceleration
+minus gravity); the torque of joint j is the moment of every link distal to
+it about its axis, ``tau_j = z_j . sum_i (n_i + (o_i - p_j) x f_i)``, plus
+``Ia_j qdd_j`` (the rotors' gyroscopic coupling neglected, as in the standard
+PUMA model and Robotics Toolbox's ``rne``).  The tests check the result
+against Robotics Toolbox for Python (``DHRobot.rne``) when it is installed,
+and the PUMA 560 links 2--3 base parameters against the paper's eq. 3.
+
+Scope today: the model, its dynamics and its base parameters.  The closed
+loop, the identification and the controllers still run on the PUMA 560
+links 2--3 model of :mod:`plant.model` (issue 23 carries them to n joints).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+__all__ = [
+    "Link",
+    "RobotModel",
+    "BaseParameterSet",
+    "ParameterBasis",
+    "STANDARD_NAMES",
+    "PUMA560_DH",
+    "PUMA560_LINKS23_BASIS",
+]
+
+#: Standard inertial parameters of one link, in this order (Khalil & Dombre).
+STANDARD_NAMES = ("XX", "XY", "XZ", "YY", "YZ", "ZZ", "MX", "MY", "MZ", "M")
+
+
+@dataclass(frozen=True)
+class Link:
+    """One revolute joint with its link: DH row, inertia and drive.
+
+    Parameters
+    ----------
+    a, alpha, d : float
+        DH link length (m), twist (rad) and offset (m).  Standard DH
+        (``T = Rz(theta) Tz(d) Tx(a) Rx(alpha)``, frame i at the far end of
+        link i) or modified DH (Craig: ``T = Rx(alpha) Tx(a) Rz(theta)
+        Tz(d)``, frame i on joint i's axis), as the model's ``convention``.
+    offset : float
+        Joint angle offset (rad): ``theta = q + offset``.
+    mass : float
+        Link mass (kg), >= 0.
+    com : array_like, shape (3,)
+        Centre of mass in the link frame (m).
+    inertia : array_like, shape (3, 3) or (6,)
+        Inertia about the centre of mass in the link frame (kg m^2): a
+        symmetric matrix or ``(Ixx, Iyy, Izz, Ixy, Iyz, Ixz)`` (Robotics
+        Toolbox's order).
+    gear_ratio : float
+        Motor angle / joint angle (k), nonzero.
+    motor_inertia : float
+        Rotor inertia Jm on the motor side (kg m^2), >= 0; the joint sees
+        ``Jm k^2``.
+
+    Raises
+    ------
+    ValueError
+        On a non-finite value, a negative mass or motor inertia, a zero gear
+        ratio or an inertia of the wrong shape.
+    """
+
+    a: float = 0.0
+    alpha: float = 0.0
+    d: float = 0.0
+    offset: float = 0.0
+    mass: float = 0.0
+    com: tuple = (0.0, 0.0, 0.0)
+    inertia: tuple = field(default=(0.0,) * 6)
+    gear_ratio: float = 1.0
+    motor_inertia: float = 0.0
+
+    def __post_init__(self):
+        for name in ("a", "alpha", "d", "offset", "mass", "gear_ratio", "motor_inertia"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v):
+                raise ValueError(f"Link.{name} must be finite, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, v)
+        if self.mass < 0 or self.motor_inertia < 0:
+            raise ValueError("Link.mass and Link.motor_inertia must be >= 0")
+        if self.gear_ratio == 0:
+            raise ValueError("Link.gear_ratio must be nonzero")
+        com = np.asarray(self.com, dtype=float).reshape(-1)
+        if com.shape != (3,) or not np.all(np.isfinite(com)):
+            raise ValueError(f"Link.com must be 3 finite numbers, got {self.com!r}")
+        object.__setattr__(self, "com", tuple(com.tolist()))
+        inertia = np.asarray(self.inertia, dtype=float)
+        if inertia.shape == (6,):
+            ixx, iyy, izz, ixy, iyz, ixz = inertia
+            inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+        if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)) or not np.allclose(
+                inertia, inertia.T):
+            raise ValueError("Link.inertia must be a finite symmetric (3, 3) matrix or 6 numbers "
+                             "(Ixx, Iyy, Izz, Ixy, Iyz, Ixz)")
+        object.__setattr__(self, "inertia", tuple(map(tuple, inertia.tolist())))
+
+    def standard_parameters(self) -> np.ndarray:
+        """``XX XY XZ YY YZ ZZ MX MY MZ M`` of this link (about the frame origin), shape (10,).
+
+        The inertia about the frame origin is the inertia about the centre
+        of mass plus ``M (|c|^2 1 - c c^T)`` (parallel axes, Steiner).
+        """
+        c = np.asarray(self.com)
+        i_o = np.asarray(self.inertia) + self.mass * (c @ c * np.eye(3) - np.outer(c, c))
+        return np.array([i_o[0, 0], i_o[0, 1], i_o[0, 2], i_o[1, 1], i_o[1, 2], i_o[2, 2],
+                         *(self.mass * c), self.mass])
+
+
+@dataclass(frozen=True)
+class ParameterBasis:
+    """A named parameter basis of a model's torques: ``tau = B(q, qd, qdd) theta``.
+
+    Attributes
+    ----------
+    name : str
+    names : tuple of str
+        Parameter names, in order.
+    regressor : callable
+        ``B(q, qd, qdd)`` -> ndarray (n, k), in the model's joint convention.
+    """
+
+    name: str
+    names: tuple
+    regressor: object
+
+
+@dataclass(frozen=True)
+class BaseParameterSet:
+    """The base parameters of a robot model (numerical QR, Gautier 1990).
+
+    ``beta = K p`` with ``p`` the standard parameters; the regressor of the
+    base parameters is ``Y[:, independent]`` (``Y p = Y_b beta`` for every
+    p and every state).
+
+    Attributes
+    ----------
+    names : tuple of str
+        One name per base parameter: the independent standard parameter it
+        is built on, with ``R`` appended when others are regrouped into it
+        (Khalil's convention, e.g. ``ZZ2R``).
+    independent : ndarray of int, shape (r,)
+        Columns of the standard regressor that carry the base parameters.
+    K : ndarray, shape (r, n_std)
+        The regrouping: ``beta = K p`` (entries below 1e-10 of the largest
+        set to zero).
+    expressions : tuple of str
+        ``beta_i`` written in the standard parameters.
+    rank : int
+        Number of base parameters r (for a named basis, the rank of K: fewer
+        than ``len(names)`` when the basis is not minimal).
+    singular_values : ndarray
+        Absolute diagonal of R of the QR (decreasing), or the singular
+        values of K for a named basis: the rank's evidence.
+    relations : tuple of str
+        For a named basis that is not minimal: the linear relations the
+        geometry imposes on its parameters (``"f3 - 0.4318 f5 = 0"``), one
+        per missing rank; empty for the QR's base parameters.
+
+    A named basis (:meth:`RobotModel.express`) has ``independent = None``.
+    """
+
+    names: tuple
+    independent: np.ndarray | None
+    K: np.ndarray
+    expressions: tuple
+    rank: int
+    singular_values: np.ndarray
+    relations: tuple = ()
+
+    def __call__(self, p) -> np.ndarray:
+        """The parameters of standard parameters ``p`` (n_std,), shape (len(names),)."""
+        return self.K @ np.asarray(p, dtype=float)
+
+
+def _rref(N, tol=1e-9):
+    """Reduced row echelon form of the rows of N (partial pivoting), shape kept."""
+    N = np.array(N, dtype=float)
+    row = 0
+    for col in range(N.shape[1]):
+        if row >= N.shape[0]:
+            break
+        piv = row + int(np.argmax(np.abs(N[row:, col])))
+        if abs(N[piv, col]) <= tol:
+            continue
+        N[[row, piv]] = N[[piv, row]]
+        N[row] /= N[row, col]
+        for i in range(N.shape[0]):
+            if i != row:
+                N[i] -= N[i, col] * N[row]
+        row += 1
+    N[np.abs(N) <= tol] = 0.0
+    return N[:row]
+
+
+def _rz(t):
+    c, s = ca.cos(t), ca.sin(t)
+    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+
+
+def _rx(t):
+    c, s = ca.cos(t), ca.sin(t)
+    return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
+
+
+def _vee(S):
+    return ca.vertcat(S[2, 1], S[0, 2], S[1, 0])
+
+
+def _frame(link: Link, theta, convention):
+    """(rotation, translation) of one DH transform, as casadi expressions."""
+    if convention == "standard":
+        R = ca.mtimes(_rz(theta), _rx(link.alpha))
+        p = ca.vertcat(link.a * ca.cos(theta), link.a * ca.sin(theta), link.d)
+    else:  # modified (Craig)
+        rx = _rx(link.alpha)
+        R = ca.mtimes(rx, _rz(theta))
+        p = ca.vertcat(link.a, 0, 0) + ca.mtimes(rx, ca.vertcat(0, 0, link.d))
+    return R, p
+
+
+class RobotModel:
+    """A serial arm of revolute joints (DH table), some active, the rest locked.
+
+    Parameters
+    ----------
+    links : sequence of Link
+        The chain from the base, one per joint.
+    convention : {"standard", "modified"}
+        DH convention of the table.
+    active : sequence of int, optional
+        Indices (0-based) of the joints that move (default all), in chain
+        order.  The model's joint vector q holds these, in this order.
+    locked : dict or sequence of float, optional
+        Angles (rad, the joint variable q, before ``offset``) of the joints
+        that do not move: a dict ``{index: angle}`` or one angle per joint
+        (the active ones' entries ignored); default 0.
+    gravity : array_like, shape (3,)
+        Gravity vector in the base frame (m/s^2); default ``(0, 0, -9.81)``.
+    name : str
+        A label.
+    joint_names : sequence of str, optional
+        Names of the active joints (default ``q1``, ``q2``, ... by the chain
+        index + 1).
+
+    Raises
+    ------
+    ValueError
+        An empty chain, an unknown convention, active indices out of range
+        or repeated, or a malformed gravity vector.
+
+    Examples
+    --------
+    >>> from plant.robot_model import Link, RobotModel
+    >>> arm = RobotModel([Link(a=1.0, mass=1.0, com=(-0.5, 0, 0)),
+    ...                   Link(a=1.0, mass=1.0, com=(-0.5, 0, 0))],
+    ...                  gravity=(0, -9.81, 0), name="planar 2-link")
+    >>> arm.base_parameters().names
+    ('ZZ1R', 'MX1R', 'MY1', 'ZZ2R', 'MX2R', 'MY2', 'Ia2')
+    """
+
+    def __init__(self, links, *, convention="standard", active=None, locked=None,
+                 gravity=(0.0, 0.0, -9.81), name="robot", joint_names=None):
+        links = tuple(links)
+        if not links or not all(isinstance(l, Link) for l in links):
+            raise ValueError("links must be a non-empty sequence of plant.robot_model.Link")
+        if convention not in ("standard", "modified"):
+            raise ValueError(f"convention must be 'standard' or 'modified', got {convention!r}")
+        n_all = len(links)
+        active = tuple(range(n_all)) if active is None else tuple(int(i) for i in active)
+        if (not active or len(set(active)) != len(active) or min(active) < 0
+                or max(active) >= n_all or list(active) != sorted(active)):
+            raise ValueError(f"active must be increasing distinct joint indices in 0..{n_all - 1}, "
+                             f"got {active!r}")
+        angles = np.zeros(n_all)
+        if isinstance(locked, dict):
+            for i, v in locked.items():
+                if not 0 <= int(i) < n_all:
+                    raise ValueError(f"locked joint index {i!r} out of range 0..{n_all - 1}")
+                angles[int(i)] = float(v)
+        elif locked is not None:
+            a = np.asarray(locked, dtype=float).reshape(-1)
+            if a.shape != (n_all,):
+                raise ValueError(f"locked needs one angle per joint ({n_all}), got {a.size}")
+            angles[:] = a
+        if not np.all(np.isfinite(angles)):
+            raise ValueError("locked angles must be finite")
+        g = np.asarray(gravity, dtype=float).reshape(-1)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise ValueError(f"gravity must be 3 finite numbers, got {gravity!r}")
+        self.links = links
+        self.convention = convention
+        self.active = active
+        self.locked_angles = angles
+        self.gravity = g
+        self.name = str(name)
+        self.joint_names = (tuple(f"q{i + 1}" for i in active) if joint_names is None
+                            else tuple(str(s) for s in joint_names))
+        if len(self.joint_names) != len(active):
+            raise ValueError("joint_names needs one name per active joint")
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_joints(self) -> int:
+        """Number of active joints n."""
+        return len(self.active)
+
+    @property
+    def gear_ratios(self) -> np.ndarray:
+        """Gear ratios k of the active joints, shape (n,)."""
+        return np.array([self.links[i].gear_ratio for i in self.active])
+
+    @cached_property
+    def _moving(self) -> tuple:
+        """Links that move (distal to the first active joint)."""
+        return tuple(range(self.active[0], len(self.links)))
+
+    @property
+    def standard_parameter_names(self) -> tuple:
+        """Names of the standard parameters: 10 per moving link (1-based), then ``Ia<j>``."""
+        names = [f"{s}{i + 1}" for i in self._moving for s in STANDARD_NAMES]
+        return tuple(names + [f"Ia{i + 1}" for i in self.active])
+
+    def standard_parameters(self) -> np.ndarray:
+        """The model's standard parameters from its links, shape (n_std,)."""
+        p = [self.links[i].standard_parameters() for i in self._moving]
+        ia = [self.links[i].motor_inertia * self.links[i].gear_ratio ** 2 for i in self.active]
+        return np.concatenate(p + [np.array(ia)])
+
+    # ------------------------------------------------------------- derivation
+    @cached_property
+    def _symbols(self):
+        n = self.n_joints
+        q, qd, qdd = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("qdd", n)
+        p = ca.SX.sym("p", len(self.standard_parameter_names))
+        return q, qd, qdd, p
+
+    @cached_property
+    def _tau_sx(self):
+        """tau(q, qd, qdd, p) as a casadi SX (Newton--Euler in the world frame)."""
+        q, qd, qdd, p = self._symbols
+        col = {j: k for k, j in enumerate(self.active)}
+        R = ca.SX.eye(3)
+        o = ca.SX.zeros(3)
+        axes, points, frames = [], [], []
+        for i, link in enumerate(self.links):
+            theta = (q[col[i]] if i in col else self.locked_angles[i]) + link.offset
+            Ri, pi = _frame(link, theta, self.convention)
+            if self.convention == "standard":
+                axes.append(R[:, 2])  # joint i turns about z_{i-1} through o_{i-1}
+                points.append(o)
+                o = o + ca.mtimes(R, pi)
+                R = ca.mtimes(R, Ri)
+            else:
+                o = o + ca.mtimes(R, pi)
+                R = ca.mtimes(R, Ri)
+                axes.append(R[:, 2])  # joint i turns about z_i through o_i
+                points.append(o)
+            frames.append((R, o))
+
+        def ddt(x):
+            return ca.jtimes(x, q, qd) + ca.jtimes(x, qd, qdd)
+
+        g = ca.DM(self.gravity)
+        wrench = {}
+        for k, i in enumerate(self._moving):
+            R, o = frames[i]
+            pl = p[10 * k:10 * k + 10]
+            I_o = ca.vertcat(ca.horzcat(pl[0], pl[1], pl[2]), ca.horzcat(pl[1], pl[3], pl[4]),
+                             ca.horzcat(pl[2], pl[4], pl[5]))
+            ms, m = pl[6:9], pl[9]
+            Rd = ca.jtimes(ca.vec(R), q, qd)
+            Rd = ca.reshape(Rd, 3, 3)
+            w = _vee(ca.mtimes(Rd, R.T))
+            alpha = ddt(w)
+            a = ddt(ca.jtimes(o, q, qd)) - g
+            msw = ca.mtimes(R, ms)
+            Iw = ca.mtimes(ca.mtimes(R, I_o), R.T)
+            f = m * a + ca.cross(alpha, msw) + ca.cross(w, ca.cross(w, msw))
+            nmom = ca.mtimes(Iw, alpha) + ca.cross(w, ca.mtimes(Iw, w)) + ca.cross(msw, a)
+            wrench[i] = (f, nmom, o)
+        n_link = 10 * len(self._moving)
+        tau = []
+        for k, j in enumerate(self.active):
+            z, pj = axes[j], points[j]
+            t = 0
+            for i in self._moving:
+                if i < j:
+                    continue
+                f, nmom, o = wrench[i]
+                t = t + ca.dot(z, nmom + ca.cross(o - pj, f))
+            tau.append(t + p[n_link + k] * qdd[k])
+        return ca.vertcat(*tau)
+
+    @cached_property
+    def inverse_dynamics_function(self) -> ca.Function:
+        """casadi ``tau = ID(q, qd, qdd, p)``: (n,), (n,), (n,), (n_std,) -> (n,) (N m)."""
+        q, qd, qdd, p = self._symbols
+        return ca.Function("inverse_dynamics", [q, qd, qdd, p], [self._tau_sx],
+                           ["q", "qd", "qdd", "p"], ["tau"])
+
+    @cached_property
+    def regressor_function(self) -> ca.Function:
+        """casadi ``Y(q, qd, qdd)`` (n, n_std): ``tau = Y p`` (tau is linear in p)."""
+        q, qd, qdd, p = self._symbols
+        Y = ca.jacobian(self._tau_sx, p)
+        return ca.Function("regressor", [q, qd, qdd], [ca.substitute(Y, p, ca.SX.zeros(p.shape))],
+                           ["q", "qd", "qdd"], ["Y"])
+
+    @cached_property
+    def _terms(self):
+        q, qd, qdd, p = self._symbols
+        tau = self._tau_sx
+        D = ca.jacobian(tau, qdd)
+        zero = ca.SX.zeros(self.n_joints)
+        gvec = ca.substitute(tau, ca.vertcat(qd, qdd), ca.vertcat(zero, zero))
+        c = ca.substitute(tau, qdd, zero) - gvec
+        return (ca.Function("inertia", [q, p], [D], ["q", "p"], ["D"]),
+                ca.Function("coriolis", [q, qd, p], [c], ["q", "qd", "p"], ["c"]),
+                ca.Function("gravity", [q, p], [gvec], ["q", "p"], ["g"]))
+
+    def _p(self, p):
+        p = self.standard_parameters() if p is None else np.asarray(p, dtype=float).reshape(-1)
+        if p.shape != (len(self.standard_parameter_names),):
+            raise ValueError(f"p must have {len(self.standard_parameter_names)} standard "
+                             f"parameters, got {p.size}")
+        return p
+
+    def _q(self, q, name="q"):
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (self.n_joints,):
+            raise ValueError(f"{name} must have {self.n_joints} values, got {q.size}")
+        return q
+
+    def inverse_dynamics(self, q, qd, qdd, p=None) -> np.ndarray:
+        """Joint torques ``D qdd + c + g`` plus ``Ia qdd`` (N m), shape (n,).
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like, shape (n,)
+            Active joints' angles (rad), rates (rad/s), accelerations (rad/s^2).
+        p : array_like, shape (n_std,), optional
+            Standard parameters (default :meth:`standard_parameters`).
+
+        Raises
+        ------
+        ValueError
+            On wrong sizes.
+        """
+        out = self.inverse_dynamics_function(self._q(q), self._q(qd, "qd"), self._q(qdd, "qdd"),
+                                             self._p(p))
+        return np.asarray(out).reshape(-1)
+
+    def regressor(self, q, qd, qdd) -> np.ndarray:
+        """Standard regressor ``Y`` with ``tau = Y p``, shape (n, n_std).
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like, shape (n,)
+            Joint angles (rad), rates (rad/s) and accelerations (rad/s^2).
+
+        Raises
+        ------
+        ValueError
+            On wrong sizes.
+        """
+        return np.asarray(self.regressor_function(self._q(q), self._q(qd, "qd"),
+                                                  self._q(qdd, "qdd")))
+
+    def inertia_matrix(self, q, p=None) -> np.ndarray:
+        """Inertia matrix ``D(q)`` including ``Ia`` on the diagonal (kg m^2), shape (n, n).
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Joint angles (rad).
+        p : array_like, shape (n_std,), optional
+            Standard parameters (default :meth:`standard_parameters`).
+        """
+        return np.asarray(self._terms[0](self._q(q), self._p(p)))
+
+    def coriolis_centrifugal(self, q, qd, p=None) -> np.ndarray:
+        """Coriolis/centrifugal torques ``c(q, qd)`` (N m), shape (n,).
+
+        Parameters
+        ----------
+        q, qd : array_like, shape (n,)
+            Joint angles (rad) and rates (rad/s).
+        p : array_like, shape (n_std,), optional
+            Standard parameters (default :meth:`standard_parameters`).
+        """
+        return np.asarray(self._terms[1](self._q(q), self._q(qd, "qd"), self._p(p))).reshape(-1)
+
+    def gravity_vector(self, q, p=None) -> np.ndarray:
+        """Gravity torques ``g(q)`` (N m), shape (n,).
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Joint angles (rad).
+        p : array_like, shape (n_std,), optional
+            Standard parameters (default :meth:`standard_parameters`).
+        """
+        return np.asarray(self._terms[2](self._q(q), self._p(p))).reshape(-1)
+
+    # -------------------------------------------------------- base parameters
+    def random_states(self, n_states, rng=None):
+        """Random ``(q, qd, qdd)``, each shape (n_states, n): angles in [-pi, pi], rates and
+        accelerations standard normal (rad/s, rad/s^2).
+
+        Parameters
+        ----------
+        n_states : int
+        rng : numpy.random.Generator or int, optional
+        """
+        rng = np.random.default_rng(rng)
+        n = self.n_joints
+        return (rng.uniform(-math.pi, math.pi, (n_states, n)), rng.standard_normal((n_states, n)),
+                rng.standard_normal((n_states, n)))
+
+    def stacked_regressor(self, q, qd, qdd) -> np.ndarray:
+        """Regressors at many states, stacked state by state: shape (m n, n_std).
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like, shape (m, n)
+            m states (time-first), rad, rad/s, rad/s^2.
+        """
+        f = self.regressor_function.map(np.shape(q)[0])
+        Y = np.asarray(f(np.asarray(q, float).T, np.asarray(qd, float).T, np.asarray(qdd, float).T))
+        n, m = self.n_joints, np.shape(q)[0]
+        # map() concatenates the (n, n_std) blocks side by side: [Y(s0) | Y(s1) | ...]
+        return Y.reshape(n, m, -1).transpose(1, 0, 2).reshape(m * n, -1)
+
+    def base_parameters(self, *, n_states=None, rng=0, rtol=1e-8) -> BaseParameterSet:
+        """The base parameters by the numerical QR method (Gautier 1990).
+
+        The regressor is stacked at ``n_states`` random states
+        (:meth:`random_states`) into ``W``; ``W P = Q R`` with column
+        pivoting; the rank r is the number of ``|R_kk| > rtol |R_00|``;
+        the first r pivoted columns are independent and
+        ``beta = p_1 + R_11^-1 R_12 p_2``.
+
+        Parameters
+        ----------
+        n_states : int, optional
+            Random states (default ``max(50, 5 n_std / n)``).
+        rng : numpy.random.Generator or int
+            Seed of the states (the result does not depend on it beyond
+            rounding when the states are enough).
+        rtol : float
+            Relative rank tolerance.
+
+        Returns
+        -------
+        BaseParameterSet
+        """
+        from scipy.linalg import qr, solve_triangular
+
+        names = self.standard_parameter_names
+        n_std = len(names)
+        m = n_states or max(50, 5 * n_std // self.n_joints)
+        W = self.stacked_regressor(*self.random_states(m, rng))
+        # columns scaled to unit norm (parameters of very different sizes); a column
+        # at rounding level (cos(pi/2) = 6e-17 in a DH rotation) is a parameter
+        # that does not act at all: zeroed, never promoted by the scaling
+        scale = np.linalg.norm(W, axis=0)
+        dead = scale <= rtol * scale.max()
+        scale[dead] = 1.0
+        Ws = W / scale
+        Ws[:, dead] = 0.0
+        # Gautier's order: a column that the columns before it already span is
+        # dependent (QR without pivoting, in the order of standard_parameter_names:
+        # links from the base, XX..ZZ, MX..MZ, M, then the motor inertias), so the
+        # dependent parameters regroup onto the proximal links' (Khalil's ZZ1R ...)
+        _, R0 = qr(Ws, mode="economic")
+        d = np.abs(np.diag(R0))
+        top = d.max() if d.size else 0.0
+        ind = np.flatnonzero(d > rtol * top) if top > 0 else np.zeros(0, dtype=int)
+        dep = np.setdiff1d(np.arange(n_std), ind)
+        r = ind.size
+        # back in unscaled parameters: W[:, dep] = W[:, ind] B  ->  beta = p_ind + B p_dep
+        R = qr(Ws[:, np.concatenate([ind, dep])], mode="r")[0]
+        B = solve_triangular(R[:r, :r], R[:r, r:]) * (scale[dep][None, :] / scale[ind][:, None])
+        K = np.zeros((r, n_std))
+        K[np.arange(r), ind] = 1.0
+        K[:, dep] = B
+        K[np.abs(K) < 1e-10 * max(1.0, np.abs(K).max())] = 0.0
+        bnames, exprs = [], []
+        for k in range(r):
+            others = [j for j in np.flatnonzero(K[k]) if j != ind[k]]
+            bnames.append(names[ind[k]] + ("R" if others else ""))
+            terms = [names[ind[k]]] + [f"{'+' if K[k, j] > 0 else '-'} {abs(K[k, j]):.6g} {names[j]}"
+                                       for j in others]
+            exprs.append(" ".join(terms))
+        return BaseParameterSet(names=tuple(bnames), independent=ind, K=K,
+                                expressions=tuple(exprs), rank=r, singular_values=d)
+
+    def express(self, basis, *, n_states=None, rng=0, rtol=1e-8) -> BaseParameterSet:
+        """The model's torques in a named parameter basis (e.g. the paper's f1..f9).
+
+        Finds K with ``Y(q, qd, qdd) = B(q, qd, qdd) K`` at random states
+        (least squares on the stacked regressors), i.e. the basis'
+        parameters ``theta = K p`` in the standard parameters, and checks
+        that the fit is exact: every torque of the model is ``B theta``.
+
+        Parameters
+        ----------
+        basis : ParameterBasis
+            Names and regressor ``B`` (n, k) of the basis, in this model's
+            joint convention.
+        n_states : int, optional
+            Random states (default as :meth:`base_parameters`).
+        rng : numpy.random.Generator or int
+        rtol : float
+            Relative tolerance of the exactness check and of K's rank.
+
+        Returns
+        -------
+        BaseParameterSet
+            ``independent`` None; ``relations`` lists the linear relations
+            among the basis' parameters when it is not minimal.
+
+        Raises
+        ------
+        ValueError
+            When the basis does not describe the model (residual above
+            ``rtol`` of the regressor's size) or has a wrong shape.
+        """
+        names = self.standard_parameter_names
+        m = n_states or max(50, 5 * len(names) // self.n_joints)
+        q, qd, qdd = self.random_states(m, rng)
+        W = self.stacked_regressor(q, qd, qdd)
+        Bs = np.vstack([np.atleast_2d(basis.regressor(q[i], qd[i], qdd[i])) for i in range(m)])
+        if Bs.shape != (W.shape[0], len(basis.names)):
+            raise ValueError(f"the basis regressor must be ({self.n_joints}, {len(basis.names)}) "
+                             f"per state, got {Bs.shape[0] // m} x {Bs.shape[1]}")
+        K = np.linalg.lstsq(Bs, W, rcond=None)[0]
+        resid = np.abs(Bs @ K - W).max()
+        if resid > rtol * max(1.0, np.abs(W).max()):
+            raise ValueError(f"the basis {basis.name!r} does not describe {self.name}: torque "
+                             f"residual {resid:.3g} (its regressor misses a term of the model)")
+        K[np.abs(K) < 1e-10 * max(1.0, np.abs(K).max())] = 0.0
+        u, sv, _ = np.linalg.svd(K)
+        r = int(np.sum(sv > rtol * sv[0])) if sv.size and sv[0] > 0 else 0
+        relations = []
+        for v in _rref(u[:, r:].T):  # solved for the first parameters they tie
+            k = int(np.flatnonzero(np.abs(v) > 1e-9)[0])
+            terms = [basis.names[k]] + [f"{'+' if v[j] > 0 else '-'} {abs(v[j]):.6g} {basis.names[j]}"
+                                        for j in np.flatnonzero(np.abs(v) > 1e-9) if j != k]
+            relations.append(" ".join(terms) + " = 0")
+        exprs = tuple(" ".join(f"{'+' if K[i, j] > 0 else '-'} {abs(K[i, j]):.6g} {names[j]}"
+                               for j in np.flatnonzero(K[i])).lstrip("+ ") or "0"
+                      for i in range(K.shape[0]))
+        return BaseParameterSet(names=tuple(basis.names), independent=None, K=K,
+                                expressions=exprs, rank=r, singular_values=sv,
+                                relations=tuple(relations))
+
+    # --------------------------------------------------------------- builders
+    @classmethod
+    def from_dh(cls, table, *, convention="standard", **options):
+        """A model from a DH table: one row (dict or sequence) per joint.
+
+        Parameters
+        ----------
+        table : sequence
+            Rows as dicts of :class:`Link` fields, or sequences
+            ``(a, alpha, d, offset)``.
+        convention : {"standard", "modified"}
+        **options
+            Keyword arguments of :class:`RobotModel` (``active``, ``locked``,
+            ``gravity``, ``name``, ``joint_names``).
+
+        Raises
+        ------
+        ValueError
+            On a malformed row or as :class:`RobotModel`.
+        """
+        links = []
+        for k, row in enumerate(table):
+            try:
+                links.append(Link(**row) if isinstance(row, dict) else Link(*row))
+            except TypeError as exc:
+                raise ValueError(f"DH row {k}: {exc}") from None
+        return cls(links, convention=convention, **options)
+
+    @classmethod
+    def puma560(cls, active=(1, 2), **options):
+        """The PUMA 560 of Corke's Robotics Toolbox (standard DH, :data:`PUMA560_DH`).
+
+        Parameters
+        ----------
+        active : sequence of int
+            Active joints, 0-based (default ``(1, 2)``: the paper's joints 2
+            and 3, with joint 1 and the wrist locked at 0).
+        **options
+            Keyword arguments of :class:`RobotModel`.
+
+        Notes
+        -----
+        The joint angles are Robotics Toolbox's.  The paper's joints 2 and 3
+        turn the other way (``q_paper = -q``, ``tau_paper = -tau``, the same
+        zero); :data:`PUMA560_LINKS23_BASIS` is the paper's f1..f9 in this
+        model's convention, so ``RobotModel.puma560().express(
+        PUMA560_LINKS23_BASIS)`` gives eq. 3 in the standard parameters.
+        """
+        options.setdefault("name", "PUMA 560")
+        if tuple(active) == (1, 2):
+            options.setdefault("joint_names", ("q2", "q3"))
+        return cls([Link(**row) for row in PUMA560_DH], active=active, **options)
+
+    def __repr__(self) -> str:
+        return (f"RobotModel({self.name!r}, {len(self.links)} links, {self.convention} DH, "
+                f"active joints {list(self.joint_names)})")
+
+
+#: The PUMA 560 of P. Corke's Robotics Toolbox (``Puma560``; B. Armstrong,
+#: O. Khatib and J. Burdick, "The explicit dynamic model and inertial
+#: parameters of the PUMA 560 arm", ICRA 1986): standard DH, SI units.
+PUMA560_DH = (
+    dict(a=0.0, alpha=math.pi / 2, d=0.67183, mass=0.0, com=(0, 0, 0),
+         inertia=(0, 0.35, 0, 0, 0, 0), gear_ratio=-62.6111, motor_inertia=200e-6),
+    dict(a=0.4318, alpha=0.0, d=0.0, mass=17.4, com=(-0.3638, 0.006, 0.2275),
+         inertia=(0.13, 0.524, 0.539, 0, 0, 0), gear_ratio=107.815, motor_inertia=200e-6),
+    dict(a=0.0203, alpha=-math.pi / 2, d=0.15005, mass=4.8, com=(-0.0203, -0.0141, 0.070),
+         inertia=(0.066, 0.086, 0.0125, 0, 0, 0), gear_ratio=-53.7063, motor_inertia=200e-6),
+    dict(a=0.0, alpha=math.pi / 2, d=0.4318, mass=0.82, com=(0, 0.019, 0),
+         inertia=(1.8e-3, 1.3e-3, 1.8e-3, 0, 0, 0), gear_ratio=76.0364, motor_inertia=33e-6),
+    dict(a=0.0, alpha=-math.pi / 2, d=0.0, mass=0.34, com=(0, 0, 0),
+         inertia=(0.3e-3, 0.4e-3, 0.3e-3, 0, 0, 0), gear_ratio=71.923, motor_inertia=33e-6),
+    dict(a=0.0, alpha=0.0, d=0.0, mass=0.09, com=(0, 0, 0.032),
+         inertia=(0.15e-3, 0.15e-3, 0.04e-3, 0, 0, 0), gear_ratio=76.686, motor_inertia=33e-6),
+)
+
+
+def _paper_regressor(q, qd, qdd, g=9.81):
+    """The paper's f1..f9 regressor in Robotics Toolbox's joint convention (q_paper = -q)."""
+    from .model import regressor
+
+    return -regressor(-np.asarray(q, float), -np.asarray(qd, float), -np.asarray(qdd, float), g)
+
+
+#: The paper's base parameters f1..f9 (eq. 3; :mod:`plant.model`) as a named
+#: basis of ``RobotModel.puma560()`` (joints 2 and 3 in Robotics Toolbox's
+#: convention).  Not minimal: the geometry ties ``f3 = a3 f5`` and ``f4 = a3 f6``
+#: (a3 = 0.4318 m), which the paper leaves free.
+PUMA560_LINKS23_BASIS = ParameterBasis(
+    name="PUMA 560 links 2-3, eq. 3",
+    names=tuple(f"f{i}" for i in range(1, 10)),
+    regressor=_paper_regressor,
+)

@@ -1,0 +1,175 @@
+"""The robot model (plant.robot_model): DH table -> dynamics -> regressor -> base parameters."""
+import math
+
+import numpy as np
+import pytest
+
+from plant import model as paper
+from plant.robot_model import (
+    PUMA560_DH,
+    PUMA560_LINKS23_BASIS,
+    Link,
+    ParameterBasis,
+    RobotModel,
+)
+
+
+def planar(convention="standard", **kw):
+    """Two-link arm in a vertical plane: l = 1.0 / 0.8 m, COM at the middle, motors."""
+    l1, l2 = 1.0, 0.8
+    if convention == "standard":  # frame i at the far end of link i
+        links = [Link(a=l1, mass=2.0, com=(-l1 / 2, 0, 0), inertia=(0.01, 0.1, 0.17, 0, 0, 0),
+                      gear_ratio=50, motor_inertia=1e-4),
+                 Link(a=l2, mass=1.5, com=(-l2 / 2, 0, 0), inertia=(0.01, 0.06, 0.08, 0, 0, 0),
+                      gear_ratio=30, motor_inertia=1e-4)]
+    else:  # modified: frame i on joint i's axis
+        links = [Link(a=0.0, mass=2.0, com=(l1 / 2, 0, 0), inertia=(0.01, 0.1, 0.17, 0, 0, 0),
+                      gear_ratio=50, motor_inertia=1e-4),
+                 Link(a=l1, mass=1.5, com=(l2 / 2, 0, 0), inertia=(0.01, 0.06, 0.08, 0, 0, 0),
+                      gear_ratio=30, motor_inertia=1e-4)]
+    return RobotModel(links, convention=convention, gravity=(0, -9.81, 0), **kw)
+
+
+def planar_closed_form(q, qd, qdd):
+    """Textbook two-link planar dynamics (Spong, Hutchinson & Vidyasagar, sec. 7.3)."""
+    l1, lc1, lc2 = 1.0, 0.5, 0.4
+    m1, m2, i1, i2 = 2.0, 1.5, 0.17, 0.08
+    ia1, ia2 = 1e-4 * 50 ** 2, 1e-4 * 30 ** 2
+    c2, s2 = math.cos(q[1]), math.sin(q[1])
+    d11 = m1 * lc1 ** 2 + m2 * (l1 ** 2 + lc2 ** 2 + 2 * l1 * lc2 * c2) + i1 + i2 + ia1
+    d12 = m2 * (lc2 ** 2 + l1 * lc2 * c2) + i2
+    d22 = m2 * lc2 ** 2 + i2 + ia2
+    h = -m2 * l1 * lc2 * s2
+    c = np.array([h * (2 * qd[0] * qd[1] + qd[1] ** 2), -h * qd[0] ** 2])
+    g = 9.81
+    gv = np.array([(m1 * lc1 + m2 * l1) * g * math.cos(q[0]) + m2 * lc2 * g * math.cos(q[0] + q[1]),
+                   m2 * lc2 * g * math.cos(q[0] + q[1])])
+    D = np.array([[d11, d12], [d12, d22]])
+    return D, c, gv, D @ qdd + c + gv
+
+
+@pytest.mark.parametrize("convention", ["standard", "modified"])
+def test_planar_arm_matches_the_textbook(convention):
+    arm = planar(convention)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, qd, qdd = rng.uniform(-3, 3, 2), rng.normal(size=2), rng.normal(size=2)
+        D, c, g, tau = planar_closed_form(q, qd, qdd)
+        np.testing.assert_allclose(arm.inertia_matrix(q), D, atol=1e-12)
+        np.testing.assert_allclose(arm.coriolis_centrifugal(q, qd), c, atol=1e-12)
+        np.testing.assert_allclose(arm.gravity_vector(q), g, atol=1e-12)
+        np.testing.assert_allclose(arm.inverse_dynamics(q, qd, qdd), tau, atol=1e-12)
+        # tau is linear in the standard parameters through the regressor
+        np.testing.assert_allclose(arm.regressor(q, qd, qdd) @ arm.standard_parameters(), tau,
+                                   atol=1e-12)
+
+
+def test_planar_arm_base_parameters():
+    arm = planar()
+    base = arm.base_parameters()
+    # the classical result: 7 base parameters for a 2R arm in a vertical plane with rotors
+    # (ZZ1R, MX1R, MY1, ZZ2R, MX2R, MY2, Ia2); Ia1 regroups into ZZ1R
+    assert base.rank == 7
+    assert base.names == ("ZZ1R", "MX1R", "MY1", "ZZ2R", "MX2R", "MY2", "Ia2")
+    assert "Ia1" in base.expressions[0]
+    # Y p = Y_b beta for any p and state
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=len(arm.standard_parameter_names))
+    W = arm.stacked_regressor(*arm.random_states(30, rng=1))
+    np.testing.assert_allclose(W @ p, W[:, base.independent] @ base(p), atol=1e-10)
+    # and the base regressor has full column rank
+    assert np.linalg.matrix_rank(W[:, base.independent]) == 7
+
+
+def test_puma_links23_are_the_papers_f():
+    """Eq. 3: the DH model's torques are Y_f f with f = K p; two relations tie f3..f6."""
+    puma = RobotModel.puma560()
+    f = puma.express(PUMA560_LINKS23_BASIS)
+    assert f.names == tuple(f"f{i}" for i in range(1, 10))
+    # the geometry (a3 = 0.4318 m) ties f3 = a3 f5 and f4 = a3 f6: 7 base parameters,
+    # as the numerical QR finds; the paper searches all nine
+    assert f.rank == 7 == puma.base_parameters().rank
+    assert f.relations == ("f3 - 0.4318 f5 = 0", "f4 - 0.4318 f6 = 0")
+    p = puma.standard_parameters()
+    fv = f(p)
+    # eq. 3: f1 - f2 is the reflected rotor inertia of joint 3, f7 holds joint 2's
+    k3, k2 = PUMA560_DH[2]["gear_ratio"], PUMA560_DH[1]["gear_ratio"]
+    assert fv[0] - fv[1] == pytest.approx(200e-6 * k3 ** 2, rel=1e-12)
+    assert "Ia2" in f.expressions[6] and "Ia3" in f.expressions[0] and "Ia3" not in f.expressions[1]
+    # the library's eq.-2 model with this f is the DH model, in the paper's convention
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        q, qd, qdd = rng.uniform(-3, 3, 2), rng.normal(size=2), rng.normal(size=2)
+        np.testing.assert_allclose(paper.inertia_matrix(fv, -q), puma.inertia_matrix(q), atol=1e-12)
+        np.testing.assert_allclose(paper.inverse_dynamics(fv, -q, -qd, -qdd),
+                                   -puma.inverse_dynamics(q, qd, qdd), atol=1e-10)
+
+
+def test_a_basis_that_misses_a_term_is_refused():
+    puma = RobotModel.puma560()
+    short = ParameterBasis("no gravity of link 2", tuple(f"f{i}" for i in range(1, 9)),
+                           lambda q, qd, qdd: PUMA560_LINKS23_BASIS.regressor(q, qd, qdd)[:, :8])
+    with pytest.raises(ValueError, match="does not describe") as exc:
+        puma.express(short)
+    assert "\n" not in str(exc.value)
+
+
+def test_against_robotics_toolbox_six_joints():
+    rtb = pytest.importorskip("roboticstoolbox")
+    ref = rtb.models.DH.Puma560().nofriction(coulomb=True, viscous=True)
+    puma = RobotModel.puma560(active=range(6))
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        q, qd, qdd = rng.uniform(-3, 3, 6), rng.normal(size=6), rng.normal(size=6)
+        np.testing.assert_allclose(puma.inverse_dynamics(q, qd, qdd), ref.rne(q, qd, qdd), atol=1e-10)
+        np.testing.assert_allclose(puma.inertia_matrix(q), ref.inertia(q), atol=1e-10)
+        np.testing.assert_allclose(puma.gravity_vector(q), ref.gravload(q), atol=1e-10)
+    base = puma.base_parameters()
+    p = puma.standard_parameters()
+    W = puma.stacked_regressor(*puma.random_states(20, rng=2))
+    np.testing.assert_allclose(W @ p, W[:, base.independent] @ base(p), atol=1e-9)
+
+
+def test_against_robotics_toolbox_modified_dh_with_locked_joint():
+    rtb = pytest.importorskip("roboticstoolbox")
+    rows = [dict(a=0.0, alpha=0.0, d=0.3, mass=3.0, com=(0.1, 0.02, -0.05),
+                 inertia=(0.02, 0.03, 0.04, 0.001, 0.002, 0.003), gear_ratio=80, motor_inertia=5e-5),
+            dict(a=0.05, alpha=-math.pi / 2, d=0.1, offset=0.3, mass=2.0, com=(0.2, 0.0, 0.01),
+                 inertia=(0.01, 0.05, 0.05, 0, 0, 0), gear_ratio=60, motor_inertia=5e-5),
+            dict(a=0.4, alpha=0.0, d=0.0, mass=1.0, com=(0.15, 0.01, 0.0),
+                 inertia=(0.002, 0.01, 0.01, 0, 0, 0), gear_ratio=40, motor_inertia=5e-5)]
+    ref = rtb.DHRobot([rtb.RevoluteMDH(a=r["a"], alpha=r["alpha"], d=r["d"], offset=r.get("offset", 0.0),
+                                       m=r["mass"], r=r["com"], I=r["inertia"], G=r["gear_ratio"],
+                                       Jm=r["motor_inertia"]) for r in rows])
+    arm = RobotModel.from_dh(rows, convention="modified", active=(0, 2), locked={1: 0.4})
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        q, qd, qdd = rng.uniform(-3, 3, 2), rng.normal(size=2), rng.normal(size=2)
+        Q, QD, QDD = np.array([q[0], 0.4, q[1]]), np.array([qd[0], 0, qd[1]]), np.array([qdd[0], 0, qdd[1]])
+        np.testing.assert_allclose(arm.inverse_dynamics(q, qd, qdd), ref.rne(Q, QD, QDD)[[0, 2]],
+                                   atol=1e-10)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: RobotModel([]), "non-empty"),
+    (lambda: RobotModel([Link()], convention="craig"), "convention"),
+    (lambda: RobotModel([Link(), Link()], active=(1, 0)), "active"),
+    (lambda: RobotModel([Link()], gravity=(0, 9.81)), "gravity"),
+    (lambda: Link(mass=-1.0), "mass"),
+    (lambda: Link(gear_ratio=0.0), "gear_ratio"),
+    (lambda: Link(inertia=(1, 2, 3)), "inertia"),
+    (lambda: RobotModel.from_dh([(0.1, 0.0, 0.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)]), "DH row 0"),
+    (lambda: planar().inverse_dynamics([0.0], [0.0, 0.0], [0.0, 0.0]), "q must have 2"),
+])
+def test_bad_input_is_one_line(make, match):
+    with pytest.raises(ValueError, match=match) as exc:
+        make()
+    assert "\n" not in str(exc.value)
+
+
+def test_docstring_examples():
+    import doctest
+
+    import plant.robot_model
+
+    assert doctest.testmod(plant.robot_model, raise_on_error=False).failed == 0
