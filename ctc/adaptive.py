@@ -70,7 +70,11 @@ change in a linear-Gaussian regression):
    is not material and leaves the model alone.  A payload explains the
    change when the estimate's residual per value is back within
    ``explain_factor`` times the larger of the baseline and 1/6 pulse^2 (the
-   quantisation level).  A change that no plausible payload explains, or a
+   quantisation level).  An estimated mass below :data:`SMALL_MASS_FRACTION`
+   of the box (a put-down) has no identifiable centre of mass: when the
+   empty gripper (no payload) explains the window as well, the update is to
+   no payload; a small mass whose first moment at the box edge is material
+   is not plausible.  A change that no plausible payload explains, or a
    change with no significant payload estimate --
    friction, damping, stiffness, a collision -- is **not**
    turned into a payload: the model is kept, and (step 5) an event ``'unexplained'`` is
@@ -122,7 +126,8 @@ import numpy as np
 from .computed_torque import ComputedTorqueController, reference_of
 
 __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledChangeWarning",
-           "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "DIVERGE_FACTOR", "window_statistics"]
+           "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "DIVERGE_FACTOR", "SMALL_MASS_FRACTION",
+           "window_statistics"]
 
 #: Default identification latency (s): the per-window budget of a 100 ms window
 #: (``benchmarks/bench_online_payload.py`` measures 0.01-0.07 s per window on the
@@ -141,6 +146,11 @@ DIVERGE_FACTOR = 16.0
 
 #: Identified windows at the start that only set the baseline (their largest residual).
 CALIBRATION_WINDOWS = 3
+
+#: An estimated mass below this fraction of the mass box is below the window's
+#: resolution: its centre of mass is not identifiable, and the empty gripper (no
+#: payload) is tried in its place (step 3).
+SMALL_MASS_FRACTION = 0.05
 
 #: Number of payload parameters (m, xp, yp, Jc): the test's degrees of freedom.
 _N_PAYLOAD = 4
@@ -627,7 +637,13 @@ class AdaptiveComputedTorqueController:
         # m = 0 is physical; Jc is barely excited (its box edge is no evidence)
         at = ((x <= lo + tol) | (x >= hi - tol)) & np.array([False, True, True, False])
         at[0] = x[0] >= hi[0] - tol[0]
-        if x[0] < 0.05 * hi[0]:  # (almost) no payload: its centre of mass is not identifiable
+        # (almost) no payload: its centre of mass is not identifiable, and an edge of
+        # the box is no evidence -- unless the first moment there is material (more
+        # than 5 % of the mass box at 10 % of the centre-of-mass box: 0.147 kg at 1 m
+        # acts like 1.5 kg at 0.1 m, which is no "empty gripper")
+        reach = float(np.max(np.abs(np.concatenate([lo[1:3], hi[1:3]]))))
+        if (x[0] < SMALL_MASS_FRACTION * hi[0]
+                and x[0] * max(abs(x[1]), abs(x[2])) <= 0.1 * SMALL_MASS_FRACTION * hi[0] * reach):
             at[1:] = False
         names = ("mass", "xp", "yp")
         if np.any(at[:3]):
@@ -688,14 +704,23 @@ class AdaptiveComputedTorqueController:
         # a fair test: the current model gets its own start state, refined as the
         # estimate's was (else the nuisance state tuned for the estimate favours it)
         x0_now = self._start_state_of(window, law, substeps, x0_new, space)
-        F = np.stack([self.f, np.asarray(res.f, dtype=float)])
+        f_est = np.asarray(res.f, dtype=float)
+        payload_est = dict(res.payload)
+        mass = float(payload_est["mass_kg"])
+        # below the mass resolution the centre of mass is not identifiable: the
+        # empty gripper (the prior, no payload) is simulated beside the estimate
+        tiny = mass < SMALL_MASS_FRACTION * float(np.asarray(res.bounds, dtype=float)[0, 1])
+        F = np.stack([self.f, f_est] + ([self.prior_f] if tiny else []))
+        X0 = np.stack([x0_now, x0_new] + ([x0_new] if tiny else []))
         sim = plant.simulate_batch(window, F, substeps=substeps, errors=True, workers=1,
-                                   initial_state=np.stack([x0_now, x0_new]), controller=law,
+                                   initial_state=X0, controller=law,
                                    plant=space.plant(window),
                                    plant_parameters=space.plant_parameters(F, window))
         stats = window_statistics(window.e_pulses, sim.e_pulses[0], sim.e_pulses[1])
+        empty = None
+        if tiny:
+            empty = window_statistics(window.e_pulses, sim.e_pulses[0], sim.e_pulses[2])
         wall = time.perf_counter() - t0
-        mass = float(res.payload["mass_kg"])
         e = np.asarray(window.e_pulses, dtype=float)
         mse = float(np.mean(e * e))
         per_value_now = stats["y_now"] / stats["n_values"]
@@ -708,8 +733,18 @@ class AdaptiveComputedTorqueController:
         misfit = not first and per_value_now > self.explain_factor * baseline
         reason = None
         decision = "baseline" if first else "no change"
+        if misfit and significant and empty is not None:
+            # a sub-resolution estimate: when no payload at all explains the window as
+            # well (to the quantisation level), the robot carries none -- the estimate's
+            # centre of mass, wherever the optimiser left it, is not applied
+            per_value_empty = empty["y_new"] / empty["n_values"]
+            if (per_value_empty <= self.explain_factor * max(baseline, QUANTISATION_VARIANCE)
+                    and empty["lr"] > self._lr_threshold
+                    and empty["y_new"] < (1.0 - self.improvement) * empty["y_now"]):
+                f_est, payload_est, mass = np.array(self.prior_f, dtype=float), None, 0.0
+                stats, per_value_new = empty, per_value_empty
         if misfit and significant:
-            reason = self._plausible(res)
+            reason = None if payload_est is None else self._plausible(res)
             if reason is not None:
                 decision = "implausible"
             elif per_value_new > self.explain_factor * max(baseline, QUANTISATION_VARIANCE):
@@ -761,6 +796,7 @@ class AdaptiveComputedTorqueController:
                                          fun=float(res.fun), fun_current=stats["y_now"],
                                          lr=stats["lr"], threshold=self._lr_threshold,
                                          tau=stats["tau"], tracking_mse=mse, decision=decision,
+                                         empty_gripper=bool(tiny and payload_est is None),
                                          reason=reason, accepted=accepted,
                                          warnings=[str(w.message) for w in caught]))
         latency = wall if self.latency_s == "measured" else self.latency_s
@@ -798,7 +834,7 @@ class AdaptiveComputedTorqueController:
         if decision == "no change":
             self._warned = False
         if accepted:
-            self._pending = (k_eff, np.asarray(res.f, dtype=float), dict(res.payload), "update")
+            self._pending = (k_eff, f_est, payload_est, "update")
             self._pending_trigger_mse = mse
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "
                         f"{self._lr_threshold:.3g})", mass_kg=mass, lr=stats["lr"])

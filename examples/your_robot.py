@@ -9,7 +9,10 @@ expressions (numerical QR, Gautier 1990):
   with the paper's f1..f9 (eq. 3) in the standard parameters and the two
   relations the geometry imposes on them;
 * the PUMA 560 joints 1-3 (Corke's parameters, wrist locked);
-* the six-joint PUMA 560.
+* the six-joint PUMA 560;
+* a three-joint arm with a tool on a fixed flange, from a URDF file
+  (``--urdf``, default the repository's ``tests/data/urdf/arm_3r_tool.urdf``;
+  needs the ``urdf`` extra, Robotics Toolbox for Python, else it is skipped).
 
 Everything goes to ``out/your_robot/base_parameters.json``;
 ``docs/tutorial_your_robot.rst`` quotes this script's output.
@@ -35,6 +38,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def parse(argv):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="skip the six-joint arm")
+    p.add_argument("--urdf", type=Path,
+                   default=Path(__file__).resolve().parents[1] / "tests" / "data" / "urdf"
+                   / "arm_3r_tool.urdf", help="a URDF file of a serial revolute chain")
     p.add_argument("--out", type=Path, default=Path("out") / "your_robot",
                    help="output directory (default out/your_robot)")
     return p.parse_args(argv)
@@ -93,6 +99,15 @@ def main(argv=None):
     report["puma_joints123"] = describe(RobotModel.puma560(active=(0, 1, 2)))
     if not args.quick:
         report["puma_six_joints"] = describe(RobotModel.puma560(active=range(6)))
+    try:
+        import roboticstoolbox  # noqa: F401  (the urdf extra)
+    except ImportError:
+        print("URDF: skipped (pip install 'puma-ga-ctc[urdf]' for Robotics Toolbox's reader)")
+    else:
+        if args.urdf.is_file():
+            report["urdf"] = describe(RobotModel.from_urdf(args.urdf))
+        else:
+            print(f"URDF: skipped (no file {args.urdf})")
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         path = args.out / "base_parameters.json"

@@ -1,7 +1,8 @@
-"""A serial robot as one object: DH table -> symbolic dynamics -> regressor -> base parameters.
+"""A serial robot as one object: DH table or URDF -> symbolic dynamics -> regressor -> base parameters.
 
 :class:`RobotModel` describes a chain of revolute joints by its
-Denavit--Hartenberg table (standard or modified), the links' inertial
+Denavit--Hartenberg table (standard or modified) or a URDF file
+(:meth:`RobotModel.from_urdf`, read by Robotics Toolbox's reader), the links' inertial
 parameters and the drives (gear ratio, motor inertia), with a chosen subset
 of the joints *active* (the others locked at given angles, e.g. the PUMA 560
 joints 2 and 3 of the paper with joint 1 and the wrist locked).  casadi
@@ -20,7 +21,9 @@ derives, once per model:
   calculation of the base inertial parameters of robots", *ICRA* 1990; the
   regressor stacked at random states, QR with column pivoting, the rank from
   the diagonal of R): the identifiable linear combinations of the standard
-  parameters, each with its expression (:class:`BaseParameterSet`).
+  parameters, each with its expression (:class:`BaseParameterSet`);
+* their search ranges from physical ranges by interval arithmetic (the
+  paper's section 3.6; :meth:`RobotModel.parameter_ranges`).
 
 Derivation (Newton--Euler in the world frame, every quantity symbolic):
 the forward kinematics give each link frame's origin ``o_i(q)`` and rotation
@@ -43,6 +46,7 @@ links 2--3 model of :mod:`plant.model` (issue 23 carries them to n joints).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -59,6 +63,9 @@ __all__ = [
     "PUMA560_DH",
     "PUMA560_LINKS23_BASIS",
 ]
+
+#: Link-frame conventions: standard DH, modified DH (Craig), URDF (origin + axis).
+CONVENTIONS = ("standard", "modified", "urdf")
 
 #: Standard inertial parameters of one link, in this order (Khalil & Dombre).
 STANDARD_NAMES = ("XX", "XY", "XZ", "YY", "YZ", "ZZ", "MX", "MY", "MZ", "M")
@@ -90,12 +97,21 @@ class Link:
     motor_inertia : float
         Rotor inertia Jm on the motor side (kg m^2), >= 0; the joint sees
         ``Jm k^2``.
+    origin : array_like, shape (4, 4), optional
+        ``convention="urdf"`` only: the constant transform from the parent
+        link's frame to the joint frame (URDF ``<origin>``); default identity.
+    axis : array_like, shape (3,)
+        ``convention="urdf"`` only: the joint axis in the joint frame (URDF
+        ``<axis>``), normalised; default z.
+    name : str
+        The joint's name (URDF); optional.
 
     Raises
     ------
     ValueError
         On a non-finite value, a negative mass or motor inertia, a zero gear
-        ratio or an inertia of the wrong shape.
+        ratio, an inertia of the wrong shape, an origin that is not a rigid
+        transform or a zero axis.
     """
 
     a: float = 0.0
@@ -107,6 +123,9 @@ class Link:
     inertia: tuple = field(default=(0.0,) * 6)
     gear_ratio: float = 1.0
     motor_inertia: float = 0.0
+    origin: tuple | None = None
+    axis: tuple = (0.0, 0.0, 1.0)
+    name: str = ""
 
     def __post_init__(self):
         for name in ("a", "alpha", "d", "offset", "mass", "gear_ratio", "motor_inertia"):
@@ -131,6 +150,17 @@ class Link:
             raise ValueError("Link.inertia must be a finite symmetric (3, 3) matrix or 6 numbers "
                              "(Ixx, Iyy, Izz, Ixy, Iyz, Ixz)")
         object.__setattr__(self, "inertia", tuple(map(tuple, inertia.tolist())))
+        if self.origin is not None:
+            T = np.asarray(self.origin, dtype=float)
+            if (T.shape != (4, 4) or not np.all(np.isfinite(T))
+                    or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+                    or not np.allclose(T[3], [0, 0, 0, 1])):
+                raise ValueError("Link.origin must be a (4, 4) rigid transform")
+            object.__setattr__(self, "origin", tuple(map(tuple, T.tolist())))
+        ax = np.asarray(self.axis, dtype=float).reshape(-1)
+        if ax.shape != (3,) or not np.all(np.isfinite(ax)) or np.linalg.norm(ax) == 0:
+            raise ValueError(f"Link.axis must be 3 finite numbers, not all zero, got {self.axis!r}")
+        object.__setattr__(self, "axis", tuple((ax / np.linalg.norm(ax)).tolist()))
 
     def standard_parameters(self) -> np.ndarray:
         """``XX XY XZ YY YZ ZZ MX MY MZ M`` of this link (about the frame origin), shape (10,).
@@ -244,16 +274,83 @@ def _vee(S):
     return ca.vertcat(S[2, 1], S[0, 2], S[1, 0])
 
 
-def _frame(link: Link, theta, convention):
-    """(rotation, translation) of one DH transform, as casadi expressions."""
+def _transform(R=None, p=None):
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = R
+    if p is not None:
+        T[:3, 3] = p
+    return T
+
+
+def _rot_x(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _pieces(link: Link, convention):
+    """``(A, axis, B)`` with the link transform ``T = A Rot(axis, theta) B`` (A, B constant 4x4).
+
+    Standard DH: ``A = 1``, ``B = Tz(d) Tx(a) Rx(alpha)``; modified DH:
+    ``A = Rx(alpha) Tx(a)``, ``B = Tz(d)``; URDF: ``A = origin``, ``B = 1``.
+    """
+    z = np.array([0.0, 0.0, 1.0])
     if convention == "standard":
-        R = ca.mtimes(_rz(theta), _rx(link.alpha))
-        p = ca.vertcat(link.a * ca.cos(theta), link.a * ca.sin(theta), link.d)
-    else:  # modified (Craig)
-        rx = _rx(link.alpha)
-        R = ca.mtimes(rx, _rz(theta))
-        p = ca.vertcat(link.a, 0, 0) + ca.mtimes(rx, ca.vertcat(0, 0, link.d))
-    return R, p
+        return np.eye(4), z, _transform(_rot_x(link.alpha), [link.a, 0.0, link.d])
+    if convention == "modified":
+        return _transform(_rot_x(link.alpha), [link.a, 0.0, 0.0]), z, _transform(p=[0, 0, link.d])
+    A = np.eye(4) if link.origin is None else np.asarray(link.origin, dtype=float)
+    return A, np.asarray(link.axis, dtype=float), np.eye(4)
+
+
+def _lumped(link: Link, T, m, com, inertia) -> Link:
+    """``link`` with a rigidly attached body (mass m, centre of mass ``com`` and inertia
+    about it in the body frame; ``T`` body frame -> link frame) added."""
+    R, p = T[:3, :3], T[:3, 3]
+    m0, c0, I0 = link.mass, np.asarray(link.com), np.asarray(link.inertia)
+    c1, I1 = R @ np.asarray(com) + p, R @ np.asarray(inertia) @ R.T
+    mt = m0 + m
+    if mt <= 0:
+        return link
+    c = (m0 * c0 + m * c1) / mt
+    Ic = np.zeros((3, 3))
+    for mi, ci, Ii in ((m0, c0, I0), (m, c1, I1)):
+        d = ci - c
+        Ic += Ii + mi * (d @ d * np.eye(3) - np.outer(d, d))
+    return dataclasses.replace(link, mass=mt, com=tuple(c), inertia=tuple(map(tuple, Ic)))
+
+
+def _interval(v, what):
+    a = np.asarray(v, dtype=float).reshape(-1)
+    if a.size == 1:
+        a = np.array([a[0], a[0]])
+    if a.shape != (2,) or not np.all(np.isfinite(a)) or a[0] > a[1]:
+        raise ValueError(f"a {what} range must be a number or (lo, hi) with lo <= hi, got {v!r}")
+    return float(a[0]), float(a[1])
+
+
+def _imul(a, b):
+    p = (a[0] * b[0], a[0] * b[1], a[1] * b[0], a[1] * b[1])
+    return min(p), max(p)
+
+
+def _iadd(a, b):
+    return a[0] + b[0], a[1] + b[1]
+
+
+def _ineg(a):
+    return -a[1], -a[0]
+
+
+def _isq(a):
+    lo2, hi2 = a[0] * a[0], a[1] * a[1]
+    return (0.0 if a[0] <= 0.0 <= a[1] else min(lo2, hi2)), max(lo2, hi2)
+
+
+def _axis_rotation(axis, theta):
+    """Rodrigues' rotation about a unit axis (numeric) by theta (casadi)."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return ca.DM.eye(3) + ca.sin(theta) * ca.DM(K) + (1 - ca.cos(theta)) * ca.DM(K @ K)
 
 
 class RobotModel:
@@ -263,8 +360,10 @@ class RobotModel:
     ----------
     links : sequence of Link
         The chain from the base, one per joint.
-    convention : {"standard", "modified"}
-        DH convention of the table.
+    convention : {"standard", "modified", "urdf"}
+        How a link's frame follows its parent's: DH table (standard or
+        modified) or URDF joint (``Link.origin``, then a turn about
+        ``Link.axis``; :meth:`from_urdf`).
     active : sequence of int, optional
         Indices (0-based) of the joints that move (default all), in chain
         order.  The model's joint vector q holds these, in this order.
@@ -301,8 +400,8 @@ class RobotModel:
         links = tuple(links)
         if not links or not all(isinstance(l, Link) for l in links):
             raise ValueError("links must be a non-empty sequence of plant.robot_model.Link")
-        if convention not in ("standard", "modified"):
-            raise ValueError(f"convention must be 'standard' or 'modified', got {convention!r}")
+        if convention not in CONVENTIONS:
+            raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
         n_all = len(links)
         active = tuple(range(n_all)) if active is None else tuple(int(i) for i in active)
         if (not active or len(set(active)) != len(active) or min(active) < 0
@@ -382,17 +481,15 @@ class RobotModel:
         axes, points, frames = [], [], []
         for i, link in enumerate(self.links):
             theta = (q[col[i]] if i in col else self.locked_angles[i]) + link.offset
-            Ri, pi = _frame(link, theta, self.convention)
-            if self.convention == "standard":
-                axes.append(R[:, 2])  # joint i turns about z_{i-1} through o_{i-1}
-                points.append(o)
-                o = o + ca.mtimes(R, pi)
-                R = ca.mtimes(R, Ri)
-            else:
-                o = o + ca.mtimes(R, pi)
-                R = ca.mtimes(R, Ri)
-                axes.append(R[:, 2])  # joint i turns about z_i through o_i
-                points.append(o)
+            A, axis, B = _pieces(link, self.convention)
+            # the joint frame: its axis and a point on it, in the base frame
+            Rj = ca.mtimes(R, ca.DM(A[:3, :3]))
+            oj = o + ca.mtimes(R, ca.DM(A[:3, 3]))
+            axes.append(ca.mtimes(Rj, ca.DM(axis)))
+            points.append(oj)
+            Rq = ca.mtimes(Rj, _axis_rotation(axis, theta))
+            o = oj + ca.mtimes(Rq, ca.DM(B[:3, 3]))
+            R = ca.mtimes(Rq, ca.DM(B[:3, :3]))
             frames.append((R, o))
 
         def ddt(x):
@@ -693,6 +790,82 @@ class RobotModel:
                                 expressions=exprs, rank=r, singular_values=sv,
                                 relations=tuple(relations))
 
+    def parameter_ranges(self, ranges=None, basis=None) -> np.ndarray:
+        """Search ranges of the base (or a basis') parameters from physical ranges.
+
+        The paper's section 3.6: ranges of link masses, centres of mass,
+        inertias and motor inertias give the ranges of the base parameters
+        by interval arithmetic on their expressions (its ``f9min = m2max
+        x2min + m3min a3min``, in general).  The standard parameters'
+        intervals come from ``M = m``, ``MX = m cx``, ``XX = Ixx + m (cy^2 +
+        cz^2)``, ``XY = Ixy - m cx cy``, ..., ``Ia = Jm k^2`` (each product
+        and square by interval rules), then ``beta = K p`` term by term.
+        Intervals ignore that the same mass appears in several terms, so the
+        ranges are safe (they contain every consistent value), not tight.
+
+        Parameters
+        ----------
+        ranges : dict, optional
+            ``{chain index (0-based): {key: range}}`` with keys ``mass``
+            ``(lo, hi)`` (kg), ``com`` ``((lo, hi),) * 3`` (m, link frame),
+            ``inertia`` ``((lo, hi),) * 6`` about the centre of mass in
+            Robotics Toolbox's order ``Ixx Iyy Izz Ixy Iyz Ixz`` (kg m^2),
+            ``motor_inertia`` ``(lo, hi)`` (kg m^2); anything not given is
+            the link's own value.
+        basis : ParameterBasis, optional
+            Ranges of that basis' parameters (e.g.
+            :data:`PUMA560_LINKS23_BASIS`) instead of the QR's base parameters.
+
+        Returns
+        -------
+        ndarray, shape (r, 2)
+            ``[lo, hi]`` per parameter, in the order of
+            :meth:`base_parameters` ``.names`` (or the basis').
+
+        Raises
+        ------
+        ValueError
+            On an unknown link index or key, or a range with lo > hi.
+        """
+        ranges = dict(ranges or {})
+        unknown = set(ranges) - set(self._moving)
+        if unknown:
+            raise ValueError(f"ranges for links {sorted(unknown)}: only moving links "
+                             f"{list(self._moving)} have parameters")
+        lo, hi = [], []
+        for i in self._moving:
+            link, r = self.links[i], dict(ranges.get(i, {}))
+            bad = set(r) - {"mass", "com", "inertia", "motor_inertia"}
+            if bad:
+                raise ValueError(f"unknown range keys {sorted(bad)} for link {i}")
+            Ic = np.asarray(link.inertia)
+            m = _interval(r.get("mass", link.mass), "mass")
+            c = [_interval(v, "com") for v in r.get("com", link.com)]
+            nominal6 = (Ic[0, 0], Ic[1, 1], Ic[2, 2], Ic[0, 1], Ic[1, 2], Ic[0, 2])
+            I6 = [_interval(v, "inertia") for v in r.get("inertia", nominal6)]
+            if len(c) != 3 or len(I6) != 6:
+                raise ValueError(f"link {i}: com needs 3 ranges and inertia 6")
+            sq = [_isq(x) for x in c]
+            xx = _iadd(I6[0], _imul(m, _iadd(sq[1], sq[2])))
+            yy = _iadd(I6[1], _imul(m, _iadd(sq[0], sq[2])))
+            zz = _iadd(I6[2], _imul(m, _iadd(sq[0], sq[1])))
+            xy = _iadd(I6[3], _ineg(_imul(m, _imul(c[0], c[1]))))
+            yz = _iadd(I6[4], _ineg(_imul(m, _imul(c[1], c[2]))))
+            xz = _iadd(I6[5], _ineg(_imul(m, _imul(c[0], c[2]))))
+            for a in (xx, xy, xz, yy, yz, zz, _imul(m, c[0]), _imul(m, c[1]), _imul(m, c[2]), m):
+                lo.append(a[0])
+                hi.append(a[1])
+        for i in self.active:
+            link = self.links[i]
+            jm = _interval(dict(ranges.get(i, {})).get("motor_inertia", link.motor_inertia),
+                           "motor_inertia")
+            lo.append(jm[0] * link.gear_ratio ** 2)
+            hi.append(jm[1] * link.gear_ratio ** 2)
+        lo, hi = np.array(lo), np.array(hi)
+        K = (self.base_parameters() if basis is None else self.express(basis)).K
+        Kp, Kn = np.clip(K, 0, None), np.clip(K, None, 0)
+        return np.column_stack([Kp @ lo + Kn @ hi, Kp @ hi + Kn @ lo])
+
     # --------------------------------------------------------------- builders
     @classmethod
     def from_dh(cls, table, *, convention="standard", **options):
@@ -716,10 +889,124 @@ class RobotModel:
         links = []
         for k, row in enumerate(table):
             try:
+                if not isinstance(row, dict) and len(row) != 4:
+                    raise ValueError(f"a tuple row is (a, alpha, d, offset), got {len(row)} values")
                 links.append(Link(**row) if isinstance(row, dict) else Link(*row))
-            except TypeError as exc:
+            except (TypeError, ValueError) as exc:
                 raise ValueError(f"DH row {k}: {exc}") from None
         return cls(links, convention=convention, **options)
+
+    @classmethod
+    def from_urdf(cls, path, *, active=None, locked=None, gear_ratios=None, motor_inertias=None,
+                  gravity=(0.0, 0.0, -9.81), name=None):
+        """A model from a URDF file (a serial chain of revolute joints).
+
+        The file is read by Robotics Toolbox for Python's URDF reader (the
+        ``urdf`` extra: ``pip install puma-ga-ctc[urdf]``); each revolute
+        joint becomes a :class:`Link` (``origin``, ``axis``, the child link's
+        inertial), fixed joints fold into their neighbours: before the
+        first revolute joint into the next joint's origin, after it into the
+        moving link (their mass, centre of mass and inertia lumped).
+
+        Parameters
+        ----------
+        path : str or path-like
+            The URDF file.
+        active : sequence of str or int, optional
+            Joints that move, by name or 0-based index among the revolute
+            joints (default all).
+        locked : dict, optional
+            ``{joint name or index: angle (rad)}`` for the others (default 0).
+        gear_ratios, motor_inertias : dict, optional
+            ``{joint name: k}`` and ``{joint name: Jm (kg m^2)}`` (URDF has
+            neither; default 1 and 0).
+        gravity : array_like, shape (3,)
+            Gravity in the URDF's base frame (m/s^2).
+        name : str, optional
+            Default: the URDF's robot name.
+
+        Raises
+        ------
+        ValueError
+            Robotics Toolbox missing, an unreadable file, a branched tree, a
+            prismatic or continuous-without-axis joint, unknown joint names.
+        """
+        try:
+            from roboticstoolbox.models.URDF.URDFRobot import URDF_file
+        except ImportError:
+            raise ValueError("RobotModel.from_urdf needs Robotics Toolbox for Python: "
+                             "pip install 'puma-ga-ctc[urdf]'") from None
+        import os
+        import warnings
+
+        if not os.path.isfile(path):
+            raise ValueError(f"no URDF file at {os.fspath(path)!r}")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                elinks, robot_name, _ = URDF_file(os.path.abspath(os.fspath(path)))
+        except Exception as exc:  # noqa: BLE001 -- any parser failure is one line
+            raise ValueError(f"cannot read the URDF {os.fspath(path)!r}: "
+                             f"{type(exc).__name__}: {exc}") from None
+        links, pending = [], np.eye(4)
+        prev = None
+        for el in elinks:
+            if prev is not None and el.parent is not prev:
+                raise ValueError(f"the URDF is not a serial chain: link {el.name!r} hangs on "
+                                 f"{getattr(el.parent, 'name', None)!r}, not on {prev.name!r}")
+            prev = el
+            A, axis, after = pending.copy(), None, np.eye(4)
+            for et in el.ets:
+                if et.isjoint:
+                    kind = getattr(et, "kind", None) or et.axis
+                    if kind not in ("Rx", "Ry", "Rz"):
+                        raise ValueError(f"joint of link {el.name!r} is {kind}: only revolute "
+                                         "joints are supported")
+                    axis = np.eye(3)["xyz".index(kind[1])] * (-1.0 if et.isflip else 1.0)
+                elif axis is None:
+                    A = A @ np.asarray(et.A(), dtype=float)
+                else:
+                    after = after @ np.asarray(et.A(), dtype=float)
+            m = float(el.m or 0.0)
+            com = np.asarray(el.r if el.r is not None else np.zeros(3), dtype=float).reshape(3)
+            inertia = np.asarray(el.I if el.I is not None else np.zeros((3, 3)), dtype=float)
+            if inertia.shape == (6,):
+                inertia = Link(inertia=inertia).inertia
+            if axis is None:  # a fixed joint
+                if not links:
+                    pending = A  # the base side: kinematics only, it never moves
+                    continue
+                pending = pending @ A
+                links[-1] = _lumped(links[-1], pending, m, com, inertia)
+                continue
+            if not np.allclose(after, np.eye(4)):
+                raise ValueError(f"link {el.name!r}: a constant transform after its joint")
+            jname = getattr(el, "_joint_name", None) or el.name
+            k = (gear_ratios or {}).get(jname, 1.0)
+            jm = (motor_inertias or {}).get(jname, 0.0)
+            links.append(Link(origin=A, axis=axis, mass=m, com=com, inertia=inertia,
+                              gear_ratio=k, motor_inertia=jm, name=jname))
+            pending = np.eye(4)
+        if not links:
+            raise ValueError(f"the URDF {os.fspath(path)!r} has no revolute joint")
+        names = [l.name for l in links]
+        unknown = set(gear_ratios or {}) | set(motor_inertias or {})
+        unknown -= set(names)
+        if unknown:
+            raise ValueError(f"unknown joint names {sorted(unknown)}; the URDF's are {names}")
+
+        def index(j):
+            if isinstance(j, str):
+                if j not in names:
+                    raise ValueError(f"unknown joint {j!r}; the URDF's are {names}")
+                return names.index(j)
+            return int(j)
+
+        act = None if active is None else tuple(index(j) for j in active)
+        lock = None if locked is None else {index(j): v for j, v in locked.items()}
+        act_names = names if act is None else [names[i] for i in act]
+        return cls(links, convention="urdf", active=act, locked=lock, gravity=gravity,
+                   name=name or robot_name, joint_names=act_names)
 
     @classmethod
     def puma560(cls, active=(1, 2), **options):
@@ -747,7 +1034,8 @@ class RobotModel:
         return cls([Link(**row) for row in PUMA560_DH], active=active, **options)
 
     def __repr__(self) -> str:
-        return (f"RobotModel({self.name!r}, {len(self.links)} links, {self.convention} DH, "
+        kind = "URDF" if self.convention == "urdf" else f"{self.convention} DH"
+        return (f"RobotModel({self.name!r}, {len(self.links)} links, {kind}, "
                 f"active joints {list(self.joint_names)})")
 
 

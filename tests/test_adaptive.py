@@ -70,6 +70,30 @@ def test_adaptive_ctc_after_a_pick_up(paper_log, prior, mass_kg, com_m, izz, t_p
         assert t_eff >= t_min - ts
 
 
+def test_a_put_down_returns_to_the_empty_gripper(paper_log, prior):
+    """After a put-down the window's mass is below its resolution: the empty gripper
+    (the prior itself, no payload) is the update when it explains the window, never a
+    few grams with the centre of mass at the box edge."""
+    a3 = paper_log.rig.a3_m
+    f_loaded = plant.add_payload(prior, plant.Payload(2.0, (0.10, 0.02), 0.01), a3)
+    schedule = [(0.8, f_loaded), (2.2, np.asarray(prior, dtype=float))]
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log,
+                                                             latency_s=LATENCY_S)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ctc.UnmodelledChangeWarning)
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
+                                          substeps=SUBSTEPS)
+    assert resp.success
+    masses = [m for _, m in adaptive.payload_history]
+    assert any(m == pytest.approx(2.0, rel=0.05) for m in masses), adaptive.identifications
+    t_last, m_last = adaptive.payload_history[-1]
+    assert m_last == 0.0 and adaptive.payload is None
+    np.testing.assert_array_equal(adaptive.f, prior)
+    assert any(r["empty_gripper"] and r["accepted"] for r in adaptive.identifications)
+    k = int(np.ceil(2.7 / paper_log.rig.sample_time_s))
+    assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0) <= 1)
+
+
 def test_measured_latency_delays_the_switch(paper_log, prior):
     """``latency_s='measured'``: a new model takes effect after the measured wall time."""
     a3 = paper_log.rig.a3_m

@@ -173,3 +173,98 @@ def test_docstring_examples():
     import plant.robot_model
 
     assert doctest.testmod(plant.robot_model, raise_on_error=False).failed == 0
+
+
+URDF_DIR = __import__("pathlib").Path(__file__).parent / "data" / "urdf"
+
+
+def test_urdf_planar_arm_is_the_textbook_arm():
+    pytest.importorskip("roboticstoolbox")
+    arm = RobotModel.from_urdf(URDF_DIR / "planar_2r.urdf", gear_ratios={"shoulder": 50, "elbow": 30},
+                               motor_inertias={"shoulder": 1e-4, "elbow": 1e-4})
+    assert arm.joint_names == ("shoulder", "elbow") and arm.convention == "urdf"
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        q, qd, qdd = rng.uniform(-3, 3, 2), rng.normal(size=2), rng.normal(size=2)
+        D, c, g, tau = planar_closed_form(q, qd, qdd)
+        np.testing.assert_allclose(arm.inverse_dynamics(q, qd, qdd), tau, atol=1e-7)
+        np.testing.assert_allclose(arm.inertia_matrix(q), D, atol=1e-9)
+    assert arm.base_parameters().rank == 7
+
+
+def test_urdf_with_fixed_joints_matches_robotics_toolbox():
+    """A raised base and a tool on a fixed flange fold into the chain (its mass lumped)."""
+    rtb = pytest.importorskip("roboticstoolbox")
+    import warnings
+
+    path = URDF_DIR / "arm_3r_tool.urdf"
+    arm = RobotModel.from_urdf(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = rtb.Robot.URDF(str(path.resolve()))
+    assert arm.n_joints == 3 and len(arm.links) == 3
+    rng = np.random.default_rng(8)
+    for _ in range(3):
+        q, qd, qdd = rng.uniform(-3, 3, 3), rng.normal(size=3), rng.normal(size=3)
+        np.testing.assert_allclose(arm.inverse_dynamics(q, qd, qdd), ref.rne(q, qd, qdd), atol=1e-9)
+        np.testing.assert_allclose(arm.inertia_matrix(q), ref.inertia(q), atol=1e-9)
+    # the tool's 0.8 kg rides on the forearm
+    assert arm.links[-1].mass == pytest.approx(1.5 + 0.8)
+    # a locked joint by name, and the active joints named after the URDF's
+    two = RobotModel.from_urdf(path, active=("shoulder", "elbow"), locked={"waist": 0.7})
+    assert two.joint_names == ("shoulder", "elbow")
+    q, qd, qdd = np.array([0.2, -0.4]), np.array([0.5, 1.0]), np.array([1.0, -1.0])
+    np.testing.assert_allclose(two.inverse_dynamics(q, qd, qdd),
+                               ref.rne(np.r_[0.7, q], np.r_[0, qd], np.r_[0, qdd])[1:], atol=1e-9)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(path="no_such_file.urdf"), "no URDF file"),
+    (dict(gear_ratios={"knee": 50}), "unknown joint names"),
+    (dict(active=("knee",)), "unknown joint"),
+])
+def test_urdf_bad_input_is_one_line(kwargs, match):
+    pytest.importorskip("roboticstoolbox")
+    kwargs = dict(dict(path=URDF_DIR / "planar_2r.urdf"), **kwargs)
+    with pytest.raises(ValueError, match=match) as exc:
+        RobotModel.from_urdf(kwargs.pop("path"), **kwargs)
+    assert "\n" not in str(exc.value)
+
+
+def test_parameter_ranges_by_interval_arithmetic():
+    """Section 3.6 of the paper: physical ranges -> base-parameter ranges that hold every
+    consistent robot; without ranges they collapse to the model's own values."""
+    puma = RobotModel.puma560()
+    f = puma.express(PUMA560_LINKS23_BASIS)
+    nominal = f(puma.standard_parameters())
+    np.testing.assert_allclose(puma.parameter_ranges(basis=PUMA560_LINKS23_BASIS),
+                               np.column_stack([nominal, nominal]), atol=1e-12)
+    ranges = {1: dict(mass=(15.0, 20.0), com=((-0.4, -0.3), (-0.01, 0.02), (0.2, 0.25)),
+                      motor_inertia=(1e-4, 3e-4)),
+              2: dict(mass=(4.0, 6.0), com=((-0.03, -0.01), (-0.02, 0.0), (0.05, 0.09)),
+                      inertia=((0.05, 0.08), (0.07, 0.1), (0.01, 0.02), (-0.01, 0.01), 0, 0)),
+              5: dict(mass=(0.0, 2.0), com=((-0.05, 0.05), (-0.05, 0.05), (0.0, 0.1)))}
+    box = puma.parameter_ranges(ranges, basis=PUMA560_LINKS23_BASIS)
+    base_box = puma.parameter_ranges(ranges)
+    assert box.shape == (9, 2) and base_box.shape == (7, 2)
+    assert np.all(box[:, 0] <= nominal) and np.all(nominal <= box[:, 1])
+    rng = np.random.default_rng(0)
+    base = puma.base_parameters()
+    for _ in range(200):  # random robots inside the physical ranges
+        links = list(puma.links)
+        for i, r in ranges.items():
+            kw = dict(mass=rng.uniform(*r["mass"]), com=[rng.uniform(*c) for c in r["com"]])
+            if "inertia" in r:
+                kw["inertia"] = [rng.uniform(*np.broadcast_to(v, 2)) for v in r["inertia"]]
+            if "motor_inertia" in r:
+                kw["motor_inertia"] = rng.uniform(*r["motor_inertia"])
+            links[i] = __import__("dataclasses").replace(links[i], **kw)
+        robot = RobotModel(links, active=(1, 2))
+        p = robot.standard_parameters()
+        fv, bv = f(p), base(p)
+        assert np.all(box[:, 0] - 1e-12 <= fv) and np.all(fv <= box[:, 1] + 1e-12)
+        assert np.all(base_box[:, 0] - 1e-12 <= bv) and np.all(bv <= base_box[:, 1] + 1e-12)
+    with pytest.raises(ValueError, match="lo <= hi"):
+        puma.parameter_ranges({1: dict(mass=(20.0, 15.0))})
+    with pytest.raises(ValueError, match="only moving links"):
+        puma.parameter_ranges({0: dict(mass=(1.0, 2.0))})
