@@ -976,7 +976,7 @@ class RobotModel:
                 if not links:
                     pending = A  # the base side: kinematics only, it never moves
                     continue
-                pending = pending @ A
+                pending = A  # the moving link's frame -> this body's (all fixed joints since)
                 links[-1] = _lumped(links[-1], pending, m, com, inertia)
                 continue
             if not np.allclose(after, np.eye(4)):

@@ -208,8 +208,8 @@ def test_urdf_with_fixed_joints_matches_robotics_toolbox():
         q, qd, qdd = rng.uniform(-3, 3, 3), rng.normal(size=3), rng.normal(size=3)
         np.testing.assert_allclose(arm.inverse_dynamics(q, qd, qdd), ref.rne(q, qd, qdd), atol=1e-9)
         np.testing.assert_allclose(arm.inertia_matrix(q), ref.inertia(q), atol=1e-9)
-    # the tool's 0.8 kg rides on the forearm
-    assert arm.links[-1].mass == pytest.approx(1.5 + 0.8)
+    # the tool's 0.8 kg and the camera's 0.2 kg on it ride on the forearm
+    assert arm.links[-1].mass == pytest.approx(1.5 + 0.8 + 0.2)
     # a locked joint by name, and the active joints named after the URDF's
     two = RobotModel.from_urdf(path, active=("shoulder", "elbow"), locked={"waist": 0.7})
     assert two.joint_names == ("shoulder", "elbow")
