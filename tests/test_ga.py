@@ -290,6 +290,34 @@ def test_run_ga_rosenbrock_improves():
     assert res.fun < 0.1 * res.history["best"][0]
 
 
+def test_the_solver_steps_to_run_gas_result():
+    """GASolver, stepped by hand, is run_ga: the same stream, the same result."""
+    from identification.ga import GASolver
+
+    ref = run_ga(sphere, BOUNDS9, rng=3, n_gen=12, migration_interval=4)
+    solver = GASolver(sphere, BOUNDS9, rng=3, n_gen=12, migration_interval=4)
+    assert solver.generation == 0 and solver.nfev == 0
+    states = []
+    for state in solver:  # one generation per step, until n_gen
+        assert isinstance(state, GAState) and state.generation == solver.generation
+        assert solver.fun == state.fun and solver.nfev == state.nfev
+        states.append(state)
+    assert len(states) == 12
+    with pytest.raises(StopIteration):
+        solver.step()
+    res = solver.result()
+    np.testing.assert_array_equal(res.x, ref.x)
+    np.testing.assert_array_equal(res.population, ref.population)
+    for k in ref.history:
+        np.testing.assert_array_equal(res.history[k], ref.history[k])
+    assert (res.fun, res.nfev, res.nit, res.message) == (ref.fun, ref.nfev, ref.nit, ref.message)
+    # solve() continues from where the steps left off
+    half = GASolver(sphere, BOUNDS9, rng=3, n_gen=12, migration_interval=4)
+    for _ in range(5):
+        half.step()
+    np.testing.assert_array_equal(half.solve().x, ref.x)
+
+
 def test_run_ga_reproducible():
     a = run_ga(sphere, BOUNDS9, rng=7, n_gen=10)
     b = run_ga(sphere, BOUNDS9, rng=np.random.default_rng(7), n_gen=10)
