@@ -363,9 +363,9 @@ class AdaptiveComputedTorqueController:
         if d is not None:
             # a result: its identified friction (friction unknown in the sidecar) goes into
             # the inner CTC and the window's simulated plant, as from_result does
-            from .flexible import _rig_friction
+            from .flexible import rig_with_result_friction
 
-            rig = _rig_friction(log.rig, d)
+            rig = rig_with_result_friction(log.rig, d)
             if rig is not log.rig:
                 log = log.replace(rig=rig)
         ts = float(log.rig.sample_time_s)
@@ -490,13 +490,13 @@ class AdaptiveComputedTorqueController:
             return PayloadParameters(self.prior_f, bounds)
         from identification.flexible import FlexiblePayloadParameters
 
-        from .computed_torque import _S_INIT, _S_Q, _S_W
-        from .flexible import _S_LQ
+        from .computed_torque import S_INIT, S_Q, S_W
+        from .flexible import S_LQ
 
         st = np.asarray(state, dtype=float)
         # link minus motor estimate at the window's start, from the controller's own models
-        offset = st[_S_LQ:_S_LQ + 4] - np.concatenate([st[_S_Q:_S_Q + 2], st[_S_W:_S_W + 2]])
-        if not np.all(np.isfinite(offset)) or st[_S_INIT] == 0.0:
+        offset = st[S_LQ:S_LQ + 4] - np.concatenate([st[S_Q:S_Q + 2], st[S_W:S_W + 2]])
+        if not np.all(np.isfinite(offset)) or st[S_INIT] == 0.0:
             offset = np.zeros(4)
         joints, backlash = self.flexible_joints
         return FlexiblePayloadParameters(self.prior_f, joints, backlash, offset, bounds)

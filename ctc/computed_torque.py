@@ -120,21 +120,21 @@ class CTCParameters(NamedTuple):
 
 
 # Layout of the state vector.
-_S_INIT = 0
-_S_Q = 1  # 1, 2 position estimate
-_S_W = 3  # 3, 4 velocity estimate
-_S_A = 5  # 5, 6 previous outer-loop command
-_S_Y = 7  # 7, 8 previous measured position
-_S_LEN = 9
+S_INIT = 0
+S_Q = 1  # 1, 2 position estimate
+S_W = 3  # 3, 4 velocity estimate
+S_A = 5  # 5, 6 previous outer-loop command
+S_Y = 7  # 7, 8 previous measured position
+S_LEN = 9
 
 _NLV = {"reference": 0.0, "estimate": 1.0}
 
 
 @numba.njit(nogil=True)
-def _joint_update(j, k, qm, p, ref, S, lane):
+def joint_update(j, k, qm, p, ref, S, lane):
     """Estimator and outer loop of joint ``j`` (0 or 1); returns (y, q_hat, qd_hat, a, v_nl).
 
-    ``S`` (_S_LEN, lanes): estimator states, column ``lane``.
+    ``S`` (S_LEN, lanes): estimator states, column ``lane``.
     """
     ts = p.rig.sample_time_s
     sc = p.rig.pulses_per_rad[j]
@@ -142,13 +142,13 @@ def _joint_update(j, k, qm, p, ref, S, lane):
         y = cell_centre(float(round(qm * sc))) / sc
     else:
         y = qm
-    if S[_S_INIT, lane] == 0.0:
+    if S[S_INIT, lane] == 0.0:
         qh = y
         wh = ref[k, 2 + j]
     elif p.estimator == 0:
         # current observer: predict with the previous command, correct with y
-        qb = S[_S_Q + j, lane] + ts * S[_S_W + j, lane] + 0.5 * ts * ts * S[_S_A + j, lane]
-        wb = S[_S_W + j, lane] + ts * S[_S_A + j, lane]
+        qb = S[S_Q + j, lane] + ts * S[S_W + j, lane] + 0.5 * ts * ts * S[S_A + j, lane]
+        wb = S[S_W + j, lane] + ts * S[S_A + j, lane]
         r = y - qb
         qh = qb + p.observer_q[j] * r
         wh = wb + p.observer_w[j] * r
@@ -156,7 +156,7 @@ def _joint_update(j, k, qm, p, ref, S, lane):
         # low-pass filtered backward difference
         al = p.alpha[j]
         qh = y
-        wh = al * S[_S_W + j, lane] + (1.0 - al) * (y - S[_S_Y + j, lane]) / ts
+        wh = al * S[S_W + j, lane] + (1.0 - al) * (y - S[S_Y + j, lane]) / ts
     a = ref[k, 4 + j] + p.kv[j] * (ref[k, 2 + j] - wh) + p.kp[j] * (ref[k, j] - qh)
     vn = wh if p.estimate_in_nonlinear else ref[k, 2 + j]
     return y, qh, wh, a, vn
@@ -171,8 +171,8 @@ def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
     (:func:`ctc_law`) call it.
     """
     c = p.rig
-    y2, q2, w2, a2, v2 = _joint_update(0, k, qm2, p, ref, S, lane)
-    y3, q3, w3, a3, v3 = _joint_update(1, k, qm3, p, ref, S, lane)
+    y2, q2, w2, a2, v2 = joint_update(0, k, qm2, p, ref, S, lane)
+    y3, q3, w3, a3, v3 = joint_update(1, k, qm3, p, ref, S, lane)
     t2, t3 = inverse_dynamics_terms(f, q2, q3, v2, v3, a2, a3, c.gravity)
     if p.friction:
         t2 -= friction_torque(v2, c.viscous[0], c.coulomb_pos[0], c.coulomb_neg[0], c.ramp_speed[0])
@@ -188,21 +188,21 @@ def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
         if det > 0.0:
             a2 += (d22 * u2 - d12 * u3) / det
             a3 += (d11 * u3 - d12 * u2) / det
-    S[_S_Q, lane] = q2
-    S[_S_Q + 1, lane] = q3
-    S[_S_W, lane] = w2
-    S[_S_W + 1, lane] = w3
-    S[_S_A, lane] = a2
-    S[_S_A + 1, lane] = a3
-    S[_S_Y, lane] = y2
-    S[_S_Y + 1, lane] = y3
-    S[_S_INIT, lane] = 1.0
+    S[S_Q, lane] = q2
+    S[S_Q + 1, lane] = q3
+    S[S_W, lane] = w2
+    S[S_W + 1, lane] = w3
+    S[S_A, lane] = a2
+    S[S_A + 1, lane] = a3
+    S[S_Y, lane] = y2
+    S[S_Y + 1, lane] = y3
+    S[S_INIT, lane] = 1.0
     return i2, i3
 
 
 @numba.njit(cache=True, nogil=True)
 def _ctc_step(k, q_meas, f, p, ref, s):
-    """One CTC sample: update the estimator state ``s`` ((_S_LEN,) or (_S_LEN, 1)) in place; currents (2,).
+    """One CTC sample: update the estimator state ``s`` ((S_LEN,) or (S_LEN, 1)) in place; currents (2,).
 
     ``ref`` (n, 6) holds q_d (2), qd_d (2), qdd_d (2) per sample; row ``k`` is
     used.  The only allocation is the returned array.
@@ -269,7 +269,7 @@ def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
 CONTROL_LAWS[CTCLawKind] = ctc_law
 
 
-def _pair(values):
+def as_pair(values):
     a = np.broadcast_to(np.asarray(values, dtype=float), (2,))
     return (float(a[0]), float(a[1]))
 
@@ -324,7 +324,7 @@ def reference_of(log, trajectory=None):
     return trajectory
 
 
-def _reference_table(trajectory, t):
+def tabulate_reference(trajectory, t):
     q, qd, qdd = trajectory.evaluate(t)
     return np.ascontiguousarray(np.hstack([q, qd, qdd]), dtype=np.float64)
 
@@ -410,19 +410,19 @@ class ComputedTorqueController:
         self.cell_centre = bool(cell_centre)
         self.parameters = CTCParameters(
             rig=rig_constants(rig),
-            kp=_pair(gains.Kp), kv=_pair(gains.Kv),
-            observer_q=_pair(gains.observer_gain[:, 0]), observer_w=_pair(gains.observer_gain[:, 1]),
-            alpha=_pair(gains.alpha), estimator=ESTIMATORS.index(gains.estimator),
+            kp=as_pair(gains.Kp), kv=as_pair(gains.Kv),
+            observer_q=as_pair(gains.observer_gain[:, 0]), observer_w=as_pair(gains.observer_gain[:, 1]),
+            alpha=as_pair(gains.alpha), estimator=ESTIMATORS.index(gains.estimator),
             estimate_in_nonlinear=nonlinear_velocity == "estimate",
             friction=self.friction, cell_centre=self.cell_centre,
         )
         self._ts = float(rig.sample_time_s)
-        self.reference_table = _reference_table(trajectory, np.arange(n) * self._ts)
+        self.reference_table = tabulate_reference(trajectory, np.arange(n) * self._ts)
         if not np.all(np.isfinite(self.reference_table)):
             raise ValueError("the reference trajectory is not finite")
         self._n = n
         self._scratch = np.zeros((1, 6))
-        self._state = np.zeros((_S_LEN, 1))
+        self._state = np.zeros((S_LEN, 1))
 
     @classmethod
     def from_log(cls, f, log, *, gains=None, nonlinear_velocity="reference", friction=True,
@@ -586,7 +586,7 @@ class ComputedTorqueController:
             raise ValueError(f"q_meas must have shape (2,), got {q_meas.shape}")
         if 0 <= k < self._n:
             return _ctc_step(k, q_meas, self.f, self.parameters, self.reference_table, self._state)
-        self._scratch[:] = _reference_table(self.trajectory, np.array([float(t)]))
+        self._scratch[:] = tabulate_reference(self.trajectory, np.array([float(t)]))
         return _ctc_step(0, q_meas, self.f, self.parameters, self._scratch, self._state)
 
     def logged_controller(self, log, state=None):
@@ -613,8 +613,8 @@ class ComputedTorqueController:
         if log.trajectory == self.trajectory and self.reference_table.shape[0] >= n:
             table = self.reference_table
         else:
-            table = _reference_table(log.trajectory, np.arange(n) * self._ts)
-        s0 = np.zeros(_S_LEN) if state is None else np.asarray(state, dtype=float).reshape(_S_LEN)
+            table = tabulate_reference(log.trajectory, np.arange(n) * self._ts)
+        s0 = np.zeros(S_LEN) if state is None else np.asarray(state, dtype=float).reshape(S_LEN)
         return LoggedController(kind=CTCLawKind(), parameters=CTCLaw(self.parameters, self.f, table),
                                 state=s0, name="CTC")
 

@@ -96,17 +96,17 @@ from plant.model import friction_torque, is_positive_definite, joint_acceleratio
 from plant.plants import dead_zone, link_f as link_model_f
 
 from .computed_torque import (
-    _S_A,
-    _S_INIT,
-    _S_LEN,
-    _S_Q,
-    _S_W,
-    _S_Y,
+    S_A,
+    S_INIT,
+    S_LEN,
+    S_Q,
+    S_W,
+    S_Y,
     ComputedTorqueController,
     CTCParameters,
-    _joint_update,
-    _pair,
-    _reference_table,
+    joint_update,
+    as_pair,
+    tabulate_reference,
     model_f,
     reference_of,
 )
@@ -125,10 +125,10 @@ DEFAULT_LINK_SUBSTEPS = 2
 #: Damping ratio of the link-estimate error poles (:func:`link_observer_gains`).
 DEFAULT_LINK_OBSERVER_DAMPING = 0.5
 
-# Rows of the controller state after the rigid CTC's estimator (0.._S_LEN-1).
-_S_LQ = _S_LEN          # link angle estimate q2, q3
-_S_LW = _S_LEN + 2      # link rate estimate qd2, qd3
-_S_FLEX_LEN = _S_LEN + 4
+# Rows of the controller state after the rigid CTC's estimator (0..S_LEN-1).
+S_LQ = S_LEN          # link angle estimate q2, q3
+_S_LW = S_LEN + 2      # link rate estimate qd2, qd3
+_S_FLEX_LEN = S_LEN + 4
 
 
 class FlexibleCTCParameters(NamedTuple):
@@ -183,18 +183,18 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
     """
     pc = p.ctc
     c = pc.rig
-    first = S[_S_INIT, lane] == 0.0
+    first = S[S_INIT, lane] == 0.0
     ts = c.sample_time_s
-    # the motor's predicted position (before _joint_update overwrites the state)
-    pb2 = S[_S_Q, lane] + ts * S[_S_W, lane] + 0.5 * ts * ts * S[_S_A, lane]
-    pb3 = S[_S_Q + 1, lane] + ts * S[_S_W + 1, lane] + 0.5 * ts * ts * S[_S_A + 1, lane]
-    y2, th2, v2, a2, n2 = _joint_update(0, k, qm2, pc, ref, S, lane)
-    y3, th3, v3, a3, n3 = _joint_update(1, k, qm3, pc, ref, S, lane)
+    # the motor's predicted position (before joint_update overwrites the state)
+    pb2 = S[S_Q, lane] + ts * S[S_W, lane] + 0.5 * ts * ts * S[S_A, lane]
+    pb3 = S[S_Q + 1, lane] + ts * S[S_W + 1, lane] + 0.5 * ts * ts * S[S_A + 1, lane]
+    y2, th2, v2, a2, n2 = joint_update(0, k, qm2, pc, ref, S, lane)
+    y3, th3, v3, a3, n3 = joint_update(1, k, qm3, pc, ref, S, lane)
     if first:  # springs relaxed: the link where the motor is
         q2, q3, w2, w3 = th2, th3, v2, v3
     else:
-        q2 = S[_S_LQ, lane]
-        q3 = S[_S_LQ + 1, lane]
+        q2 = S[S_LQ, lane]
+        q3 = S[S_LQ + 1, lane]
         w2 = S[_S_LW, lane]
         w3 = S[_S_LW + 1, lane]
         if pc.estimator == 0:  # correct the link estimate by the motor's residual
@@ -243,19 +243,19 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
     i2, i3, u2, u3 = saturated(i2, i3, c)
     a2 += u2 / p.motor_inertia[0]
     a3 += u3 / p.motor_inertia[1]
-    S[_S_Q, lane] = th2
-    S[_S_Q + 1, lane] = th3
-    S[_S_W, lane] = v2
-    S[_S_W + 1, lane] = v3
-    S[_S_A, lane] = a2
-    S[_S_A + 1, lane] = a3
-    S[_S_Y, lane] = y2
-    S[_S_Y + 1, lane] = y3
-    S[_S_LQ, lane] = q2
-    S[_S_LQ + 1, lane] = q3
+    S[S_Q, lane] = th2
+    S[S_Q + 1, lane] = th3
+    S[S_W, lane] = v2
+    S[S_W + 1, lane] = v3
+    S[S_A, lane] = a2
+    S[S_A + 1, lane] = a3
+    S[S_Y, lane] = y2
+    S[S_Y + 1, lane] = y3
+    S[S_LQ, lane] = q2
+    S[S_LQ + 1, lane] = q3
     S[_S_LW, lane] = w2
     S[_S_LW + 1, lane] = w3
-    S[_S_INIT, lane] = 1.0
+    S[S_INIT, lane] = 1.0
     return i2, i3
 
 
@@ -386,7 +386,7 @@ def _positive_pair(value, name, strict=True):
     if not np.all(np.isfinite(a)) or np.any(a <= 0 if strict else a < 0):
         raise ValueError(f"{name} must be 2 finite numbers {'>' if strict else '>='} 0, "
                          f"got {value!r}")
-    return _pair(a)
+    return as_pair(a)
 
 
 class FlexibleJointComputedTorqueController(ComputedTorqueController):
@@ -477,9 +477,9 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         lg = link_observer_gains(link_f, stiffness, damping, jk2, gains, link_damping)
         self.link_damping = float(link_damping)
         self.flexible_parameters = FlexibleCTCParameters(
-            ctc=self.parameters._replace(observer_q=_pair(lg[:, 0]), observer_w=_pair(lg[:, 1])),
+            ctc=self.parameters._replace(observer_q=as_pair(lg[:, 0]), observer_w=as_pair(lg[:, 1])),
             stiffness=stiffness, damping=damping, motor_inertia=jk2, link_substeps=n,
-            link_gain_q=_pair(lg[:, 2]), link_gain_w=_pair(lg[:, 3]), backlash=backlash)
+            link_gain_q=as_pair(lg[:, 2]), link_gain_w=as_pair(lg[:, 3]), backlash=backlash)
         self._state = np.zeros((_S_FLEX_LEN, 1))
         #: Estimator restarts after a non-finite current (the link model diverged).
         self.n_estimator_resets = 0
@@ -624,7 +624,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         if 0 <= k < self._n:
             return _flexible_ctc_step(k, q_meas, self.link_f, self.flexible_parameters,
                                       self.reference_table, self._state)
-        self._scratch[:] = _reference_table(self.trajectory, np.array([float(t)]))
+        self._scratch[:] = tabulate_reference(self.trajectory, np.array([float(t)]))
         return _flexible_ctc_step(0, q_meas, self.link_f, self.flexible_parameters,
                                   self._scratch, self._state)
 
@@ -635,7 +635,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         -------
         ndarray, shape (4,)
         """
-        return self._state[_S_LQ:_S_LQ + 4, 0].copy()
+        return self._state[S_LQ:S_LQ + 4, 0].copy()
 
     def logged_controller(self, log, state=None):
         """This controller as a compiled law of the logged-run driver.
@@ -656,7 +656,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         if log.trajectory == self.trajectory and self.reference_table.shape[0] >= n:
             table = self.reference_table
         else:
-            table = _reference_table(log.trajectory, np.arange(n) * self._ts)
+            table = tabulate_reference(log.trajectory, np.arange(n) * self._ts)
         s0 = (np.zeros(_S_FLEX_LEN) if state is None
               else np.asarray(state, dtype=float).reshape(_S_FLEX_LEN))
         return LoggedController(kind=FlexibleCTCLawKind(),
@@ -694,7 +694,7 @@ def _result_entries(result) -> dict:
                      f"got {type(result).__name__}")
 
 
-def _rig_friction(rig, d):
+def rig_with_result_friction(rig, d):
     """The rig with the result's friction when it was identified (else the rig itself)."""
     import dataclasses
 
@@ -775,7 +775,7 @@ def controller_from_result(result, log, **options):
         warnings.warn("the result's model does not describe its log (model_choice['adequate'] "
                       "is False): this controller's tracking rests on a model known to be off; "
                       "check it on the robot at low speed first", RuntimeWarning, stacklevel=3)
-    rig = _rig_friction(log.rig, d)
+    rig = rig_with_result_friction(log.rig, d)
     target = log if rig is log.rig else log.replace(rig=rig)
     model = d.get("model") or "rigid"
     if model == "rigid":

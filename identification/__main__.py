@@ -25,9 +25,9 @@ def main(argv=None):
         The exit status (0, 1, 130; argparse usage errors exit with 2).
     """
     try:
-        from identification import _sigint
+        from identification import sigint
 
-        _sigint.install()  # a Ctrl-C swallowed by a finaliser is remembered, not lost
+        sigint.install()  # a Ctrl-C swallowed by a finaliser is remembered, not lost
         from identification.cli import main as cli_main
     except KeyboardInterrupt:
         try:

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import OptimizeResult
@@ -42,14 +41,6 @@ DEFAULT_METHOD = "ga+pem"
 #: complete-net migration at rate 0.3.
 PAPER_GA = dict(n_subpops=4, n_ind=20, n_gen=40, sp=2.0, p_xover=0.6, ggap=0.94,
                 migration_rate=0.3, migration_interval=5, bits=20)
-
-
-def _as_log(log):
-    if isinstance(log, plant.ExperimentLog):
-        return log
-    if isinstance(log, (str, Path)):
-        return plant.load_log(log)
-    raise TypeError(f"log must be a plant.ExperimentLog or a path, got {type(log).__name__}")
 
 
 def _check_rng(rng):
@@ -264,7 +255,7 @@ def identify(
         method = DEFAULT_METHOD
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    log = _as_log(log)
+    log = plant.as_log(log)
     if method in ("idim-ls", "idim-iv"):  # the classical inverse-dynamic model (issue 15)
         from .idim import identify_idim
 

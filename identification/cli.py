@@ -60,7 +60,7 @@ Exit status
     files are then either complete or not written at all.  A Ctrl-C that
     arrives while Python runs a finaliser or a ctypes callback (where it can
     only be printed as "Exception ignored") is remembered
-    (``identification._sigint``) and honoured at the next checkpoint:
+    (``identification.sigint``) and honoured at the next checkpoint:
     before the search, after each search step, and before any output is
     written.
 """
@@ -75,7 +75,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _sigint
+from . import sigint
 
 __all__ = ["main", "build_parser", "format_result_table"]
 
@@ -422,7 +422,7 @@ class _Status:
                 g = "" if gen is None else f" {gen}{of}"
                 self.say(f"GA generation{g}: best output error {float(r.get('fun')):.6g} "
                          "pulses^2")
-        if _sigint.seen():
+        if sigint.seen():
             self.ctrl_c.requested = True
         return self.ctrl_c.requested
 
@@ -504,14 +504,14 @@ def _run(args, stdout, stderr) -> int:
                f"seed {args.seed}")
     if hasattr(plant, "warm_up"):  # compile the numerical kernels once, saying so
         plant.warm_up(announce=None if args.quiet else status.say, closed_loop=False)
-    if _sigint.seen():  # a Ctrl-C that a finaliser swallowed: nothing has been searched yet
+    if sigint.seen():  # a Ctrl-C that a finaliser swallowed: nothing has been searched yet
         raise KeyboardInterrupt
     with ctrl_c, warnings.catch_warnings():  # the table's warning line says it
         warnings.simplefilter("ignore", PoorExcitationWarning)
         warnings.simplefilter("ignore", api.ModelInadequacyWarning)  # said below
         warnings.simplefilter("ignore", api.SearchBoundWarning)  # said below
         result = api.identify(log, callback=status, **kwargs)
-    if _sigint.seen() and not result.get("interrupted"):
+    if sigint.seen() and not result.get("interrupted"):
         raise KeyboardInterrupt  # swallowed after the last step: never write over an output
     if ctrl_c.requested and result.get("interrupted"):
         result["message"] = str(result.get("message", "")).replace(
@@ -579,7 +579,7 @@ def main(argv=None) -> int:
         :data:`INTERRUPTED_LINE`, never a traceback).
     """
     stdout, stderr = sys.stdout, sys.stderr
-    _sigint.install()
+    sigint.install()
     try:
         return _main(argv, stdout, stderr)
     except KeyboardInterrupt:

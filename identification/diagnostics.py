@@ -76,6 +76,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+import plant
+
 __all__ = [
     "ErrorSpectrum",
     "error_spectrum",
@@ -306,9 +308,7 @@ def error_spectrum(log, *, nperseg=None, min_mode_hz=MIN_MODE_HZ,
     'puma560_paper_drill_flex: mode e2 30.7 Hz, e3 30.7 Hz; lowest resonance
     e2 8.4 Hz, e3 8.4 Hz; suggested: low-pass 4.2 Hz'
     """
-    from .api import _as_log
-
-    log = _as_log(log)
+    log = plant.as_log(log)
     e = np.asarray(log.e_pulses, dtype=float)
     n = e.shape[0]
     if n < 16:

@@ -518,14 +518,14 @@ def main(argv=None):
     import sys
 
     from plant.fileio import write_text_atomic
-    from plant.sidecar import _read_sidecar, rig_from_sidecar
+    from plant.sidecar import read_sidecar, rig_from_sidecar
 
     args = _parser().parse_args(argv)
     try:
         if not (math.isfinite(args.duration_s) and args.duration_s > 0):
             raise ValueError(f"--duration-s must be a positive number, got {args.duration_s}")
         path = Path(args.sidecar)
-        rig = rig_from_sidecar(_read_sidecar(path), source=path)
+        rig = rig_from_sidecar(read_sidecar(path), source=path)
         lim = None if args.joint_limits is None else np.reshape(args.joint_limits, (2, 2))
         traj, info = design_excitation(
             rig, args.duration_s, joint_limits_rad=lim, max_velocity_rad_s=args.max_velocity,

@@ -442,7 +442,7 @@ def _instruments(log, x, sos, sl, c, unknown=()):
         current estimate of it (the rig's known friction, the unknown
         components from x, clipped at 0: a negative friction is no robot).
     """
-    from plant.synthetic import EMULATION_SUBSTEPS, _CardP
+    from plant.synthetic import EMULATION_SUBSTEPS, CardPLaw
 
     rig = log.rig
     ts = rig.sample_time_s
@@ -460,7 +460,7 @@ def _instruments(log, x, sos, sl, c, unknown=()):
                          coulomb_friction_Nm=((float(v[2]), float(v[3])),
                                               (float(v[4]), float(v[5]))))
     try:
-        resp = plant.simulate_closed_loop(source, f, _CardP(rig.p_gain_A_per_pulse),
+        resp = plant.simulate_closed_loop(source, f, CardPLaw(rig.p_gain_A_per_pulse),
                                           trajectory=log.trajectory, n_samples=log.n_total,
                                           substeps=EMULATION_SUBSTEPS // 8,
                                           label="IDIM-IV instruments")
@@ -522,7 +522,7 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
     from .objective import OutputError
     from .parameters import BaseParameters
     from .result import IdentificationResult
-    from .uncertainty import PoorExcitationWarning, _correlation, warning_text
+    from .uncertainty import PoorExcitationWarning, correlation_matrix, warning_text
 
     compile_s = plant.warm_up(closed_loop=False)
     t0 = time.perf_counter()
@@ -551,7 +551,7 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
     if n_fr:
         unc["method"] = ("IV" if iv else "WLS") + " sandwich, Newey-West (Bartlett) HAC"
         unc["x_names"] = list(res["x_names"])
-        extras["x_correlation"] = _correlation(res["x_cov"])
+        extras["x_correlation"] = correlation_matrix(res["x_cov"])
     return IdentificationResult(
         x=x.copy(), f=f, fun=fun, nfev=1, nit=1, success=True,
         message=f"{method.upper()}: {res['n_equations']} equations, low-pass "
@@ -567,7 +567,7 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
         settings=dict(substeps=int(substeps), lowpass_hz=lowpass_hz,
                       idim=dict(cutoff_hz=res["cutoff_hz"], filter_order=IDIM_FILTER_ORDER,
                                 iv_iterations=iv)),
-        f_std=res["f_std"], f_rse=res["f_rse"], f_correlation=_correlation(res["f_cov"]),
+        f_std=res["f_std"], f_rse=res["f_rse"], f_correlation=correlation_matrix(res["f_cov"]),
         x_std=res["x_std"], poorly_excited=bad, uncertainty=unc,
         idim=dict(cutoff_hz=res["cutoff_hz"], n_equations=res["n_equations"],
                   n_dropped=res["n_dropped"], residual_rms_Nm=res["residual_rms_Nm"],

@@ -193,7 +193,7 @@ def _map_jacobian(to_f, x):
     return ((F[:x.size] - F[x.size:]) / (2 * h[:, None])).T
 
 
-def _correlation(cov):
+def correlation_matrix(cov):
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
     with np.errstate(invalid="ignore", divide="ignore"):
         c = cov / np.outer(sd, sd)
@@ -286,8 +286,8 @@ def parameter_uncertainty(jac, residuals, x, to_f, *, n_channels=2, lag=None, a3
     with np.errstate(divide="ignore", invalid="ignore"):
         rse = f_std / np.abs(f)
     return dict(x_std=np.sqrt(np.maximum(np.diag(cov), 0)), x_cov=cov,
-                x_correlation=_correlation(cov), f=f, f_std=f_std, f_cov=f_cov,
-                f_correlation=_correlation(f_cov), f_rse=rse, info=info)
+                x_correlation=correlation_matrix(cov), f=f, f_std=f_std, f_cov=f_cov,
+                f_correlation=correlation_matrix(f_cov), f_rse=rse, info=info)
 
 
 def poorly_excited(f_rse, names=F_NAMES, threshold=RSE_WARN):

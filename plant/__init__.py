@@ -15,7 +15,7 @@ casadi; the PUMA 560 links 2-3 of the paper are one instance
 from ._errors import LogError, SimulationError
 from .closed_loop import DEFAULT_CLOSED_LOOP_SUBSTEPS, simulate_closed_loop
 from .core import STATUS_MESSAGES, STATUS_OK
-from .log import ExperimentLog, example_log_path, load_example, load_log
+from .log import ExperimentLog, as_log, example_log_path, load_example, load_log
 from .model import (
     coriolis_centrifugal,
     forward_dynamics,
@@ -25,7 +25,7 @@ from .model import (
     is_positive_definite,
     regressor,
 )
-from .parallel import kernels_cached, warm_up
+from .warmup import kernels_cached, warm_up
 from .payload import Payload, add_payload, payload_delta, recover_payload
 from .plants import RIGID, FlexibleJoints, Plant
 from .friction import RIGID_FRICTION
@@ -53,6 +53,7 @@ __all__ = [
     "SimulationError",
     "ExperimentLog",
     "load_log",
+    "as_log",
     "load_example",
     "example_log_path",
     "Rig",

@@ -44,7 +44,7 @@ from .core import STATUS_MESSAGES, STATUS_OK, advance_sample, encoder_read
 from .plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older code)
 from .response import ClosedLoopResponse
 from .rig import rig_constants
-from .simulate import _dummy_problem, _kernel, check_substeps, new_lanes
+from .simulate import dummy_problem, kernel, check_substeps, new_lanes
 from .model import checked_f, is_positive_definite
 
 # ClosedLoopResponse (plant.response) and FlexibleJoints (plant.plants) are
@@ -59,7 +59,7 @@ __all__ = [
 DEFAULT_CLOSED_LOOP_SUBSTEPS = 32
 
 
-@_kernel
+@kernel
 def _read(X, enc, c, r2, r3):
     """Encoder counts and pulse errors of lane 0: (act2, act3, e2, e3)."""
     _, a2 = encoder_read(X[enc, 0], c.pulses_per_rad[0])
@@ -69,7 +69,7 @@ def _read(X, enc, c, r2, r3):
     return a2, a3, t2 - a2, t3 - a3
 
 
-@_kernel
+@kernel
 def _step(kind, lanes, c, substeps, k, i2, i3):
     """Hold the currents (i2, i3) and advance lane 0 over sample ``k``; returns the status."""
     P, X, U, A, S, E, idx, W = lanes
@@ -236,8 +236,8 @@ def simulate_closed_loop(
     )
 
 
-def _warm():
-    c, Pall, ref, _ = _dummy_problem()
+def warm_kernels():
+    c, Pall, ref, _ = dummy_problem()
     lanes = new_lanes(Pall, 0, 1, RIGID.initial_state(c))
     _read(lanes.X, 0, c, 0.0, 0.0)
     _step(RIGID.kind, lanes, c, 1, 0, 0.0, 0.0)

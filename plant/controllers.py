@@ -1,6 +1,6 @@
 """Compiled control laws in the logged-run driver: the controller that ran, in the loop.
 
-The logged-run driver (``plant.simulate._log_chunk``) simulates a
+The logged-run driver (``plant.simulate.log_chunk``) simulates a
 window or a run *with the controller that actually ran*.  As the plants of
 the core (``plant.plants``), a control law is found by a *kind* (a type
 tag whose numba type selects the law at compile time) in the registry

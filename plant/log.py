@@ -31,13 +31,13 @@ from ._errors import LogError
 from .fileio import write_text_atomic
 from .rig import Rig
 from .sidecar import (
-    _err,
-    _parse_window,
-    _Keys,
-    _read_sidecar,
-    _read_text,
-    _rig_into_sidecar,
-    _short,
+    sidecar_error,
+    parse_window,
+    SidecarKeys,
+    read_sidecar,
+    read_text,
+    rig_into_sidecar,
+    short_text,
     rig_from_sidecar,
 )
 from .trajectory import Trajectory
@@ -46,6 +46,7 @@ __all__ = [
     "COLUMNS",
     "ExperimentLog",
     "load_log",
+    "as_log",
     "rig_from_sidecar",
     "example_log_path",
     "load_example",
@@ -68,7 +69,7 @@ def _resolve(path: str | os.PathLike) -> tuple[Path, Path, str]:
     """Return (csv path, json path, stem) for STEM, STEM.csv or STEM.json."""
     p = Path(path)
     if p.is_dir():
-        raise _err(p, "log file is a directory (give STEM.csv with its STEM.json beside it)")
+        raise sidecar_error(p, "log file is a directory (give STEM.csv with its STEM.json beside it)")
     name = p.name
     stem = name
     for suffix in (".csv", ".json"):
@@ -77,9 +78,9 @@ def _resolve(path: str | os.PathLike) -> tuple[Path, Path, str]:
             break
     else:
         if p.suffix and p.exists():
-            raise _err(p, f"a log is STEM.csv with its STEM.json sidecar, not a {p.suffix} file")
+            raise sidecar_error(p, f"a log is STEM.csv with its STEM.json sidecar, not a {p.suffix} file")
     if not stem:
-        raise _err(p, "no file stem")
+        raise sidecar_error(p, "no file stem")
     return p.with_name(stem + ".csv"), p.with_name(stem + ".json"), stem
 
 
@@ -111,7 +112,7 @@ def _split_rows(text: str, path: Path):
             rows.append(row)
             line_nums.append(reader.line_num)
     except csv.Error as e:
-        raise _err(path, f"line {reader.line_num}: malformed CSV ({e})") from None
+        raise sidecar_error(path, f"line {reader.line_num}: malformed CSV ({e})") from None
     while rows and (not rows[-1] or all(not c.strip() for c in rows[-1])):
         rows.pop()
         line_nums.pop()
@@ -120,17 +121,17 @@ def _split_rows(text: str, path: Path):
 
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
     """Parse and check the CSV; returns column name -> array (pulses int64)."""
-    text = _read_text(path, "log file")
+    text = read_text(path, "log file")
     if not text.strip():
-        raise _err(path, "empty file (no header row)")
+        raise sidecar_error(path, "empty file (no header row)")
     header, rows, lines, body = _split_rows(text, path)
     if not header or all(not h.strip() for h in header):
-        raise _err(path, "line 1: empty header row")
+        raise sidecar_error(path, "line 1: empty header row")
     names = [h.strip() for h in header]
     seen = set()
     for h in names:
         if h in seen:
-            raise _err(path, f"line 1: duplicate column '{h}'")
+            raise sidecar_error(path, f"line 1: duplicate column '{h}'")
         seen.add(h)
     missing = [c for c in COLUMNS if c not in seen]
     extra = [h for h in names if h not in COLUMNS]
@@ -140,11 +141,11 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
             parts.append("missing column(s) " + ", ".join(f"'{c}'" for c in missing))
         if extra:
             parts.append("unexpected column(s) " + ", ".join(f"'{c}'" for c in extra))
-        raise _err(path, "line 1: " + "; ".join(parts)
+        raise sidecar_error(path, "line 1: " + "; ".join(parts)
                    + " (expected header " + ",".join(COLUMNS) + ")")
     n = len(body) if rows is None else len(rows)
     if n == 0:
-        raise _err(path, "no data rows (header only)")
+        raise sidecar_error(path, "no data rows (header only)")
     ncol = len(names)
 
     # ragged rows
@@ -157,8 +158,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     if bad.size:
         i = int(bad[0])
         if lengths[i] == 0:
-            raise _err(path, f"line {lines[i]}: empty row, expected {ncol} fields")
-        raise _err(path, f"line {lines[i]}: ragged row with {lengths[i]} fields, expected {ncol}")
+            raise sidecar_error(path, f"line {lines[i]}: empty row, expected {ncol} fields")
+        raise sidecar_error(path, f"line {lines[i]}: ragged row with {lengths[i]} fields, expected {ncol}")
 
     def cell(i: int, ci: int) -> str:
         return body[i].split(",")[ci] if rows is None else rows[i][ci]
@@ -185,9 +186,9 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
             for ci, name in enumerate(names):
                 c = cell(i, ci)
                 if not parses(c):
-                    return _err(path, f"line {lines[i]}, column '{name}': "
-                                      f"non-numeric value {_short(c)}")
-        return _err(path, "non-numeric values")  # pragma: no cover - parsers disagree
+                    return sidecar_error(path, f"line {lines[i]}, column '{name}': "
+                                      f"non-numeric value {short_text(c)}")
+        return sidecar_error(path, "non-numeric values")  # pragma: no cover - parsers disagree
 
     try:
         if rows is None:
@@ -203,16 +204,16 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     finite = np.isfinite(data)
     if not finite.all():
         i, ci = (int(x) for x in np.argwhere(~finite)[0])
-        raise _err(path, f"line {lines[i]}, column '{names[ci]}': "
-                         f"non-finite value {_short(cell(i, ci).strip())}")
+        raise sidecar_error(path, f"line {lines[i]}, column '{names[ci]}': "
+                         f"non-finite value {short_text(cell(i, ci).strip())}")
     for ci, name in enumerate(names):
         a = np.ascontiguousarray(data[:, ci])
         if name.endswith("_pulses"):
             nonint = (a != np.round(a)) | (np.abs(a) > 2.0**53)
             if nonint.any():
                 i = int(np.flatnonzero(nonint)[0])
-                raise _err(path, f"line {lines[i]}, column '{name}': "
-                                 f"non-integer pulse value {_short(cell(i, ci).strip())}")
+                raise sidecar_error(path, f"line {lines[i]}, column '{name}': "
+                                 f"non-integer pulse value {short_text(cell(i, ci).strip())}")
             a = a.astype(np.int64)
         out[name] = a
     out["_lines"] = lines
@@ -399,7 +400,7 @@ class ExperimentLog:
         traj = dict(traj) if isinstance(traj, Mapping) else {}
         traj["parameters"] = self.trajectory.to_parameters()
         d["trajectory"] = traj
-        _rig_into_sidecar(self.rig, d)
+        rig_into_sidecar(self.rig, d)
         return d
 
     def save(self, stem_path: str | os.PathLike) -> Path:
@@ -470,6 +471,32 @@ def _atomic_write(path: Path, text: str) -> None:
 
 
 # ------------------------------------------------------------------------ public API
+def as_log(log) -> ExperimentLog:
+    """A log as it is, or loaded from its path (the functions that take either).
+
+    Parameters
+    ----------
+    log : ExperimentLog, str or path-like
+        A loaded log, or the path of its CSV file (:func:`load_log`).
+
+    Returns
+    -------
+    ExperimentLog
+
+    Raises
+    ------
+    TypeError
+        For anything else.
+    LogError
+        As :func:`load_log`, for a path.
+    """
+    if isinstance(log, ExperimentLog):
+        return log
+    if isinstance(log, (str, os.PathLike)):
+        return load_log(log)
+    raise TypeError(f"log must be a plant.ExperimentLog or a path, got {type(log).__name__}")
+
+
 def load_log(path: str | os.PathLike) -> ExperimentLog:
     """Read and validate a rig log (``STEM.csv`` and its sidecar ``STEM.json``).
 
@@ -503,28 +530,28 @@ def load_log(path: str | os.PathLike) -> ExperimentLog:
     """
     csv_path, json_path, stem = _resolve(path)
     cols = _read_csv(csv_path)
-    sidecar = _read_sidecar(json_path)
+    sidecar = read_sidecar(json_path)
     rig = rig_from_sidecar(sidecar, json_path)
     trajectory = Trajectory.from_sidecar(sidecar, source=str(json_path))
-    window_s = _parse_window(sidecar, json_path)
+    window_s = parse_window(sidecar, json_path)
 
     t = cols["t_s"]
     lines = cols["_lines"]
     n = t.shape[0]
-    k = _Keys(sidecar, json_path)
+    k = SidecarKeys(sidecar, json_path)
     n_declared = k.number("n_samples", integer=True, nonneg=True)
     if n_declared != n:
         raise k.err("n_samples", f"is {n_declared} but {csv_path.name} has {n} data rows")
 
     ts = rig.sample_time_s
     if t[0] < -T_TOL_S:
-        raise _err(csv_path, f"line {lines[0]}, column 't_s': negative time {float(t[0])!r}")
+        raise sidecar_error(csv_path, f"line {lines[0]}, column 't_s': negative time {float(t[0])!r}")
     k0 = int(round(t[0] / ts))
     dev = np.abs(t - (k0 + np.arange(n)) * ts)
     bad = np.flatnonzero(dev > T_TOL_S)
     if bad.size:
         i = int(bad[0])
-        raise _err(csv_path, f"line {lines[i]}, column 't_s': t = {float(t[i])!r} s is not k*Ts "
+        raise sidecar_error(csv_path, f"line {lines[i]}, column 't_s': t = {float(t[i])!r} s is not k*Ts "
                              f"(expected {float((k0 + i) * ts)!r} with Ts = {ts!r} s)")
     if window_s is not None:
         if t[0] < window_s[0] - T_TOL_S or t[-1] >= window_s[1] + T_TOL_S:
@@ -537,7 +564,7 @@ def load_log(path: str | os.PathLike) -> ExperimentLog:
     worst = np.unravel_index(int(np.argmax(diff)), diff.shape)
     if diff[worst] > Q_REF_TOL_RAD:
         col = ("q2_ref_rad", "q3_ref_rad")[worst[1]]
-        raise _err(json_path, f"trajectory in sidecar does not match q*_ref_rad columns "
+        raise sidecar_error(json_path, f"trajectory in sidecar does not match q*_ref_rad columns "
                               f"(|diff| = {diff[worst]:.3g} rad > {Q_REF_TOL_RAD:g} at "
                               f"{csv_path.name} line {lines[worst[0]]}, column '{col}')")
 

@@ -17,8 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-__all__ = ["default_workers", "chunk_ranges", "run_chunks", "call_kernel", "warm_up",
-           "kernels_cached"]
+__all__ = ["default_workers", "chunk_ranges", "run_chunks", "call_kernel"]
 
 
 def default_workers() -> int:
@@ -158,60 +157,6 @@ def _forget_pools() -> None:
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_pools)
-
-
-def kernels_cached() -> bool:
-    """Whether numba's on-disk cache already holds the simulation kernels.
-
-    Returns
-    -------
-    bool
-        True when the P-experiment kernel of the rigid plant loads from the
-        cache without compiling (then :func:`warm_up` takes about a second).
-    """
-    from numba import typeof
-
-    from .simulate import _log_chunk, _warm_arguments
-
-    try:
-        sig = tuple(typeof(a) for a in _warm_arguments())
-        return _log_chunk._cache.load_overload(sig, _log_chunk.targetctx) is not None
-    except Exception:  # noqa: BLE001 - any trouble with the cache means "not cached"
-        return False
-
-
-def warm_up(*, announce=None, closed_loop=True) -> float:
-    """Compile (or load from numba's cache) the simulation kernels.
-
-    Runs each kernel once on a three-sample problem so that a timed run
-    afterwards excludes JIT compilation.
-
-    Parameters
-    ----------
-    announce : callable, optional
-        ``announce(message)`` is called once, before compiling, when the
-        kernels are not in numba's cache yet (a first run compiles them once,
-        which takes several seconds); not called when they load from the
-        cache.
-    closed_loop : bool
-        Also warm the sample step of the any-controller loop.
-
-    Returns
-    -------
-    float
-        Seconds it took.
-    """
-    from . import closed_loop as cl
-    from . import simulate as sim
-
-    t0 = time.perf_counter()
-    if announce is not None and not kernels_cached():
-        announce("compiling the numerical kernels once (about 5 s on 2 cores); "
-                 "later runs load them from numba's cache")
-    sim._warm()  # the P experiment and the replay: one kernel
-    if closed_loop:
-        cl._warm()
-    return time.perf_counter() - t0
 
 
 def as_float_array(a, name: str, shape=None) -> np.ndarray:

@@ -4,7 +4,7 @@ The P controller's current is known exactly from the logged integer error
 (``i_k = P e_k``), so the model can be driven by the current the rig applied
 instead of by its own, quantised, feedback.  The replay is the second mode
 of the logged-run driver of the one closed-loop core
-(:func:`plant.simulate._log_chunk`; one compiled kernel for both modes); the
+(:func:`plant.simulate.log_chunk`; one compiled kernel for both modes); the
 refinement of :mod:`identification.refinement` least-squares its prediction
 errors.
 """
@@ -17,7 +17,7 @@ from .controllers import as_logged_controller
 from .plants import RIGID
 from .simulate import (
     DEFAULT_SUBSTEPS,
-    _log_chunk,
+    log_chunk,
     check_candidates,
     check_substeps,
     default_bound,
@@ -147,7 +147,7 @@ def prediction_errors(
     def chunk(lo, hi):
         # with X0, the given state at the first logged sample: no simulation before it
         lanes = lanes_from(Pall, lo, hi, x0, X0)
-        _log_chunk(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts,
+        log_chunk(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts,
                    inputs.e_log, k0, k0 if use_x0 else 0, substeps, True, False, float(gain),
                    bound, np.inf, out, True, False, cost, status, compared, hi - lo, law.kind,
                    law.parameters, law.lane_states(lanes.X.shape[1]), i_log, not law.is_p_law)

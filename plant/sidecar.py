@@ -35,11 +35,11 @@ def _one_line(msg: str) -> str:
     return msg.replace("\r", "\\r").replace("\n", "\\n")
 
 
-def _err(source: Any, msg: str) -> LogError:
+def sidecar_error(source: Any, msg: str) -> LogError:
     return LogError(_one_line(f"{source}: {msg}"))
 
 
-def _short(value: Any, n: int = 60) -> str:
+def short_text(value: Any, n: int = 60) -> str:
     r = repr(value)
     return r if len(r) <= n else r[: n - 3] + "..."
 
@@ -49,7 +49,7 @@ def _is_number(x: Any) -> bool:
 
 
 # ------------------------------------------------------------------- sidecar parsing
-class _Keys:
+class SidecarKeys:
     """Typed access to sidecar keys with one-line LogErrors naming the key."""
 
     def __init__(self, data: Mapping[str, Any], source: Any):
@@ -57,7 +57,7 @@ class _Keys:
         self.source = source
 
     def err(self, key: str, msg: str) -> LogError:
-        return _err(self.source, f"key '{key}' {msg}")
+        return sidecar_error(self.source, f"key '{key}' {msg}")
 
     def get(self, key: str, *, required: bool = True, default: Any = None) -> Any:
         node: Any = self.data
@@ -75,17 +75,17 @@ class _Keys:
     def _check(self, key: str, x: Any, what: str, positive: bool, nonneg: bool,
                nonzero: bool, integer: bool) -> float | int:
         if not _is_number(x):
-            raise self.err(key, f"must be {what}, got {_short(x)}")
+            raise self.err(key, f"must be {what}, got {short_text(x)}")
         if not math.isfinite(x):
-            raise self.err(key, f"must be finite, got {_short(x)}")
+            raise self.err(key, f"must be finite, got {short_text(x)}")
         if integer:
             if float(x) != math.floor(x):
-                raise self.err(key, f"must be an integer, got {_short(x)}")
+                raise self.err(key, f"must be an integer, got {short_text(x)}")
             x = int(x)
         if positive and not x > 0:
-            raise self.err(key, f"must be > 0, got {_short(x)}")
+            raise self.err(key, f"must be > 0, got {short_text(x)}")
         if nonneg and not x >= 0:
-            raise self.err(key, f"must be >= 0, got {_short(x)}")
+            raise self.err(key, f"must be >= 0, got {short_text(x)}")
         if nonzero and x == 0:
             raise self.err(key, "must be nonzero")
         return x if integer else float(x)
@@ -103,7 +103,7 @@ class _Keys:
         x = self.get(key) if value is None else value
         what = f"a list of {n} {'integers' if integer else 'numbers'}"
         if not isinstance(x, (list, tuple)) or len(x) != n:
-            raise self.err(key, f"must be {what}, got {_short(x)}")
+            raise self.err(key, f"must be {what}, got {short_text(x)}")
         return tuple(
             self._check(f"{key}[{i}]", v, "an integer" if integer else "a number",
                         positive, nonneg, nonzero, integer)
@@ -162,9 +162,9 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
         value, or a search range is inverted (low > high) or empty
         (low == high).
     """
-    k = _Keys(sidecar, source)
+    k = SidecarKeys(sidecar, source)
     if not isinstance(sidecar, Mapping):
-        raise _err(source, "sidecar must be a JSON object")
+        raise sidecar_error(source, "sidecar must be a JSON object")
     ts = k.number("sample_time_s", positive=True)
     gear = k.vector("gear_ratio", nonzero=True)
     ppr = k.vector("encoder_ppr", integer=True, positive=True)
@@ -179,7 +179,7 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
     if coul_raw is not None:
         if not isinstance(coul_raw, (list, tuple)) or len(coul_raw) != 2:
             raise k.err("coulomb_friction_Nm", "must be [[pos, neg], [pos, neg]] (2 x 2 numbers) "
-                        f"or null, got {_short(coul_raw)}")
+                        f"or null, got {short_text(coul_raw)}")
         coul = tuple(k.vector(f"coulomb_friction_Nm[{j}]", nonneg=True, value=coul_raw[j])
                      for j in range(2))
     ramp = k.number("coulomb_ramp_speed_rad_per_s", positive=True, required=False)
@@ -231,7 +231,7 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
     elif isinstance(payload, Mapping):
         mass = k.number("payload.mass_kg", nonneg=True, required=False)
     else:
-        raise k.err("payload", f"must be null or an object, got {_short(payload)}")
+        raise k.err("payload", f"must be null or an object, got {short_text(payload)}")
 
     return Rig(
         sample_time_s=ts,
@@ -252,7 +252,7 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
     )
 
 
-def _rig_into_sidecar(rig: Rig, d: dict) -> None:
+def rig_into_sidecar(rig: Rig, d: dict) -> None:
     """Write the numeric values of ``rig`` into sidecar dict ``d`` (in place)."""
     d["sample_time_s"] = float(rig.sample_time_s)
     d["gear_ratio"] = [float(x) for x in rig.gear_ratio]
@@ -300,44 +300,44 @@ def _rig_into_sidecar(rig: Rig, d: dict) -> None:
         d["payload"] = payload
 
 
-def _parse_window(sidecar: Mapping[str, Any], source: Any) -> tuple[float, float] | None:
+def parse_window(sidecar: Mapping[str, Any], source: Any) -> tuple[float, float] | None:
     w = sidecar.get("window_s")
     if w is None:
         return None
-    k = _Keys(sidecar, source)
+    k = SidecarKeys(sidecar, source)
     start, stop = k.vector("window_s")
     if start < 0:
         raise k.err("window_s", f"start must be >= 0, got {start!r}")
     if not start < stop:
-        raise k.err("window_s", f"must be [start, stop] with start < stop, got {_short(w)}")
+        raise k.err("window_s", f"must be [start, stop] with start < stop, got {short_text(w)}")
     return (start, stop)
 
 
-def _read_text(path: Path, what: str) -> str:
+def read_text(path: Path, what: str) -> str:
     try:
         with open(path, "r", encoding="utf-8-sig", newline="") as fh:
             return fh.read()
     except FileNotFoundError:
-        raise _err(path, f"{what} not found") from None
+        raise sidecar_error(path, f"{what} not found") from None
     except IsADirectoryError:
-        raise _err(path, f"{what} is a directory") from None
+        raise sidecar_error(path, f"{what} is a directory") from None
     except UnicodeDecodeError as e:
-        raise _err(path, f"{what} is not UTF-8 text (byte {e.start})") from None
+        raise sidecar_error(path, f"{what} is not UTF-8 text (byte {e.start})") from None
     except OSError as e:
-        raise _err(path, f"cannot read {what} ({e.strerror or e})") from None
+        raise sidecar_error(path, f"cannot read {what} ({e.strerror or e})") from None
 
 
-def _read_sidecar(path: Path) -> dict:
-    text = _read_text(path, "sidecar")
+def read_sidecar(path: Path) -> dict:
+    text = read_text(path, "sidecar")
     if not text.strip():
-        raise _err(path, "empty sidecar (no JSON)")
+        raise sidecar_error(path, "empty sidecar (no JSON)")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as e:
-        raise _err(path, f"invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+        raise sidecar_error(path, f"invalid JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
     except RecursionError:
-        raise _err(path, "sidecar is nested too deeply to be read (JSON nesting beyond "
+        raise sidecar_error(path, "sidecar is nested too deeply to be read (JSON nesting beyond "
                          "Python's recursion limit)") from None
     if not isinstance(data, dict):
-        raise _err(path, f"sidecar must be a JSON object, got {type(data).__name__}")
+        raise sidecar_error(path, f"sidecar must be a JSON object, got {type(data).__name__}")
     return data

@@ -203,7 +203,7 @@ def default_bound(e_log) -> float:
 # Lane bookkeeping shared by the batch drivers
 # ----------------------------------------------------------------------------
 #: Kernels called from Python (cached on disk) and helpers compiled into them.
-_kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
+kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 _jit = numba.njit(nogil=True, error_model="numpy")
 
 
@@ -223,8 +223,8 @@ def _finish(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, out, 
             out[c_, i, 1] = bound
 
 
-@_kernel
-def _log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
+@kernel
+def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
                bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
                CS, i_log, logged_current):
     """Simulate the candidates of one chunk of lanes against a log, in lockstep.
@@ -510,7 +510,7 @@ def simulate_batch(
 
     def chunk(lo, hi):
         lanes = lanes_from(Pall, lo, hi, x0, X0)
-        _log_chunk(plant.kind, lanes, inputs.constants,
+        log_chunk(plant.kind, lanes, inputs.constants,
                    plant.encoder_row, inputs.ref_counts, e_log, inputs.start_index, k_start,
                    substeps, False,
                    bool(quantize), 0.0, bound, cap, err, bool(errors), bool(continuous_output),
@@ -611,7 +611,7 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
     return sim.e_pulses[0]
 
 
-def _dummy_problem():
+def dummy_problem():
     """A three-sample problem in the kernels' exact argument types (warm-up)."""
     c = RigConstants(1e-3, (1.0, 1.0), (1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0),
                      (0.0, 0.0), (1.0, 1.0), 9.81, (0.0, 0.0), (0.0, 0.0), math.inf)
@@ -619,14 +619,14 @@ def _dummy_problem():
     return c, Pall, np.zeros((3, 2)), np.zeros((3, 2))
 
 
-def _warm_arguments():
-    """Arguments of :func:`_log_chunk` on the three-sample dummy problem."""
-    c, Pall, ref, e_log = _dummy_problem()
+def warm_arguments():
+    """Arguments of :func:`log_chunk` on the three-sample dummy problem."""
+    c, Pall, ref, e_log = dummy_problem()
     return (RIGID.kind, new_lanes(Pall, 0, 1, RIGID.initial_state(c)), c, RIGID.encoder_row,
             ref, e_log, 0, 0, 1, False, True, 0.0, 100.0, np.inf, np.zeros((1, 3, 2)), True,
             False, np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64), 1,
             P_LAW.kind, P_LAW.parameters, P_LAW.lane_states(1), np.zeros((3, 2)), False)
 
 
-def _warm():
-    _log_chunk(*_warm_arguments())
+def warm_kernels():
+    log_chunk(*warm_arguments())

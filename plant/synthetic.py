@@ -29,7 +29,7 @@ __all__ = ["emulate_log"]
 EMULATION_SUBSTEPS = 64
 
 
-class _CardP:
+class CardPLaw:
     """The rig card's P law ``i = P e`` (the sampled-controller protocol)."""
 
     def __init__(self, p_gain):
@@ -95,7 +95,7 @@ def emulate_log(base, f, *, rig=None, trajectory=None, duration_s=None, flexible
         n = int(round(float(duration_s) / ts)) + 1
     if not current_noise_A >= 0:
         raise ValueError(f"current_noise_A must be >= 0, got {current_noise_A!r}")
-    resp = simulate_closed_loop(rig, f, _CardP(rig.p_gain_A_per_pulse), trajectory=trajectory,
+    resp = simulate_closed_loop(rig, f, CardPLaw(rig.p_gain_A_per_pulse), trajectory=trajectory,
                                 n_samples=n, substeps=substeps, flexible=flexible,
                                 label="emulated P experiment")
     if not resp.success:

@@ -34,7 +34,7 @@ def _raw_step(ctl, q, qd, qdd, *, kp=0.0, kv=0.0, friction=False):
     p = ctl.parameters._replace(kp=(float(kp), float(kp)), kv=(float(kv), float(kv)),
                                 friction=friction, cell_centre=False)
     ref = np.array([[q[0], q[1], qd[0], qd[1], qdd[0], qdd[1]]])
-    s = np.zeros(ctm._S_LEN)  # first sample: q_hat = q_meas, qd_hat = qd_d
+    s = np.zeros(ctm.S_LEN)  # first sample: q_hat = q_meas, qd_hat = qd_d
     i = ctm._ctc_step(0, np.asarray(q, float), ctl.f, p, ref, s)
     return i * np.array(p.rig.torque_per_amp)  # joint torque
 
