@@ -127,8 +127,8 @@ DEFAULT_LINK_OBSERVER_DAMPING = 0.5
 
 # Rows of the controller state after the rigid CTC's estimator (0..S_LEN-1).
 S_LQ = S_LEN          # link angle estimate q2, q3
-_S_LW = S_LEN + 2      # link rate estimate qd2, qd3
-_S_FLEX_LEN = S_LEN + 4
+S_LW = S_LEN + 2      # link rate estimate qd2, qd3
+S_FLEX_LEN = S_LEN + 4
 
 
 class FlexibleCTCParameters(NamedTuple):
@@ -195,8 +195,8 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
     else:
         q2 = S[S_LQ, lane]
         q3 = S[S_LQ + 1, lane]
-        w2 = S[_S_LW, lane]
-        w3 = S[_S_LW + 1, lane]
+        w2 = S[S_LW, lane]
+        w3 = S[S_LW + 1, lane]
         if pc.estimator == 0:  # correct the link estimate by the motor's residual
             r2 = y2 - pb2
             r3 = y3 - pb3
@@ -253,8 +253,8 @@ def _flexible_ctc_currents(k, qm2, qm3, fl, p, ref, S, lane):
     S[S_Y + 1, lane] = y3
     S[S_LQ, lane] = q2
     S[S_LQ + 1, lane] = q3
-    S[_S_LW, lane] = w2
-    S[_S_LW + 1, lane] = w3
+    S[S_LW, lane] = w2
+    S[S_LW + 1, lane] = w3
     S[S_INIT, lane] = 1.0
     return i2, i3
 
@@ -480,7 +480,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
             ctc=self.parameters._replace(observer_q=as_pair(lg[:, 0]), observer_w=as_pair(lg[:, 1])),
             stiffness=stiffness, damping=damping, motor_inertia=jk2, link_substeps=n,
             link_gain_q=as_pair(lg[:, 2]), link_gain_w=as_pair(lg[:, 3]), backlash=backlash)
-        self._state = np.zeros((_S_FLEX_LEN, 1))
+        self._state = np.zeros((S_FLEX_LEN, 1))
         #: Estimator restarts after a non-finite current (the link model diverged).
         self.n_estimator_resets = 0
 
@@ -657,8 +657,8 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
             table = self.reference_table
         else:
             table = tabulate_reference(log.trajectory, np.arange(n) * self._ts)
-        s0 = (np.zeros(_S_FLEX_LEN) if state is None
-              else np.asarray(state, dtype=float).reshape(_S_FLEX_LEN))
+        s0 = (np.zeros(S_FLEX_LEN) if state is None
+              else np.asarray(state, dtype=float).reshape(S_FLEX_LEN))
         return LoggedController(kind=FlexibleCTCLawKind(),
                                 parameters=FlexibleCTCLaw(self.flexible_parameters, self.link_f,
                                                           table),
