@@ -1,8 +1,10 @@
 """The result object of an identification (scipy ``OptimizeResult`` style).
 
 :class:`IdentificationResult` holds what :func:`identification.identify`
-found, writes it as JSON (:meth:`~IdentificationResult.save_json`), reads it
-back (:meth:`~IdentificationResult.load_json`) and plots it.
+found; its JSON file (:meth:`~IdentificationResult.save_json`,
+:meth:`~IdentificationResult.load_json`) is defined in
+:mod:`identification.result_schema`, its plots in
+:mod:`identification.result_plots` (the methods call them).
 
 One number for one thing: ``fun`` is the output error of paper eq. 4 at
 ``f`` computed with the identification's own integration setting
@@ -15,127 +17,22 @@ reproduction, :data:`plant.DEFAULT_SUBSTEPS` RK4 steps per sample).
 """
 from __future__ import annotations
 
-import json
-import math
-from pathlib import Path
-
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from plant.fileio import read_json_object, write_text_atomic
-from plant.rig import F_NAMES, F_UNITS
+from plant.rig import F_NAMES
+
+from . import result_plots
+from .result_schema import (  # noqa: F401 (ResultFileError, write_json_atomic re-exported)
+    ResultFileError,
+    describe_setting,
+    format_output_error,
+    read_result_file,
+    result_dict,
+    write_json_atomic,
+)
 
 __all__ = ["IdentificationResult", "ResultFileError", "write_json_atomic", "describe_setting"]
-
-#: Keys written by :meth:`IdentificationResult.to_dict` that
-#: :meth:`IdentificationResult.load_json` requires (an alternative older name
-#: in parentheses): ``f``, ``fun`` (``objective_pulses2``), ``nfev``
-#: (``evaluations``), ``method``.
-_REQUIRED = (("f",), ("fun", "objective_pulses2"), ("nfev", "evaluations"), ("method",))
-
-
-class ResultFileError(ValueError):
-    """A result file that cannot be read back (one-line message naming the file)."""
-
-
-def write_json_atomic(path, data, *, create_dirs=True):
-    """Write ``data`` as JSON to ``path`` atomically (policy of :mod:`plant.fileio`).
-
-    The text is produced first (``allow_nan=False``), so a value JSON cannot
-    hold raises before anything is written; no partial file is ever left.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Output file.  A symlink is written through; a directory, device,
-        FIFO or socket is refused.
-    data : object
-        JSON-serialisable data (finite floats only).
-    create_dirs : bool
-        Create a missing parent directory (default, as this function always
-        did); the created directories are listed in the returned
-        ``created_dirs``.  False refuses a missing directory.
-
-    Returns
-    -------
-    plant.fileio.OutputTarget
-        The file written (``target``) and the directories created
-        (``created_dirs``).
-
-    Raises
-    ------
-    TypeError, ValueError
-        If ``data`` is not JSON-serialisable (nothing is written).
-    plant.fileio.OutputFileError
-        If the target is refused by the output-file policy.
-    OSError
-        If writing fails.
-    """
-    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
-    return write_text_atomic(path, text, create_dirs=create_dirs)
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.bool_):
-        return bool(x)
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    return x
-
-
-def describe_setting(substeps, lowpass_hz=None, *, identification_substeps=None):
-    """Human-readable integration setting of an output error.
-
-    Parameters
-    ----------
-    substeps : int
-        RK4 steps per sample of the simulation.
-    lowpass_hz : float, optional
-        Cutoff (Hz) of the zero-phase low-pass applied to both error
-        sequences, if any.
-    identification_substeps : int, optional
-        The identification's setting; when ``substeps`` equals it the text
-        says "(identification)".
-
-    Returns
-    -------
-    str
-        E.g. ``"1 RK4 step/sample (identification)"`` or
-        ``"exact reproduction, 48 RK4 steps/sample"``.
-    """
-    from plant import DEFAULT_SUBSTEPS
-
-    n = int(substeps)
-    steps = f"{n} RK4 step{'s' if n != 1 else ''}/sample"
-    tags = []
-    if identification_substeps is not None and n == int(identification_substeps):
-        tags.append("identification")
-    if n == DEFAULT_SUBSTEPS:
-        tags.append("exact reproduction")
-    if tags == ["exact reproduction"]:
-        text = f"exact reproduction, {steps}"
-    elif tags:
-        text = f"{steps} ({', '.join(tags)})"
-    else:
-        text = steps
-    if lowpass_hz is not None:
-        text += f", low-passed at {float(lowpass_hz):.4g} Hz"
-    return text
-
-
-def _fmt_y(y):
-    """The one format of an output error (pulses^2) in text, titles and tables."""
-    return "nan" if y is None else f"{float(y):.6g}"
-
 
 def _summary(a, n=9):
     """One-line summary of an array: values if short, else shape and range."""
@@ -232,7 +129,8 @@ class IdentificationResult(OptimizeResult):
         return list(self.keys())
 
     # -- derived --------------------------------------------------------------
-    def _settings(self):
+    def settings_dict(self):
+        """``settings`` as a dict (empty when missing or malformed)."""
         s = self.get("settings") or {}
         return s if isinstance(s, dict) else {}
 
@@ -241,13 +139,13 @@ class IdentificationResult(OptimizeResult):
         """RK4 steps per sample of the identification (``settings["substeps"]``), int."""
         from .objective import IDENTIFICATION_SUBSTEPS
 
-        s = self._settings().get("substeps")
+        s = self.settings_dict().get("substeps")
         return int(IDENTIFICATION_SUBSTEPS if s is None else s)
 
     @property
     def lowpass_hz(self):
         """Low-pass cutoff of the identification (Hz) or None (``settings["lowpass_hz"]``)."""
-        v = self._settings().get("lowpass_hz")
+        v = self.settings_dict().get("lowpass_hz")
         return None if v is None else float(v)
 
     def setting_text(self, substeps=None, lowpass_hz=None):
@@ -270,18 +168,20 @@ class IdentificationResult(OptimizeResult):
             substeps, lowpass_hz = self.substeps, self.lowpass_hz
         return describe_setting(substeps, lowpass_hz, identification_substeps=self.substeps)
 
-    def _x_names(self):
+    def names_of_x(self):
+        """Names of the components of ``x`` (``x_names``, or f1..f9 / x1..xk)."""
         names = self.get("x_names")
         if names is not None:
             return [str(n) for n in names]
         k = np.size(self.get("x", self.get("f")))
         return list(F_NAMES) if k == 9 else [f"x{i + 1}" for i in range(k)]
 
-    def _parameters(self):
+    def parameterisation_name(self):
+        """``parameters``, or what the result implies: ``"payload"`` or ``"base"``."""
         p = self.get("parameters")
         if p is not None:
             return str(p)
-        if self.get("payload") or self._settings().get("payload"):
+        if self.get("payload") or self.settings_dict().get("payload"):
             return "payload"
         return "base"
 
@@ -289,15 +189,15 @@ class IdentificationResult(OptimizeResult):
         f = np.asarray(self.get("f"), dtype=float) if self.get("f") is not None else None
         lines = [
             f"IdentificationResult(method={self.get('method')!r}, "
-            f"log={self.get('log_name')!r}, parameters={self._parameters()!r})",
+            f"log={self.get('log_name')!r}, parameters={self.parameterisation_name()!r})",
             f"  f       = {_summary(f)}  (f1..f9)",
         ]
         x = self.get("x")
         if x is not None and (f is None or np.shape(x) != f.shape
                               or not np.array_equal(np.asarray(x, dtype=float), f)):
-            lines.append(f"  x       = {_summary(x)}  ({', '.join(self._x_names())})")
+            lines.append(f"  x       = {_summary(x)}  ({', '.join(self.names_of_x())})")
         lines += [
-            f"  fun     = {_fmt_y(self.get('fun'))} pulses^2  (output error eq. 4, "
+            f"  fun     = {format_output_error(self.get('fun'))} pulses^2  (output error eq. 4, "
             f"{self.setting_text()})",
             f"  nfev    = {self.get('nfev')}   nit = {self.get('nit')}   "
             f"wall_time_s = {float(self.get('wall_time_s') or 0.0):.3g}",
@@ -341,50 +241,7 @@ class IdentificationResult(OptimizeResult):
             Non-finite floats become ``null``.  ``log``, ``population`` and
             ``population_energies`` are not written.
         """
-        f = np.asarray(self.f, dtype=float)
-        fun = float(self.fun)
-        nfev = self.get("nfev")
-        nit = self.get("nit")
-        x = self.get("x")
-        d = {
-            "f": [float(v) for v in f],
-            "f_named": {n: float(v) for n, v in zip(F_NAMES, f)},
-            "f_units": dict(zip(F_NAMES, F_UNITS)),
-            "objective_pulses2": fun,
-            "x": None if x is None else np.asarray(x, dtype=float).ravel(),
-            "x_names": self._x_names(),
-            "parameters": self._parameters(),
-            "fun": fun,
-            "nfev": None if nfev is None else int(nfev),
-            "nit": None if nit is None else int(nit),
-            "evaluations": None if nfev is None else int(nfev),
-            "success": bool(self.get("success", not self.get("interrupted", False))),
-            "message": self.get("message", ""),
-            "method": self.get("method"),
-            "seed": self.get("seed"),
-            "log": self.get("log_name"),
-            "interrupted": bool(self.get("interrupted", False)),
-            "bounds": self.get("bounds"),
-            "settings": self._settings(),
-            "setting": self.setting_text(),
-            "history": self.get("history", {}),
-            "refinement": self.get("refinement"),
-            "wall_time_s": float(self.get("wall_time_s") or 0.0),
-            "compile_time_s": self.get("compile_time_s"),
-        }
-        from .uncertainty import RESULT_KEYS  # standard errors (issue 15)
-        d.update({k: self[k] for k in RESULT_KEYS if self.get(k) is not None})
-        payload = self.get("payload")
-        if payload:
-            d["payload"] = payload
-            for k, v in payload.items():
-                d[f"payload_{k}"] = v
-        from .models import MODEL_KEYS  # rigid/flexible model and friction (always written)
-
-        d.update({key: self.get(key) for key in MODEL_KEYS})
-        if d["model"] is None:
-            d["model"] = "rigid"
-        return _jsonable(d)
+        return result_dict(self)
 
     def save_json(self, path, *, create_dirs=True):
         """Write :meth:`to_dict` as JSON to ``path`` atomically.
@@ -440,257 +297,66 @@ class IdentificationResult(OptimizeResult):
             ``objective_pulses2``, ``nfev`` or ``evaluations``, ``method``)
             or has a malformed one.
         """
-        p = Path(path)
-        try:
-            d = read_json_object(p, "result file")
-        except ValueError as e:
-            raise ResultFileError(str(e)) from None
-        for alternatives in _REQUIRED:
-            if not any(k in d for k in alternatives):
-                raise ResultFileError(f"{p}: missing key {alternatives[0]!r} "
-                                      "(not an identification result file?)")
-
-        def num_array(key, value, shape=None):
-            try:
-                a = np.array([np.nan if v is None else v for v in value]
-                             if isinstance(value, list) and np.ndim(value) == 1 else value,
-                             dtype=float)
-            except (TypeError, ValueError):
-                raise ResultFileError(f"{p}: key {key!r} must hold numbers") from None
-            if shape is not None and (a.ndim != len(shape) or any(
-                    s is not None and a.shape[i] != s for i, s in enumerate(shape))):
-                raise ResultFileError(f"{p}: key {key!r} has shape {a.shape}, expected "
-                                      f"{tuple('k' if s is None else s for s in shape)}")
-            return a
-
-        def number(key, value, kind=float):
-            if value is None:
-                return np.nan if kind is float else None
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ResultFileError(f"{p}: key {key!r} must be a number, got {value!r}")
-            return kind(value)
-
-        f = num_array("f", d["f"], (9,))
-        fun = number("fun", d.get("fun", d.get("objective_pulses2")))
-        nfev = number("nfev", d.get("nfev", d.get("evaluations")), int)
-        x = num_array("x", d["x"], (None,)) if d.get("x") is not None else f.copy()
-        bounds = d.get("bounds")
-        if bounds is not None:
-            bounds = num_array("bounds", bounds, (x.size, 2))
-        hist = d.get("history") or {}
-        if not isinstance(hist, dict):
-            raise ResultFileError(f"{p}: key 'history' must be an object")
-        history = {}
-        for k, v in hist.items():
-            a = num_array(f"history.{k}", v)
-            if k in ("generation", "nfev") and np.all(np.isfinite(a)):
-                a = a.astype(np.int64)
-            history[k] = a
-        refinement = d.get("refinement")
-        if refinement is not None:
-            if not isinstance(refinement, dict):
-                raise ResultFileError(f"{p}: key 'refinement' must be an object or null")
-            refinement = {k: (num_array(f"refinement.{k}", v) if isinstance(v, list) else v)
-                          for k, v in refinement.items()}
-        settings = d.get("settings") or {}
-        if not isinstance(settings, dict):
-            raise ResultFileError(f"{p}: key 'settings' must be an object")
-        nit = d.get("nit")
-        res = cls(
-            x=x, f=f, fun=fun, nfev=nfev, nit=None if nit is None else number("nit", nit, int),
-            success=bool(d.get("success", not d.get("interrupted", False))),
-            message=str(d.get("message", "")),
-            population=None, population_energies=None,
-            method=str(d["method"]), seed=d.get("seed"), history=history,
-            refinement=refinement,
-            wall_time_s=number("wall_time_s", d.get("wall_time_s")),
-            compile_time_s=number("compile_time_s", d.get("compile_time_s")),
-            interrupted=bool(d.get("interrupted", False)),
-            log_name=d.get("log"), log=None, bounds=bounds,
-            x_names=[str(n) for n in d["x_names"]] if d.get("x_names") else None,
-            parameters=d.get("parameters"), settings=settings,
-        )
+        res = cls(**read_result_file(path))
         if res["x_names"] is None:
-            res["x_names"] = res._x_names()
+            res["x_names"] = res.names_of_x()
         if res["parameters"] is None:
-            res["parameters"] = res._parameters()
-        if d.get("payload") is not None:
-            res["payload"] = d["payload"]
-        from .uncertainty import RESULT_KEYS  # standard errors (issue 15)
-        for k in RESULT_KEYS:
-            if d.get(k) is not None:
-                res[k] = d[k] if k in ("poorly_excited", "uncertainty") else num_array(k, d[k])
-        from .models import MODEL_KEYS
-
-        for key in MODEL_KEYS:
-            if key in d:
-                res[key] = d[key]
+            res["parameters"] = res.parameterisation_name()
         return res
 
-    # -- plots --------------------------------------------------------------
+    # -- plots (identification.result_plots) -------------------------------
     def plot(self, ax=None, *, fig=None):
-        """Convergence plot: best and mean output error per GA generation.
+        """Convergence plot: best and median output error per GA generation.
 
-        The output errors are at the identification's setting (the title
-        says which) and ``fun`` is marked after a refinement.
+        See :func:`identification.result_plots.plot_convergence`.
 
         Parameters
         ----------
         ax : matplotlib.axes.Axes, optional
-            Axes to draw into.
         fig : matplotlib.figure.Figure, optional
-            Figure to draw into (one new subplot) when ``ax`` is not given.
 
         Returns
         -------
         matplotlib.axes.Axes or matplotlib.figure.Figure
-            ``ax`` if given, else the figure drawn into (``fig`` or a new
-            Figure, never shown: save it with ``savefig``).
         """
-        target_ax, out = _one_axes(ax, fig, figsize=(7, 4.2))
-        h = self.get("history") or {}
-        evals = np.asarray(h.get("nfev", []), dtype=float)
-        target_ax.semilogy(evals, np.asarray(h.get("best", []), dtype=float), "-",
-                           label="GA best")
-        if h.get("median") is not None and len(h.get("median")) == len(evals):
-            # the population's median: its mean is dominated by a few penalised candidates
-            target_ax.semilogy(evals, np.asarray(h["median"], dtype=float), "-", alpha=0.6,
-                               label="GA population median")
-        else:
-            target_ax.semilogy(evals, np.asarray(h.get("mean", []), dtype=float), "-", alpha=0.6,
-                               label="GA population mean")
-        if self.get("refinement"):
-            target_ax.semilogy([self.nfev], [self.fun], "o", label="after refinement")
-        target_ax.set_xlabel("simulations")
-        target_ax.set_ylabel("output error Y (pulses$^2$, eq. 4)")
-        target_ax.set_title(f"{self.get('log_name') or ''}: convergence of {self.get('method')}, "
-                            f"final Y = {_fmt_y(self.fun)} pulses$^2$\n"
-                            f"model simulated with {self.setting_text()}", fontsize="medium")
-        target_ax.grid(True, which="both", alpha=0.3)
-        target_ax.legend()
-        return out
+        return result_plots.plot_convergence(self, ax, fig=fig)
 
     def tracking_output_error(self, log=None, *, substeps=None, lowpass_hz="identification"):
         """Simulated tracking errors of ``f`` and their output error (eq. 4).
 
+        See :func:`identification.result_plots.tracking_output_error`.
+
         Parameters
         ----------
         log : plant.ExperimentLog, optional
-            Default: the identified log (``self.log``).
         substeps : int, optional
-            RK4 steps per sample; default the identification's
-            (``settings["substeps"]``), so that the output error equals
-            ``fun`` on the identified log.
         lowpass_hz : float, None or "identification"
-            Zero-phase low-pass (Hz) applied to both error sequences before
-            the sum of squares; default the identification's filter when
-            ``substeps`` is the identification's, otherwise none.
 
         Returns
         -------
-        e_model : ndarray, shape (n_samples, 2)
-            Simulated tracking errors (int64 pulses).
-        y : float
-            Output error (pulses^2).
-        setting : str
-            The integration setting (see :func:`describe_setting`).
-
-        Raises
-        ------
-        ValueError
-            If no log is attached and none is given.
+        tuple
+            ``(e_model (n_samples, 2), y, setting)``.
         """
-        import plant
-
-        log = log if log is not None else self.get("log")
-        if log is None:
-            raise ValueError("no log attached to this result (e.g. after load_json): pass one")
-        ident = substeps is None or int(substeps) == self.substeps
-        n = self.substeps if substeps is None else int(substeps)
-        if isinstance(lowpass_hz, str):
-            if lowpass_hz != "identification":
-                raise ValueError(f"lowpass_hz must be a frequency, None or 'identification', "
-                                 f"got {lowpass_hz!r}")
-            lowpass_hz = self.lowpass_hz if ident else None
-        x0 = None
-        if log.rig.q0_rad is None:  # a window without a start state: the refined one
-            x0 = (self.get("refinement") or {}).get("initial_state")
-            if x0 is None:
-                from .window import estimate_initial_state
-
-                x0 = estimate_initial_state(log)[0]
-        e = plant.simulate_experiment(log, np.asarray(self.f, dtype=float), substeps=n,
-                                      initial_state=x0)
-        if lowpass_hz is None:
-            d = log.e_pulses - e
-            y = float(np.sum(d * d))
-        else:
-            from .filtering import apply_lowpass, lowpass_sos
-
-            sos = lowpass_sos(lowpass_hz, log.rig.sample_time_s)
-            d = apply_lowpass(e, sos) - apply_lowpass(log.e_pulses, sos)
-            y = float(np.einsum("nj,nj->", d, d))
-        return e, y, describe_setting(n, lowpass_hz, identification_substeps=self.substeps)
+        return result_plots.tracking_output_error(self, log, substeps=substeps,
+                                                  lowpass_hz=lowpass_hz)
 
     def plot_tracking_errors(self, log=None, *, substeps=None, lowpass_hz="identification",
                              ax=None, fig=None):
         """Logged vs simulated tracking errors of the identified model.
 
-        By default the model is simulated with the identification's setting
-        (``settings["substeps"]`` RK4 steps per sample, its low-pass filter
-        for the number), so the output error in the title equals ``fun`` on
-        the identified log; the title names the setting.  Pass
-        ``substeps=plant.DEFAULT_SUBSTEPS`` for the exact reproduction.
+        See :func:`identification.result_plots.plot_tracking_errors`.
 
         Parameters
         ----------
         log : plant.ExperimentLog, optional
-            The log to compare with (default: the identified one).  A
-            different log (e.g. a validation run) cross-validates ``f``.
         substeps : int, optional
-            RK4 steps per sample (default: the identification's).
         lowpass_hz : float, None or "identification"
-            See :meth:`tracking_output_error` (the curves are never
-            filtered; only the number in the title is).
         ax : matplotlib.axes.Axes or pair of Axes, optional
-            Two Axes (joint 2, joint 3), or one Axes for both joints.  The
-            title goes on the first Axes.
         fig : matplotlib.figure.Figure, optional
-            Figure to draw into (two new subplots) when ``ax`` is not given.
 
         Returns
         -------
         Axes, pair of Axes or matplotlib.figure.Figure
-            ``ax`` if given, else the figure (``fig`` or a new Figure,
-            never shown).
-
-        Raises
-        ------
-        ValueError
-            If no log is attached and none is given, or ``ax`` is malformed.
         """
-        import plant
-
-        log = log if log is not None else self.get("log")
-        e, y, setting = self.tracking_output_error(log, substeps=substeps,
-                                                   lowpass_hz=lowpass_hz)
-        return plant.plot_tracking_errors(
-            log.t, log.e_pulses, e, labels=("logged", "identified model"),
-            title=(f"{log.name}: logged and identified-model tracking errors\n"
-                   f"output error Y (eq. 4) = {_fmt_y(y)} pulses$^2$, model simulated with "
-                   f"{setting}"),
-            fig=fig, ax=ax,
-        )
-
-
-def _one_axes(ax, fig, figsize):
-    """(axes to draw into, object to return) for a single-panel plot."""
-    if ax is not None:
-        if fig is not None and ax.figure is not fig:
-            raise ValueError("ax belongs to another figure than fig")
-        return ax, ax
-    if fig is None:
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=figsize, layout="constrained")
-    return fig.add_subplot(), fig
+        return result_plots.plot_tracking_errors(self, log, substeps=substeps,
+                                                 lowpass_hz=lowpass_hz, ax=ax, fig=fig)
