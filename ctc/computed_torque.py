@@ -329,6 +329,13 @@ def tabulate_reference(trajectory, t):
     return np.ascontiguousarray(np.hstack([q, qd, qdd]), dtype=np.float64)
 
 
+#: The builder of a controller from an identification result (rigid or flexible):
+#: :func:`ctc.flexible.controller_from_result` registers itself here when
+#: :mod:`ctc.flexible` is imported (``import ctc`` does), so that this module
+#: needs no import of the flexible-joint controller built on it.
+RESULT_FACTORY = {"build": None}
+
+
 class ComputedTorqueController:
     """Computed-torque controller following the sampled-controller protocol.
 
@@ -517,9 +524,9 @@ class ComputedTorqueController:
             ``model``, a flexible result without its joints, malformed
             friction, or anything :meth:`from_log` refuses.
         """
-        from .flexible import controller_from_result
-
-        return controller_from_result(result, log, **options)
+        if RESULT_FACTORY["build"] is None:  # pragma: no cover - ctc/__init__ imports ctc.flexible
+            raise RuntimeError("no controller factory registered (import ctc, not ctc.computed_torque alone)")
+        return RESULT_FACTORY["build"](result, log, **options)
 
     # ------------------------------------------------------------ protocol
     def reset(self) -> None:

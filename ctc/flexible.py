@@ -102,6 +102,7 @@ from .computed_torque import (
     S_Q,
     S_W,
     S_Y,
+    RESULT_FACTORY,
     ComputedTorqueController,
     CTCParameters,
     joint_update,
@@ -969,3 +970,6 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     reason = ("stable within the bound on every scenario" if robust else
               f"tracking error beyond {bound} pulses or a failed run with {worst}")
     return dict(robust=robust, reason=reason, bound_pulses=bound, scenarios=rows)
+
+
+RESULT_FACTORY["build"] = controller_from_result
