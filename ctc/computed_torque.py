@@ -72,7 +72,7 @@ from plant.model import (
     is_positive_definite,
     mass_terms,
 )
-from plant.controllers import CONTROL_LAWS, LoggedController, saturated
+from plant.controllers import LoggedController, register_control_law, saturated
 from plant.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, gains_for
@@ -266,7 +266,7 @@ def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
     return _ctc_currents(k, q2m, q3m, lp.f, lp.parameters, lp.reference, CS, j)
 
 
-CONTROL_LAWS[CTCLawKind] = ctc_law
+register_control_law(CTCLawKind, ctc_law)
 
 
 def as_pair(values):

@@ -91,7 +91,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from plant.controllers import CONTROL_LAWS, LoggedController, saturated
+from plant.controllers import LoggedController, register_control_law, saturated
 from plant.model import friction_torque, is_positive_definite, joint_acceleration
 from plant.plants import dead_zone, link_f as link_model_f
 
@@ -323,7 +323,7 @@ def flexible_ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
     return _flexible_ctc_currents(k, q2m, q3m, lp.link_f, lp.parameters, lp.reference, CS, j)
 
 
-CONTROL_LAWS[FlexibleCTCLawKind] = flexible_ctc_law
+register_control_law(FlexibleCTCLawKind, flexible_ctc_law)
 
 
 def link_observer_gains(link_f, stiffness, damping, motor_inertia, gains, link_damping):

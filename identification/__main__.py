@@ -30,6 +30,9 @@ def main(argv=None):
         sigint.install()  # a Ctrl-C swallowed by a finaliser is remembered, not lost
         from identification.cli import main as cli_main
     except KeyboardInterrupt:
+        from identification import sigint
+
+        sigint.leaving()
         try:
             print("error: interrupted (nothing written)", file=sys.stderr, flush=True)
         except (KeyboardInterrupt, OSError, ValueError):
@@ -54,6 +57,9 @@ def exit_after(status):
     """
     gc.freeze()
     if status == EXIT_INTERRUPTED:
+        from identification import sigint
+
+        sigint.leaving()
         # a Ctrl-C: every output is complete or absent by now (atomic writes); leave at
         # once, so that the interpreter's shutdown cannot turn a KeyboardInterrupt it
         # saw on the way into a death by SIGINT (exit status -2 instead of 130)

@@ -537,6 +537,7 @@ def _run(args, stdout, stderr) -> int:
 
 
 def _interrupted(stderr) -> int:
+    sigint.leaving()
     try:
         print(INTERRUPTED_LINE, file=stderr, flush=True)
     except (KeyboardInterrupt, OSError, ValueError):

@@ -19,7 +19,7 @@ the motor currents (A) held over the sample.
 
 :data:`P_LAW` is the rig's P law ``i = P e`` (the logged experiment of the
 paper, bit for bit the driver's former inline law).  Another package
-provides its law by registering it (``CONTROL_LAWS[MyKind] = my_law``) and
+provides its law by registering it (``register_control_law(MyKind, my_law)``) and
 describing it by a :class:`LoggedController`; :class:`ctc.ComputedTorqueController`
 does so (:meth:`~ctc.ComputedTorqueController.logged_controller`), keeping
 ``plant`` independent of ``ctc``.
@@ -39,7 +39,8 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
-__all__ = ["PLawKind", "P_LAW", "LoggedController", "CONTROL_LAWS", "control_law", "p_law",
+__all__ = ["PLawKind", "P_LAW", "LoggedController", "CONTROL_LAWS", "register_control_law",
+           "control_law", "p_law",
            "saturated"]
 
 
@@ -112,8 +113,38 @@ def p_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
     return c.p_gain[0] * e2, c.p_gain[1] * e3
 
 
-#: Registry of the logged-run driver: law kind class -> compiled law.
-CONTROL_LAWS = {PLawKind: p_law}
+#: Registry of the logged-run driver: law kind class -> compiled law
+#: (:func:`register_control_law`).
+CONTROL_LAWS = {}
+
+
+def register_control_law(kind_class, law) -> None:
+    """Register a compiled control law under its kind class (as :func:`plant.plants.register_plant`).
+
+    Parameters
+    ----------
+    kind_class : type
+        A ``NamedTuple`` class whose instances tag the law
+        (:attr:`LoggedController.kind`).
+    law : numba dispatcher
+        ``law(lp, c, k, q2m, q3m, e2, e3, CS, j) -> (i2, i3)`` (see the
+        module docstring).
+
+    Raises
+    ------
+    ValueError
+        If ``kind_class`` is not a NamedTuple class or is registered to
+        another law already.
+    """
+    if not (isinstance(kind_class, type) and issubclass(kind_class, tuple)
+            and hasattr(kind_class, "_fields")):
+        raise ValueError(f"a control-law kind must be a NamedTuple class, got {kind_class!r}")
+    if CONTROL_LAWS.get(kind_class, law) is not law:
+        raise ValueError(f"{kind_class.__name__} is registered to another control law")
+    CONTROL_LAWS[kind_class] = law
+
+
+register_control_law(PLawKind, p_law)
 
 
 def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):

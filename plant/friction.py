@@ -130,13 +130,10 @@ class RigidWithFriction(Plant):
     name : str
         ``"rigid+friction"``.
     kind : RigidFrictionKind
-        :data:`RIGID_FRICTION_KIND`.
-    n_states : int
-        4.
+        :data:`RIGID_FRICTION_KIND` (registered with 4 states and 15
+        parameters per lane).
     encoder_row : int
         0.
-    n_parameters : int
-        15.
     """
 
     def lane_parameters(self, F, rig, friction=None) -> np.ndarray:
@@ -172,5 +169,4 @@ class RigidWithFriction(Plant):
 
 
 #: The rigid robot with per-lane friction rows (15 parameters).
-RIGID_FRICTION = RigidWithFriction(name="rigid+friction", kind=RIGID_FRICTION_KIND, n_states=4,
-                                   encoder_row=0, n_parameters=15)
+RIGID_FRICTION = RigidWithFriction(name="rigid+friction", kind=RIGID_FRICTION_KIND, encoder_row=0)

@@ -110,22 +110,38 @@ class Plant:
         ``"rigid"`` or ``"flexible"``.
     kind : RigidKind or FlexibleKind
         :data:`RIGID_KIND` or :data:`FLEXIBLE_KIND`: how the core finds the
-        right-hand side (:func:`plant.core.plant_rhs`).
-    n_states : int
-        Rows of the state array; rows 0, 1 are the link angles q2, q3 and
-        rows 2, 3 their rates.
+        right-hand side (:func:`plant.core.plant_rhs`), registered with its
+        sizes by :func:`register_plant`.
     encoder_row : int
         Row of the angle the joint-2 motor encoder reads (joint 3: the next
         row), joint side (motor angle / k).
+    n_states : int
+        Rows of the state array (from the registry); rows 0, 1 are the link
+        angles q2, q3 and rows 2, 3 their rates.
     n_parameters : int
-        Rows of the per-lane parameter array P.
+        Rows of the per-lane parameter array P (from the registry).
     """
 
     name: str
     kind: tuple
-    n_states: int
     encoder_row: int
-    n_parameters: int
+
+    def _registered(self):
+        entry = RIGHT_HAND_SIDES.get(type(self.kind))
+        if entry is None:
+            raise ValueError(f"unknown plant kind {type(self.kind).__name__}: register its "
+                             "right-hand side with plant.plants.register_plant")
+        return entry
+
+    @property
+    def n_states(self) -> int:
+        """Rows of the state array: the registered right-hand side's state size."""
+        return self._registered().n_states
+
+    @property
+    def n_parameters(self) -> int:
+        """Rows of the per-lane parameter array: the registered right-hand side's."""
+        return self._registered().n_parameters
 
     def lane_parameters(self, F, rig) -> np.ndarray:
         """Per-lane parameter array of candidates ``F`` (m, 9) (rigid-equivalent f).
@@ -277,7 +293,7 @@ register_plant(RigidKind, rigid_rhs, 4, 9)
 
 #: The rigid robot of :mod:`plant.model`: state (q2, q3, qd2, qd3), the
 #: encoders read q, parameters f1..f9.
-RIGID = Plant(name="rigid", kind=RIGID_KIND, n_states=4, encoder_row=0, n_parameters=9)
+RIGID = Plant(name="rigid", kind=RIGID_KIND, encoder_row=0)
 
 
 # ----------------------------------------------------------------------------
@@ -417,8 +433,7 @@ class FlexibleJoints(Plant):
                 raise ValueError("FlexibleJoints: stiffness and motor inertia must be > 0, "
                                  f"damping and backlash >= 0 (got {name}={v!r})")
             pairs.append((float(a[0]), float(a[1])))
-        Plant.__init__(self, name="flexible", kind=FLEXIBLE_KIND, n_states=8, encoder_row=4,
-                       n_parameters=FLEXIBLE_N_PARAMETERS)
+        Plant.__init__(self, name="flexible", kind=FLEXIBLE_KIND, encoder_row=4)
         object.__setattr__(self, "stiffness_Nm_per_rad", pairs[0])
         object.__setattr__(self, "damping_Nms_per_rad", pairs[1])
         object.__setattr__(self, "motor_inertia_kgm2", pairs[2])
