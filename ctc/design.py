@@ -463,8 +463,8 @@ def design_gains(
     d = int(delay_samples)
     if d < 0 or d != delay_samples:
         raise ValueError(f"delay_samples must be an integer >= 0, got {delay_samples!r}")
-    bw = _pair(default_bandwidth_hz(rig if hasattr(rig, "sample_time_s") else ts)
-               if bandwidth_hz is None else bandwidth_hz, "bandwidth_hz")
+    bw = _pair(default_bandwidth_hz(rig_or_ts) if bandwidth_hz is None else bandwidth_hz,
+               "bandwidth_hz")
     zeta = _pair(damping, "damping")
     if np.any(bw >= fs / 6.0):
         raise ValueError(f"bandwidth_hz must be < fs/6 = {fs / 6:.1f} Hz, got {bw.tolist()}")

@@ -48,7 +48,7 @@ def parse(argv):
 
 def planar_arm():
     """A 2R arm in a vertical plane: 1.0 m and 0.8 m links, COM mid-link, geared motors."""
-    from plant import Link, RobotModel
+    from plant import RobotModel
 
     table = [  # standard DH: a, alpha, d, offset; then the link and its drive
         dict(a=1.0, alpha=0.0, d=0.0, mass=2.0, com=(-0.5, 0, 0),
@@ -56,7 +56,6 @@ def planar_arm():
         dict(a=0.8, alpha=0.0, d=0.0, mass=1.5, com=(-0.4, 0, 0),
              inertia=(0.01, 0.06, 0.08, 0, 0, 0), gear_ratio=30, motor_inertia=1e-4),
     ]
-    assert all(isinstance(Link(**row), Link) for row in table)
     return RobotModel.from_dh(table, gravity=(0.0, -9.81, 0.0), name="planar 2R arm")
 
 

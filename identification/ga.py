@@ -283,16 +283,14 @@ class GASolver:
         return max(len(self._hist) - 1, 0)
 
     @property
-    def x(self) -> np.ndarray:
-        """Best point evaluated so far, shape (n,)."""
-        self.init_population()
-        return np.asarray(self._best[1], dtype=float).copy()
+    def x(self) -> np.ndarray | None:
+        """Best point evaluated so far, shape (n,); None before any evaluation."""
+        return None if self._best is None else np.asarray(self._best[1], dtype=float).copy()
 
     @property
     def fun(self) -> float:
-        """Its objective."""
-        self.init_population()
-        return self._best[0]
+        """Its objective; inf before any evaluation."""
+        return np.inf if self._best is None else self._best[0]
 
     @property
     def nfev(self) -> int:
@@ -302,14 +300,14 @@ class GASolver:
     @property
     def population(self) -> np.ndarray:
         """The current population, decoded, shape (n_subpops * n_ind, n)."""
-        self.init_population()
-        return self.encoding.decode(self._pop[0].reshape(-1, self.encoding.length))
+        chrom = self._chrom0 if self._pop is None else self._pop[0]
+        return self.encoding.decode(chrom.reshape(-1, self.encoding.length))
 
     @property
-    def population_energies(self) -> np.ndarray:
-        """Objectives of :attr:`population`, shape (n_subpops * n_ind,)."""
-        self.init_population()
-        return self._pop[1].reshape(-1).copy()
+    def population_energies(self) -> np.ndarray | None:
+        """Objectives of :attr:`population`, shape (n_subpops * n_ind,); None before
+        :meth:`init_population` (reading a property never runs the objective)."""
+        return None if self._pop is None else self._pop[1].reshape(-1).copy()
 
     # ------------------------------------------------------------------- steps
     def step(self) -> GAState:

@@ -297,6 +297,9 @@ def test_the_solver_steps_to_run_gas_result():
     ref = run_ga(sphere, BOUNDS9, rng=3, n_gen=12, migration_interval=4)
     solver = GASolver(sphere, BOUNDS9, rng=3, n_gen=12, migration_interval=4)
     assert solver.generation == 0 and solver.nfev == 0
+    # reading the state never runs the objective
+    assert solver.x is None and solver.fun == np.inf and solver.population_energies is None
+    assert solver.population.shape == (80, 9) and solver.nfev == 0
     states = []
     for state in solver:  # one generation per step, until n_gen
         assert isinstance(state, GAState) and state.generation == solver.generation

@@ -1,5 +1,7 @@
 """The robot model (plant.robot_model): DH table -> dynamics -> regressor -> base parameters."""
+import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -175,7 +177,7 @@ def test_docstring_examples():
     assert doctest.testmod(plant.robot_model, raise_on_error=False).failed == 0
 
 
-URDF_DIR = __import__("pathlib").Path(__file__).parent / "data" / "urdf"
+URDF_DIR = Path(__file__).parent / "data" / "urdf"
 
 
 def test_urdf_planar_arm_is_the_textbook_arm():
@@ -258,7 +260,7 @@ def test_parameter_ranges_by_interval_arithmetic():
                 kw["inertia"] = [rng.uniform(*np.broadcast_to(v, 2)) for v in r["inertia"]]
             if "motor_inertia" in r:
                 kw["motor_inertia"] = rng.uniform(*r["motor_inertia"])
-            links[i] = __import__("dataclasses").replace(links[i], **kw)
+            links[i] = dataclasses.replace(links[i], **kw)
         robot = RobotModel(links, active=(1, 2))
         p = robot.standard_parameters()
         fv, bv = f(p), base(p)
