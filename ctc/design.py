@@ -204,36 +204,36 @@ class GainDesign:
     ----------
     ts : float
         Sample time (s).
-    Kp : ndarray, shape (2,)
-        Position gains (1/s^2), joints 2 and 3.
-    Kv : ndarray, shape (2,)
+    Kp : ndarray, shape (n_joints,)
+        Position gains (1/s^2) per joint (joints 2 and 3 of the PUMA links 2-3).
+    Kv : ndarray, shape (n_joints,)
         Velocity gains (1/s).
     estimator : str
         ``"observer"`` or ``"difference"``.
-    observer_gain : ndarray, shape (2, 2)
+    observer_gain : ndarray, shape (n_joints, 2)
         Current-estimator gains ``[l_q, l_w]`` per joint (rows), for
         ``"observer"`` (zeros otherwise).
-    alpha : ndarray, shape (2,)
+    alpha : ndarray, shape (n_joints,)
         Pole of the difference low-pass per joint, for ``"difference"``.
-    bandwidth_hz, damping : ndarray, shape (2,)
+    bandwidth_hz, damping : ndarray, shape (n_joints,)
         Design loop bandwidth (Hz) and damping ratio.
-    estimator_bandwidth_hz : ndarray, shape (2,)
+    estimator_bandwidth_hz : ndarray, shape (n_joints,)
         Observer bandwidth or difference cut-off (Hz).
     delay_samples : int
         Computation delay assumed in the analysis.
-    poles : list of 2 ndarray
+    poles : list of n_joints ndarray
         Closed-loop poles (z-plane) per joint.
-    pole_damping, pole_frequency_hz : list of 2 ndarray
+    pole_damping, pole_frequency_hz : list of n_joints ndarray
         Damping ratio and natural frequency (Hz) of each pole (``control.damp``).
-    gain_margin : ndarray, shape (2,)
+    gain_margin : ndarray, shape (n_joints,)
         Upper gain margin (factor; inf if none).
-    phase_margin_deg : ndarray, shape (2,)
+    phase_margin_deg : ndarray, shape (n_joints,)
         Phase margin (deg).
-    stability_margin : ndarray, shape (2,)
+    stability_margin : ndarray, shape (n_joints,)
         Smallest distance of the Nyquist curve from -1.
-    crossover_hz : ndarray, shape (2,)
+    crossover_hz : ndarray, shape (n_joints,)
         Gain-crossover frequency (Hz).
-    phase_crossover_hz : ndarray, shape (2,)
+    phase_crossover_hz : ndarray, shape (n_joints,)
         Phase-crossover frequency of the gain margin (Hz).
     """
 
@@ -384,24 +384,35 @@ def default_bandwidth_hz(rig_or_ts) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (2,)
-        Bandwidth of joints 2 and 3 (Hz).
+    ndarray, shape (n_joints,)
+        Bandwidth per joint (Hz): joints 2 and 3 of the PUMA links 2-3, the
+        rig's joints in order for another robot.
     """
     rig = getattr(rig_or_ts, "rig", rig_or_ts)
     ts = float(getattr(rig, "sample_time_s", rig))
     base = BANDWIDTH_FRACTION / ts
     ppr = getattr(rig, "encoder_ppr", None)
     if ppr is None:
-        return np.full(2, base)
+        return np.full(_n_joints(rig_or_ts), base)
     factor = np.clip(np.sqrt(np.asarray(ppr, dtype=float) / REFERENCE_PPR), 1.0, MAX_RESOLUTION_FACTOR)
     return base * factor
 
 
-def _pair(x, name, positive=True):
-    a = np.broadcast_to(np.asarray(x, dtype=float), (2,)).copy() if np.ndim(x) <= 1 else None
-    if a is None or a.shape != (2,) or not np.all(np.isfinite(a)) or (positive and np.any(a <= 0)):
-        raise ValueError(f"{name} must be a finite positive number or 2 of them, got {x!r}")
+def _per_joint(x, n, name, positive=True):
+    try:
+        a = np.broadcast_to(np.asarray(x, dtype=float), (n,)).copy() if np.ndim(x) <= 1 else None
+    except ValueError:
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)) or (positive and np.any(a <= 0)):
+        raise ValueError(f"{name} must be a finite positive number or {n} of them, got {x!r}")
     return a
+
+
+def _n_joints(rig_or_ts) -> int:
+    """Joints of a rig (its per-joint gear ratios), 2 (the PUMA links 2-3) for a bare Ts."""
+    rig = getattr(rig_or_ts, "rig", rig_or_ts)
+    k = getattr(rig, "gear_ratio", None)
+    return 2 if k is None else len(k)
 
 
 def design_gains(
@@ -421,16 +432,16 @@ def design_gains(
         The rig (its sample time, and its encoders for the default
         bandwidth: after feedback linearisation the error dynamics do not
         depend on the robot) or Ts in s.
-    bandwidth_hz : float or array_like (2,), optional
+    bandwidth_hz : float or array_like (n_joints,), optional
         Natural frequency of the closed-loop error poles (Hz); default
         :func:`default_bandwidth_hz` (``fs / 50``, up to ``fs / 25`` for
         encoders finer than 1000 pulses per revolution).  Must stay below
         ``fs / 6``.
-    damping : float or array_like (2,)
+    damping : float or array_like (n_joints,)
         Damping ratio zeta of the error poles (> 0); default 1.
     estimator : {"observer", "difference"}
         Velocity estimator (see the module docstring).
-    estimator_bandwidth_hz : float or array_like (2,), optional
+    estimator_bandwidth_hz : float or array_like (n_joints,), optional
         Observer bandwidth, or cut-off of the difference low-pass (Hz);
         default 3x ``bandwidth_hz``.  Must stay below ``fs / 3``.
     delay_samples : int
@@ -463,29 +474,30 @@ def design_gains(
     d = int(delay_samples)
     if d < 0 or d != delay_samples:
         raise ValueError(f"delay_samples must be an integer >= 0, got {delay_samples!r}")
-    bw = _pair(default_bandwidth_hz(rig_or_ts) if bandwidth_hz is None else bandwidth_hz,
-               "bandwidth_hz")
-    zeta = _pair(damping, "damping")
+    nj = _n_joints(rig_or_ts)
+    bw = _per_joint(default_bandwidth_hz(rig_or_ts) if bandwidth_hz is None else bandwidth_hz, nj,
+                    "bandwidth_hz")
+    zeta = _per_joint(damping, nj, "damping")
     if np.any(bw >= fs / 6.0):
         raise ValueError(f"bandwidth_hz must be < fs/6 = {fs / 6:.1f} Hz, got {bw.tolist()}")
     factor = OBSERVER_FACTOR if estimator == "observer" else DIFFERENCE_FACTOR
-    ebw = _pair(factor * bw if estimator_bandwidth_hz is None else estimator_bandwidth_hz,
-                "estimator_bandwidth_hz")
+    ebw = _per_joint(factor * bw if estimator_bandwidth_hz is None else estimator_bandwidth_hz, nj,
+                     "estimator_bandwidth_hz")
     if np.any(ebw >= fs / 3.0):
         raise ValueError(f"estimator_bandwidth_hz must be < fs/3 = {fs / 3:.1f} Hz, got {ebw.tolist()}")
 
-    kp = np.empty(2)
-    kv = np.empty(2)
-    lg = np.zeros((2, 2))
-    alpha = np.zeros(2)
+    kp = np.empty(nj)
+    kv = np.empty(nj)
+    lg = np.zeros((nj, 2))
+    alpha = np.zeros(nj)
     poles, pz, pw = [], [], []
-    gm = np.empty(2)
-    pm = np.empty(2)
-    sm = np.empty(2)
-    wg = np.empty(2)
-    wp = np.empty(2)
+    gm = np.empty(nj)
+    pm = np.empty(nj)
+    sm = np.empty(nj)
+    wg = np.empty(nj)
+    wp = np.empty(nj)
     plant = double_integrator(ts, d)
-    for j in range(2):
+    for j in range(nj):
         w = 2.0 * math.pi * bw[j]
         kp[j], kv[j] = _pd_gains(ts, w, zeta[j])
         if estimator == "observer":

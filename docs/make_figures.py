@@ -67,6 +67,11 @@ it in ``optimisers``):
     ``benchmarks/bench_changes.py --n 60 --seed 20261122 --jobs 2``: mid-run
     changes on the independent simulator, P / static CTC / adaptive CTC
     (``figures/changes.rst``, ``figures/changes.txt``).
+``arms``
+    ``benchmarks/bench_arms.py --n 8 6 4 --seed 20261122``: any serial arm
+    (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
+    independent simulator (``figures/arms.rst``), and
+    ``examples/any_arm.py --robot planar2`` (``figures/any_arm.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -98,7 +103,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes")
+            "robustness", "changes", "arms")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -317,6 +322,17 @@ def changes(ctx):
     text, wall = _run(["benchmarks/bench_changes.py", *q, "--seed", "20261122", "--jobs", "2",
                        "--rst", ctx["raw"] / "changes.rst"], ctx["raw"], "bench_changes")
     return {"printed": text.splitlines()[-30:], "wall_s": wall}
+
+
+def arms(ctx):
+    q = ["--n", "1", "1", "1"] if ctx["quick"] else ["--n", "8", "6", "4"]
+    text, wall = _run(["benchmarks/bench_arms.py", *q, "--seed", "20261122",
+                       "--rst", ctx["raw"] / "arms.rst"], ctx["raw"], "bench_arms")
+    # relative --out: the printed paths do not depend on where the repository is
+    ex, wall_ex = _run(["examples/any_arm.py", "--robot", "planar2", "--out", "out/any_arm"],
+                       ctx["raw"], "any_arm")
+    return {"printed": text.splitlines()[-20:], "wall_s": wall, "example": ex.splitlines(),
+            "example_wall_s": wall_ex}
 
 
 # -------------------------------------------------------------------------------- main

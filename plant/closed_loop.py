@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from .anchors import REANCHOR
@@ -59,24 +60,29 @@ __all__ = [
 DEFAULT_CLOSED_LOOP_SUBSTEPS = 32
 
 
-@kernel
-def _read(X, enc, c, r2, r3):
-    """Encoder counts and pulse errors of lane 0: (act2, act3, e2, e3)."""
-    _, a2 = encoder_read(X[enc, 0], c.pulses_per_rad[0])
-    _, a3 = encoder_read(X[enc + 1, 0], c.pulses_per_rad[1])
-    _, t2 = encoder_read(r2, 1.0)
-    _, t3 = encoder_read(r3, 1.0)
-    return a2, a3, t2 - a2, t3 - a3
+def _read_py(X, enc, c, ref, act, err):
+    """Encoder counts ``act`` and pulse errors ``err`` (n,) of lane 0 against the reference counts."""
+    for m in range(act.shape[0]):
+        _, a = encoder_read(X[enc + m, 0], c.pulses_per_rad[m])
+        _, t = encoder_read(ref[m], 1.0)
+        act[m] = a
+        err[m] = t - a
 
 
-@kernel
-def _step(kind, lanes, c, substeps, k, i2, i3):
-    """Hold the currents (i2, i3) and advance lane 0 over sample ``k``; returns the status."""
+def _step_py(kind, lanes, c, substeps, k, i):
+    """Hold the currents ``i`` (n,) and advance lane 0 over sample ``k``; returns the status."""
     P, X, U, A, S, E, idx, W = lanes
-    U[0, 0] = i2
-    U[1, 0] = i3
+    for m in range(U.shape[0]):
+        U[m, 0] = i[m]
     advance_sample(kind, P, c, X, U, A, S, W, 1, substeps, k % REANCHOR == 0)
     return S[0]
+
+
+_read = kernel(_read_py)
+_step = kernel(_step_py)
+# a generated robot's kind (plant.arm) cannot be cached on disk: compiled per process
+_read_arm = numba.njit(nogil=True, error_model="numpy")(_read_py)
+_step_arm = numba.njit(nogil=True, error_model="numpy")(_step_py)
 
 
 def simulate_closed_loop(
@@ -92,6 +98,7 @@ def simulate_closed_loop(
     flexible=None,
     label=None,
     f_schedule=None,
+    plant=None,
 ):
     """Simulate the sampled closed loop of the robot ``f_robot`` and ``controller``.
 
@@ -102,14 +109,16 @@ def simulate_closed_loop(
         gravity, start state, current full scale) and, for a log, of the
         default reference trajectory and run length (``log.n_total`` samples
         from t = 0).
-    f_robot : array_like, shape (9,)
+    f_robot : array_like, shape (9,) or (r,)
         True base parameters f1..f9 of the simulated robot (may differ from
-        the controller's model); rigid-equivalent for a flexible robot.
+        the controller's model); rigid-equivalent for a flexible robot.  With
+        ``plant`` a robot model's arm: its base parameters beta (r,).
     controller : callable
         Follows the sampled-controller protocol: ``reset()`` (called once
         before the run) and ``controller(k, t, q_meas, e_pulses)`` returning
-        the two motor currents (A); ``q_meas`` (2,) rad are the quantised
-        encoder angles, ``e_pulses`` (2,) int64 the pulse errors ref - act.
+        the n motor currents (A); ``q_meas`` (n,) rad are the quantised
+        encoder angles, ``e_pulses`` (n,) int64 the pulse errors ref - act
+        (n = 2 for the PUMA links 2-3).
     trajectory : plant.trajectory.Trajectory, optional
         Reference (default: the log's); required with a Rig.
     n_samples : int, optional
@@ -127,7 +136,11 @@ def simulate_closed_loop(
         Changes of the robot during the run: from the first sample at or
         after ``t_s`` on, the robot is ``f`` (e.g. a payload picked up:
         ``[(1.0, plant.add_payload(f, payload, a3))]``); the state carries
-        over.
+        over.  With ``plant``: base parameters beta (r,).
+    plant : plant.arm.ArmPlant, optional
+        Simulate a robot model's rigid arm (:func:`plant.arm.arm_plant`)
+        instead of the PUMA 560 links 2-3; the rig and the trajectory must
+        have its joint count.
 
     Returns
     -------
@@ -159,35 +172,58 @@ def simulate_closed_loop(
     if n < 1:
         raise ValueError(f"n_samples must be >= 1, got {n_samples}")
     substeps = check_substeps(substeps)
-    f = checked_f(f_robot, "f_robot")
     if not callable(controller) or not callable(getattr(controller, "reset", None)):
         raise ValueError("controller must be callable and have a reset() method (sampled-controller protocol)")
     c = rig_constants(rig, q0=q0, qd0=qd0)
-    plant = RIGID if flexible is None else flexible
-    if flexible is not None and not is_positive_definite(flexible.link_parameters(f, rig)):
+    arm = plant is not None
+    if arm:
+        from .arm import ArmPlant
+
+        if not isinstance(plant, ArmPlant) or flexible is not None:
+            raise ValueError("plant must be a plant.arm.ArmPlant (and flexible None)")
+        if len(c.pulses_per_rad) != plant.n_joints:
+            raise ValueError(f"the rig has {len(c.pulses_per_rad)} joints, the robot {plant.n_joints}")
+
+        def lane_parameters(values, what):
+            return plant.lane_parameters(np.asarray(values, dtype=float).reshape(1, -1))
+        read, step = _read_arm, _step_arm
+    else:
+        plant = RIGID if flexible is None else flexible
+
+        def lane_parameters(values, what):
+            return plant.lane_parameters(checked_f(values, what)[None], rig)
+        read, step = _read, _step
+    P0 = lane_parameters(f_robot, "f_robot")
+    if flexible is not None and not is_positive_definite(
+            flexible.link_parameters(checked_f(f_robot, "f_robot"), rig)):
         raise ValueError("link f of the flexible robot (f minus Jm k^2) gives a non-PD D(q)")
+    nj = len(c.pulses_per_rad)
 
     ts = c.sample_time_s
     t = np.arange(n) * ts
     q_ref = np.ascontiguousarray(trajectory.position(t), dtype=float)
     # the same expression as plant.simulate.reference_counts, so both agree bit for bit
     ref = np.ascontiguousarray(trajectory.position(t) * rig.pulses_per_rad)
-    s2, s3 = c.pulses_per_rad
+    if q_ref.shape != (n, nj):
+        raise ValueError(f"the trajectory has {q_ref.shape[1]} joints, the rig {nj}")
+    spr = np.asarray(c.pulses_per_rad)
     i_fs = rig.current_full_scale_A
     i_fs = math.inf if i_fs is None else float(i_fs)
 
-    lanes = new_lanes(plant.lane_parameters(f[None], rig), 0, 1, plant.initial_state(c))
+    lanes = new_lanes(P0, 0, 1, plant.initial_state(c), n_inputs=nj, n_angles=2 if not arm else nj)
     X = lanes.X
     enc = plant.encoder_row
 
-    Q = np.zeros((n, 2))
-    QD = np.zeros((n, 2))
-    E = np.zeros((n, 2), dtype=np.int64)
-    I = np.zeros((n, 2))
+    Q = np.zeros((n, nj))
+    QD = np.zeros((n, nj))
+    E = np.zeros((n, nj), dtype=np.int64)
+    I = np.zeros((n, nj))
+    act = np.zeros(nj)
+    err = np.zeros(nj)
     changes = []
     for t_s, f_new in (f_schedule or ()):
         k_s = max(0, int(math.ceil(float(t_s) / ts - 1e-9)))
-        changes.append((k_s, plant.lane_parameters(checked_f(f_new, "f_schedule f")[None], rig)))
+        changes.append((k_s, lane_parameters(f_new, "f_schedule f")))
     changes.sort(key=lambda ch: ch[0])
     controller.reset()
     status = STATUS_OK
@@ -196,30 +232,26 @@ def simulate_closed_loop(
     for k in range(n):
         while changes and changes[0][0] <= k:  # the robot changes (payload picked up)
             lanes.P[:, :] = changes.pop(0)[1]
-        a2, a3, e2, e3 = _read(X, enc, c, ref[k, 0], ref[k, 1])
-        Q[k] = X[0:2, 0]
-        QD[k] = X[2:4, 0]
-        E[k, 0] = e2
-        E[k, 1] = e3
-        i = controller(k, k * ts, np.array([a2 / s2, a3 / s3]), E[k].copy())
+        read(X, enc, c, ref[k], act, err)
+        Q[k] = X[0:nj, 0]
+        QD[k] = X[nj:2 * nj, 0]
+        E[k] = err
+        i = controller(k, k * ts, act / spr, E[k].copy())
         try:
-            i2 = float(i[0])
-            i3 = float(i[1])
-            if len(i) != 2:
+            iv = np.array([float(v) for v in i])
+            if iv.shape != (nj,):
                 raise TypeError
         except (TypeError, IndexError, ValueError):
-            raise ValueError(f"controller must return 2 currents (A), got {i!r} at sample {k}") from None
-        if not (math.isfinite(i2) and math.isfinite(i3)):
-            raise ValueError(f"controller returned non-finite currents {i2!r}, {i3!r} at sample {k}")
-        if abs(i2) >= i_fs or abs(i3) >= i_fs:  # saturated, by the controller or the drive
+            raise ValueError(f"controller must return {nj} currents (A), got {i!r} at sample {k}") from None
+        if not np.all(np.isfinite(iv)):
+            raise ValueError(f"controller returned non-finite currents {iv.tolist()!r} at sample {k}")
+        if np.any(np.abs(iv) >= i_fs):  # saturated, by the controller or the drive
             n_clipped += 1
-            i2 = min(max(i2, -i_fs), i_fs)
-            i3 = min(max(i3, -i_fs), i_fs)
-        I[k, 0] = i2
-        I[k, 1] = i3
+            iv = np.minimum(np.maximum(iv, -i_fs), i_fs)
+        I[k] = iv
         if k == n - 1:
             break
-        st = _step(plant.kind, lanes, c, substeps, k, i2, i3)
+        st = step(plant.kind, lanes, c, substeps, k, iv)
         if st != STATUS_OK:
             status = st
             n_done = k + 1
@@ -233,11 +265,12 @@ def simulate_closed_loop(
         success=status == STATUS_OK, message=msg,
         label=label if label is not None else type(controller).__name__,
         n_clipped=n_clipped,
+        joint_names=plant.model.joint_names if arm else ("q2", "q3"),
     )
 
 
 def warm_kernels():
     c, Pall, ref, _ = dummy_problem()
     lanes = new_lanes(Pall, 0, 1, RIGID.initial_state(c))
-    _read(lanes.X, 0, c, 0.0, 0.0)
-    _step(RIGID.kind, lanes, c, 1, 0, 0.0, 0.0)
+    _read(lanes.X, 0, c, np.zeros(2), np.zeros(2), np.zeros(2))
+    _step(RIGID.kind, lanes, c, 1, 0, np.zeros(2))

@@ -33,16 +33,20 @@ functions of this module and nothing else::
   run.)
 
 A plant's right-hand side is a function of one lane with the signature
-``rhs(p, c, x, u2, u3, s2, c2, s3, c3) -> (xdot, margin)``: the lane's
-parameters ``p`` (a tuple of n_par floats, :func:`lane_parameters`), the rig
-layout ``c`` (:class:`plant.rig.RigConstants`), the stage state ``x`` (a
-tuple of n_x floats), the held motor currents ``u2, u3`` (A) and the sine
-and cosine of the stage's link angles; it returns the state derivative (a
-tuple of n_x floats) and a positive-definiteness margin (det D(q); a stage
-with a margin <= 0 is rejected).  ``x[0]`` and ``x[1]`` of every plant's
-state are the link angles q2, q3 (the only angles whose sine and cosine the
-dynamics need).  No arrays cross the right-hand side, so nothing is
-reference-counted inside the loops.
+``rhs(p, c, x, u, sc) -> (xdot, margin)``: the lane's parameters ``p`` (a
+tuple of n_par floats, :func:`lane_parameters`), the rig layout ``c`` (a
+``NamedTuple`` with at least ``sample_time_s``, e.g.
+:class:`plant.rig.RigConstants`), the stage state ``x`` (a tuple of n_x
+floats), the held motor currents ``u`` (a tuple of n_u floats, A; one per
+driven joint) and ``sc = (sin x[0], cos x[0], ..., sin x[m-1], cos x[m-1])``
+for the plant's first m states, its angles whose sine and cosine the
+dynamics need; it returns the state derivative (a tuple of n_x floats) and a
+positive-definiteness margin (e.g. det D(q) or the smallest Cholesky pivot;
+a stage with a margin <= 0 is rejected).  The sizes n_x, n_par, n_u and m
+are the plant's registration (:func:`plant.plants.register_plant`): the
+PUMA 560 links 2-3 have n_u = m = 2 (q2, q3), a robot model's rigid arm
+(:mod:`plant.arm`) one of each per joint.  No arrays cross the right-hand
+side, so nothing is reference-counted inside the loops.
 
 Lanes
 -----
@@ -90,7 +94,7 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
-from .anchors import lane_sincos, update_anchors
+from .anchors import lane_sincos, update_anchors, update_anchors_impl
 from .plants import RIGHT_HAND_SIDES
 
 __all__ = [
@@ -106,6 +110,9 @@ __all__ = [
     "rk4_lane",
     "lane_state",
     "lane_parameters",
+    "lane_inputs",
+    "lane_anchors",
+    "anchors_update",
     "store_lane_state",
     "advance_sample",
     "new_workspace",
@@ -296,6 +303,72 @@ def _lane_parameters_overload(kind, P, j):
     return _tuple_impl("kind, P, j", _registered(kind).n_parameters, lambda i: f"P[{i}, j]")
 
 
+def lane_inputs(kind, U, j):
+    """Lane ``j``'s held motor currents as a tuple ``(U[0, j], ..., U[n_u - 1, j])``.
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A plant kind (its registered input count gives ``n_u``).
+    U : ndarray, shape (n_u, lanes)
+        Motor currents (A).
+    j : int
+        Lane.
+
+    Returns
+    -------
+    tuple of n_u float
+    """
+    return tuple(float(v) for v in U[:RIGHT_HAND_SIDES[type(kind)].n_inputs, j])
+
+
+@overload(lane_inputs, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _lane_inputs_overload(kind, U, j):
+    return _tuple_impl("kind, U, j", _registered(kind).n_inputs, lambda i: f"U[{i}, j]")
+
+
+def lane_anchors(kind, A, j):
+    """Lane ``j``'s trigonometric anchors as a tuple of ``3 m`` floats (:mod:`plant.anchors`).
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A plant kind (its registered angle count gives ``m``).
+    A : ndarray, shape (3 m, lanes)
+        Anchors.
+    j : int
+        Lane.
+
+    Returns
+    -------
+    tuple of 3 m float
+    """
+    return tuple(float(v) for v in A[:3 * RIGHT_HAND_SIDES[type(kind)].n_angles, j])
+
+
+@overload(lane_anchors, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _lane_anchors_overload(kind, A, j):
+    return _tuple_impl("kind, A, j", 3 * _registered(kind).n_angles, lambda i: f"A[{i}, j]")
+
+
+def anchors_update(kind, X, A, n, reanchor):
+    """:func:`plant.anchors.update_anchors` for plant ``kind`` (compiled per its angle count).
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A plant kind (its registered ``n_angles`` gives m).
+    X, A, n, reanchor
+        As :func:`plant.anchors.update_anchors`.
+    """
+    update_anchors(X, A, n, reanchor)
+
+
+@overload(anchors_update, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
+def _anchors_update_overload(kind, X, A, n, reanchor):
+    return update_anchors_impl(_registered(kind).n_angles)
+
+
 def store_lane_state(X, j, x):
     """``X[:, j] = x`` for a state tuple ``x``.
 
@@ -365,8 +438,8 @@ def _all_finite_overload(x):
 # ----------------------------------------------------------------------------
 # The right-hand side of a plant kind, and one RK4 step of one lane
 # ----------------------------------------------------------------------------
-def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
-    """The right-hand side of plant ``kind`` for lane ``j``: the one place a kind becomes its function.
+def plant_rhs(kind, p, c, x, u, sc):
+    """The right-hand side of plant ``kind`` for one lane: the one place a kind becomes its function.
 
     In compiled code the *type* of ``kind`` selects the function at
     compile time (:data:`plant.plants.RIGHT_HAND_SIDES` maps kind classes to
@@ -377,8 +450,10 @@ def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
     ----------
     kind : NamedTuple
         A plant's :attr:`~plant.plants.Plant.kind`.
-    p, c, x, u2, u3, s2, c2, s3, c3
-        As the right-hand sides of :mod:`plant.plants` (module docstring).
+    p, c, x, u, sc
+        As the right-hand sides of :mod:`plant.plants` (module docstring):
+        parameters (n_par,), rig layout, state (n_x,), held currents (n_u,)
+        and sin/cos of the m angles (2 m,).
 
     Returns
     -------
@@ -392,27 +467,27 @@ def plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3):
     KeyError
         Called from Python, for a kind that is not registered.
     """
-    return RIGHT_HAND_SIDES[type(kind)].function(p, c, x, u2, u3, s2, c2, s3, c3)
+    return RIGHT_HAND_SIDES[type(kind)].function(p, c, x, u, sc)
 
 
 @overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"))
-def _plant_rhs_overload(kind, p, c, x, u2, u3, s2, c2, s3, c3):
+def _plant_rhs_overload(kind, p, c, x, u, sc):
     rhs = _registered(kind).function
 
-    def impl(kind, p, c, x, u2, u3, s2, c2, s3, c3):
-        return rhs(p, c, x, u2, u3, s2, c2, s3, c3)
+    def impl(kind, p, c, x, u, sc):
+        return rhs(p, c, x, u, sc)
 
     return impl
 
 
 @numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop
-def rk4_lane(kind, p, c, x, u2, u3, a, hh, h, h6, exact):
-    """One classical RK4 step of lane ``j`` from state ``x`` with held currents (u2, u3).
+def rk4_lane(kind, p, c, x, u, a, hh, h, h6, exact):
+    """One classical RK4 step of one lane from state ``x`` with held currents ``u``.
 
-    The stages take sin/cos of the link angles by angle addition from the
-    lane's anchors ``a`` (:func:`plant.anchors.lane_sincos`); with ``exact``
-    a stage further than :data:`~plant.anchors.SINCOS_RANGE` from the anchors
-    takes them from libm instead.
+    The stages take sin/cos of the angles by angle addition from the lane's
+    anchors ``a`` (:func:`plant.anchors.lane_sincos`); with ``exact`` a stage
+    further than :data:`~plant.anchors.SINCOS_RANGE` from the anchors takes
+    them from libm instead.
 
     Parameters
     ----------
@@ -420,14 +495,14 @@ def rk4_lane(kind, p, c, x, u2, u3, a, hh, h, h6, exact):
         Plant kind.
     p : tuple of n_par float
         The lane's plant parameters (:func:`lane_parameters`).
-    c : plant.rig.RigConstants
-        Rig layout.
+    c : NamedTuple
+        Rig layout (:class:`plant.rig.RigConstants`).
     x : tuple of n_x float
         State at the step's start.
-    u2, u3 : float
+    u : tuple of n_u float
         Held motor currents (A).
-    a : tuple of 6 float
-        The lane's anchors (q2, sin q2, cos q2, q3, sin q3, cos q3).
+    a : tuple of 3 m float
+        The lane's anchors (per angle: q, sin q, cos q).
     hh, h, h6 : float
         Half step, step and step / 6 (s).
     exact : bool
@@ -438,30 +513,30 @@ def rk4_lane(kind, p, c, x, u2, u3, a, hh, h, h6, exact):
     x_next : tuple of n_x float
         State after the step.
     ok : bool
-        D(q) positive definite at all four stages.
+        Positive-definiteness margin > 0 at all four stages.
     near : bool
         All four stages within range of the anchors (always reported, also
         with ``exact``).
     """
-    s2, c2, s3, c3, n1 = lane_sincos(x[0], x[1], a, exact)
-    k1, m1 = plant_rhs(kind, p, c, x, u2, u3, s2, c2, s3, c3)
+    sc, n1 = lane_sincos(x, a, exact)
+    k1, m1 = plant_rhs(kind, p, c, x, u, sc)
     x2 = _axpy(x, hh, k1)
-    s2, c2, s3, c3, n2 = lane_sincos(x2[0], x2[1], a, exact)
-    k2, m2 = plant_rhs(kind, p, c, x2, u2, u3, s2, c2, s3, c3)
+    sc, n2 = lane_sincos(x2, a, exact)
+    k2, m2 = plant_rhs(kind, p, c, x2, u, sc)
     x3 = _axpy(x, hh, k2)
-    s2, c2, s3, c3, n3 = lane_sincos(x3[0], x3[1], a, exact)
-    k3, m3 = plant_rhs(kind, p, c, x3, u2, u3, s2, c2, s3, c3)
+    sc, n3 = lane_sincos(x3, a, exact)
+    k3, m3 = plant_rhs(kind, p, c, x3, u, sc)
     x4 = _axpy(x, h, k3)
-    s2, c2, s3, c3, n4 = lane_sincos(x4[0], x4[1], a, exact)
-    k4, m4 = plant_rhs(kind, p, c, x4, u2, u3, s2, c2, s3, c3)
+    sc, n4 = lane_sincos(x4, a, exact)
+    k4, m4 = plant_rhs(kind, p, c, x4, u, sc)
     ok = (m1 > 0.0) & (m2 > 0.0) & (m3 > 0.0) & (m4 > 0.0)
     return _rk4_sum(x, h6, k1, k2, k3, k4), ok, n1 & n2 & n3 & n4
 
 
 @_jit
-def _rk4_lane_exact(kind, p, c, x, u2, u3, a, hh, h, h6):
+def _rk4_lane_exact(kind, p, c, x, u, a, hh, h, h6):
     """:func:`rk4_lane` with libm for far stages (a compiled call: rare lanes only)."""
-    return rk4_lane(kind, p, c, x, u2, u3, a, hh, h, h6, True)
+    return rk4_lane(kind, p, c, x, u, a, hh, h, h6, True)
 
 
 @numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.core)
@@ -488,10 +563,10 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
         Rig layout.
     X : ndarray, shape (n_x, lanes)
         State at the sample's start; advanced in place.
-    U : ndarray, shape (2, lanes)
+    U : ndarray, shape (n_u, lanes)
         Motor currents (A) held over the sample.
-    A : ndarray, shape (6, lanes)
-        Trigonometric anchors (see the module docstring); updated in place.
+    A : ndarray, shape (3 m, lanes)
+        Trigonometric anchors (:mod:`plant.anchors`); updated in place.
     S : ndarray, shape (lanes,), int64
         Status per lane: set to :data:`STATUS_NOT_PD` (the lane keeps the
         state of the step's start) or :data:`STATUS_NONFINITE` on failure (a
@@ -508,14 +583,13 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     h = c.sample_time_s / substeps
     hh = 0.5 * h
     h6 = h * (1.0 / 6.0)
-    update_anchors(X, A, n, reanchor)
+    anchors_update(kind, X, A, n, reanchor)
     for _ in range(substeps):
         far = 0
         for j in range(n):  # SIMD over the lanes
             x = lane_state(kind, X, j)
-            a = (A[0, j], A[1, j], A[2, j], A[3, j], A[4, j], A[5, j])
-            xn, ok, near = rk4_lane(kind, lane_parameters(kind, P, j), c, x, U[0, j], U[1, j], a, hh, h,
-                                       h6, False)
+            xn, ok, near = rk4_lane(kind, lane_parameters(kind, P, j), c, x, lane_inputs(kind, U, j),
+                                    lane_anchors(kind, A, j), hh, h, h6, False)
             store_lane_state(X, j, _select(ok & near, xn, x))
             W[j] = _LANE_DONE if ok else _LANE_NOT_PD
             if not near:
@@ -525,9 +599,9 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
             for j in range(n):
                 if W[j] == _LANE_FAR:
                     x = lane_state(kind, X, j)
-                    a = (A[0, j], A[1, j], A[2, j], A[3, j], A[4, j], A[5, j])
-                    xn, ok, _ = _rk4_lane_exact(kind, lane_parameters(kind, P, j), c, x, U[0, j],
-                                                   U[1, j], a, hh, h, h6)
+                    xn, ok, _ = _rk4_lane_exact(kind, lane_parameters(kind, P, j), c, x,
+                                                lane_inputs(kind, U, j), lane_anchors(kind, A, j),
+                                                hh, h, h6)
                     store_lane_state(X, j, _select(ok, xn, x))
                     W[j] = _LANE_DONE if ok else _LANE_NOT_PD
         for j in range(n):

@@ -83,7 +83,7 @@ def friction_fields(v) -> dict:
 
 
 @_jit
-def rigid_friction_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
+def rigid_friction_rhs(p, c, x, u, sc):
     """Right-hand side of the rigid robot with per-lane drive friction.
 
     As :func:`plant.plants.rigid_rhs`, with the lane's joint-side friction
@@ -98,10 +98,10 @@ def rigid_friction_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
         Rig layout.
     x : tuple of 4 float
         Stage state (q2, q3, qd2, qd3).
-    u2, u3 : float
+    u : tuple of 2 float
         Held motor currents (A).
-    s2, c2, s3, c3 : float
-        sin and cos of the stage's q2 and q3.
+    sc : tuple of 4 float
+        sin q2, cos q2, sin q3, cos q3 of the stage.
 
     Returns
     -------
@@ -110,7 +110,7 @@ def rigid_friction_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
     margin : float
         det D(q), or -1 where f1 <= 0.
     """
-    return rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, (p[_FR_V], p[_FR_V + 1]),
+    return rigid_derivative(p, c, x, u, sc, (p[_FR_V], p[_FR_V + 1]),
                             (p[_FR_P], p[_FR_P + 1]), (p[_FR_N], p[_FR_N + 1]))
 
 

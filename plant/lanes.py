@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .anchors import N_ANCHOR_ROWS
+from .anchors import anchor_rows
 from .core import STATUS_OK, STATUS_STOPPED, new_workspace, padded_lanes
 from .parallel import as_float_array
 
@@ -34,9 +34,9 @@ class Lanes(NamedTuple):
         Plant parameters.
     X : ndarray, shape (n_x, lanes)
         State (the start state in every column).
-    U : ndarray, shape (2, lanes)
+    U : ndarray, shape (n_u, lanes)
         Held motor currents (A).
-    A : ndarray, shape (6, lanes)
+    A : ndarray, shape (3 m, lanes)
         Trigonometric anchors (:mod:`plant.anchors`).
     S : ndarray, shape (lanes,), int64
         Status per lane.
@@ -59,7 +59,7 @@ class Lanes(NamedTuple):
     W: tuple
 
 
-def new_lanes(Pall, lo, hi, x0) -> Lanes:
+def new_lanes(Pall, lo, hi, x0, n_inputs=2, n_angles=2) -> Lanes:
     """Lane arrays of candidates ``lo:hi`` of ``Pall`` (n_par, m).
 
     Columns beyond ``hi - lo`` (SIMD padding, :func:`plant.core.padded_lanes`)
@@ -73,6 +73,9 @@ def new_lanes(Pall, lo, hi, x0) -> Lanes:
         The chunk's candidates.
     x0 : ndarray, shape (n_x,)
         Start state.
+    n_inputs, n_angles : int
+        The plant's motor currents and angles (its registration,
+        :class:`plant.plants.RightHandSide`; 2 and 2 for the PUMA links 2-3).
 
     Returns
     -------
@@ -83,7 +86,7 @@ def new_lanes(Pall, lo, hi, x0) -> Lanes:
     idx[hi - lo:] = lo
     nx = x0.shape[0]
     return Lanes(np.ascontiguousarray(Pall[:, idx]), np.ascontiguousarray(np.tile(x0[:, None], (1, lanes))),
-                 np.zeros((2, lanes)), np.zeros((N_ANCHOR_ROWS, lanes)),
+                 np.zeros((int(n_inputs), lanes)), np.zeros((anchor_rows(n_angles), lanes)),
                  np.zeros(lanes, dtype=np.int64), np.zeros(lanes), idx,
                  new_workspace(nx, lanes))
 
@@ -152,7 +155,7 @@ def _move_lane(P, X, U, A, S, E, idx, CS, dst, src):
         P[i, dst] = P[i, src]
     for i in range(X.shape[0]):
         X[i, dst] = X[i, src]
-    for i in range(2):
+    for i in range(U.shape[0]):
         U[i, dst] = U[i, src]
     for i in range(A.shape[0]):
         A[i, dst] = A[i, src]

@@ -1,7 +1,7 @@
 """Plants of the closed-loop core: the robot's right-hand side, rigid or flexible.
 
-A plant is a right-hand side of one lane, ``rhs(p, c, x, u2, u3, s2, c2,
-s3, c3) -> (xdot, margin)``, of the core (:mod:`plant.core`, where the
+A plant is a right-hand side of one lane, ``rhs(p, c, x, u, sc) -> (xdot,
+margin)``, of the core (:mod:`plant.core`, where the
 signature is described), registered under a kind (a type tag) by
 :func:`register_plant` in :data:`RIGHT_HAND_SIDES`, together with its state
 layout (:class:`Plant`): which rows the motor encoders read, how many
@@ -13,6 +13,9 @@ rig's.  Two plants are defined here:
 * :class:`FlexibleJoints` -- Spong's two-mass flexible joints, state
   ``(q2, q3, qd2, qd3, th2, th3, thd2, thd3)`` (link, then motor angle / k),
   the encoders read th.
+
+A robot model's rigid n-joint arm (:class:`plant.arm.ArmPlant`) registers
+its own kind, generated from the model.
 
 Both add the joint-side drive friction of the rig (motor side: viscous and
 asymmetric Coulomb with a linear ramp; :func:`plant.model.friction_torque`)
@@ -172,11 +175,11 @@ class Plant:
         -------
         ndarray, shape (n_states,)
         """
-        return np.array([c.q0[0], c.q0[1], c.qd0[0], c.qd0[1]])
+        return np.array(list(c.q0) + list(c.qd0), dtype=float)
 
 
 @_jit
-def rigid_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
+def rigid_rhs(p, c, x, u, sc):
     """Right-hand side of the rigid robot (paper eq. 2) for one lane.
 
     State ``x = (q2, q3, qd2, qd3)``; parameters ``p = (f1, ..., f9)``.  See
@@ -190,10 +193,10 @@ def rigid_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
         Rig layout.
     x : tuple of 4 float
         Stage state (rad, rad/s).
-    u2, u3 : float
-        Held motor currents (A).
-    s2, c2, s3, c3 : float
-        sin and cos of the stage's q2 and q3.
+    u : tuple of 2 float
+        Held motor currents (A) of joints 2 and 3.
+    sc : tuple of 4 float
+        sin q2, cos q2, sin q3, cos q3 of the stage.
 
     Returns
     -------
@@ -202,12 +205,11 @@ def rigid_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
     margin : float
         det D(q), or -1 where f1 <= 0.
     """
-    return rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, c.viscous, c.coulomb_pos,
-                            c.coulomb_neg)
+    return rigid_derivative(p, c, x, u, sc, c.viscous, c.coulomb_pos, c.coulomb_neg)
 
 
 @_jit
-def rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, viscous, coulomb_pos, coulomb_neg):
+def rigid_derivative(p, c, x, u, sc, viscous, coulomb_pos, coulomb_neg):
     """The rigid robot's state derivative with the given joint-side friction.
 
     The one copy of the rigid right-hand side: :func:`rigid_rhs` passes the
@@ -215,7 +217,7 @@ def rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, viscous, coulomb_pos, coul
 
     Parameters
     ----------
-    p, c, x, u2, u3, s2, c2, s3, c3
+    p, c, x, u, sc
         As :func:`rigid_rhs` (only ``p[0:9]`` is read).
     viscous, coulomb_pos, coulomb_neg : tuple of 2 float
         Joint-side viscous coefficients (N m s/rad) and Coulomb levels for
@@ -229,6 +231,8 @@ def rigid_derivative(p, c, x, u2, u3, s2, c2, s3, c3, viscous, coulomb_pos, coul
     margin : float
         det D(q), or -1 where f1 <= 0.
     """
+    u2, u3 = u
+    s2, c2, s3, c3 = sc
     w2 = x[2]
     w3 = x[3]
     tau2 = c.torque_per_amp[0] * u2 + friction_torque(
@@ -250,11 +254,17 @@ class RightHandSide(NamedTuple):
         Length of the state tuple it takes and returns.
     n_parameters : int
         Length of the per-lane parameter tuple it takes.
+    n_inputs : int
+        Held motor currents it takes (one per driven joint).
+    n_angles : int
+        Leading state components whose sine and cosine it takes.
     """
 
     function: Callable
     n_states: int
     n_parameters: int
+    n_inputs: int = 2
+    n_angles: int = 2
 
 
 #: Registry of the core: plant kind class -> :class:`RightHandSide`
@@ -262,7 +272,8 @@ class RightHandSide(NamedTuple):
 RIGHT_HAND_SIDES: dict = {}
 
 
-def register_plant(kind_class, rhs, n_states: int, n_parameters: int) -> None:
+def register_plant(kind_class, rhs, n_states: int, n_parameters: int, n_inputs: int = 2,
+                   n_angles: int = 2) -> None:
     """Register a right-hand side under a plant kind class (see the module docstring).
 
     Parameters
@@ -270,23 +281,32 @@ def register_plant(kind_class, rhs, n_states: int, n_parameters: int) -> None:
     kind_class : type
         A ``NamedTuple`` class whose instances are the plant's kind.
     rhs : numba dispatcher
-        The compiled right-hand side ``rhs(p, c, x, u2, u3, s2, c2, s3, c3)
-        -> (xdot, margin)`` with ``x`` and ``xdot`` tuples of ``n_states``
-        floats and ``p`` a tuple of ``n_parameters`` floats.
+        The compiled right-hand side ``rhs(p, c, x, u, sc) -> (xdot,
+        margin)`` with ``x`` and ``xdot`` tuples of ``n_states`` floats,
+        ``p`` a tuple of ``n_parameters`` floats, ``u`` of ``n_inputs``
+        currents and ``sc`` the sine and cosine of the first ``n_angles``
+        states (:mod:`plant.core`).
     n_states : int
-        State components; rows 0, 1 are the link angles q2, q3.
+        State components; rows ``0..n_angles-1`` are the angles.
     n_parameters : int
         Per-lane parameters (rows of the plant's P).
+    n_inputs : int
+        Motor currents (rows of the plant's U); 2 for the PUMA links 2-3.
+    n_angles : int
+        Angles whose sine and cosine the right-hand side takes.
 
     Raises
     ------
     ValueError
-        If ``n_states < 2`` or ``n_parameters < 1``.
+        If ``n_parameters < 1``, ``n_inputs < 1`` or ``n_angles`` is not in
+        ``1..n_states``.
     """
-    if int(n_states) < 2 or int(n_parameters) < 1:
-        raise ValueError("a plant has at least the two link angles as states and one parameter, "
-                         f"got n_states={n_states}, n_parameters={n_parameters}")
-    RIGHT_HAND_SIDES[kind_class] = RightHandSide(rhs, int(n_states), int(n_parameters))
+    if not (1 <= int(n_angles) <= int(n_states)) or int(n_parameters) < 1 or int(n_inputs) < 1:
+        raise ValueError("a plant has at least one angle among its states, one parameter and one "
+                         f"input, got n_states={n_states}, n_parameters={n_parameters}, "
+                         f"n_inputs={n_inputs}, n_angles={n_angles}")
+    RIGHT_HAND_SIDES[kind_class] = RightHandSide(rhs, int(n_states), int(n_parameters),
+                                                 int(n_inputs), int(n_angles))
 
 
 register_plant(RigidKind, rigid_rhs, 4, 9)
@@ -334,7 +354,7 @@ def dead_zone(delta, width):
 
 
 @_jit
-def flexible_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
+def flexible_rhs(p, c, x, u, sc):
     """Right-hand side of the two-mass flexible-joint robot for one lane.
 
     State ``x = (q2, q3, qd2, qd3, th2, th3, thd2, thd3)``; parameters ``p``:
@@ -352,10 +372,10 @@ def flexible_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
         Rig layout (the Coulomb ramp speed).
     x : tuple of 8 float
         Stage state (rad, rad/s).
-    u2, u3 : float
-        Held motor currents (A).
-    s2, c2, s3, c3 : float
-        sin and cos of the stage's link angles q2 and q3.
+    u : tuple of 2 float
+        Held motor currents (A) of joints 2 and 3.
+    sc : tuple of 4 float
+        sin q2, cos q2, sin q3, cos q3 of the stage's link angles.
 
     Returns
     -------
@@ -365,6 +385,8 @@ def flexible_rhs(p, c, x, u2, u3, s2, c2, s3, c3):
         det D_link(q), or -1 where the link f1 <= 0.
     """
     q2, q3, w2, w3, th2, th3, v2, v3 = x
+    u2, u3 = u
+    s2, c2, s3, c3 = sc
     ts2 = p[_FX_K] * dead_zone(th2 - q2, p[_FX_B]) + p[_FX_D] * (v2 - w2)
     ts3 = p[_FX_K + 1] * dead_zone(th3 - q3, p[_FX_B + 1]) + p[_FX_D + 1] * (v3 - w3)
     a2, a3, det = joint_acceleration_sc(p[0:9], s2, c2, s3, c3, w2, w3, ts2, ts3, c.gravity)

@@ -24,17 +24,17 @@ class ClosedLoopResponse:
     ----------
     t : ndarray, shape (n,)
         Sample times t_k = k Ts (s).
-    q : ndarray, shape (n, 2)
+    q : ndarray, shape (n, n_joints)
         True joint angles at t_k (rad) (link side for a flexible robot).
-    qd : ndarray, shape (n, 2)
+    qd : ndarray, shape (n, n_joints)
         True joint rates at t_k (rad/s).
-    q_ref : ndarray, shape (n, 2)
+    q_ref : ndarray, shape (n, n_joints)
         Reference angles at t_k (rad).
-    e_pulses : ndarray, shape (n, 2), int64
+    e_pulses : ndarray, shape (n, n_joints), int64
         Pulse errors ``trunc(q_ref k N/2pi) - trunc(q_enc k N/2pi)`` at t_k,
         where ``q_enc`` is the angle the encoder sees (the motor angle / k for
         a flexible robot).
-    i_A : ndarray, shape (n, 2)
+    i_A : ndarray, shape (n, n_joints)
         Motor currents applied over [t_k, t_k + Ts) (A), after clipping.
     success : bool
         False when the simulation stopped early (then the arrays hold only the
@@ -47,6 +47,9 @@ class ClosedLoopResponse:
         Samples at which a current was at the drive's full scale
         (``current_full_scale_A``): saturated by the controller itself or
         clipped by the drive.
+    joint_names : tuple of str
+        Names of the joints (default ``("q2", "q3")``, the PUMA links 2-3;
+        the ``joint_names`` of a :class:`~plant.robot_model.RobotModel`).
     """
 
     t: np.ndarray
@@ -59,6 +62,10 @@ class ClosedLoopResponse:
     message: str = "ok"
     label: str = ""
     n_clipped: int = field(default=0)
+    joint_names: tuple = ("q2", "q3")
+
+    def _suffixes(self) -> list:
+        return [name[1:] if name.startswith("q") else name for name in self.joint_names]
 
     # python-control style accessors (signal-first)
     @property
@@ -68,17 +75,17 @@ class ClosedLoopResponse:
 
     @property
     def outputs(self) -> np.ndarray:
-        """Pulse errors, shape (2, n) (python-control layout)."""
+        """Pulse errors, shape (n_joints, n) (python-control layout)."""
         return self.e_pulses.T
 
     @property
     def inputs(self) -> np.ndarray:
-        """Motor currents, shape (2, n), A."""
+        """Motor currents, shape (n_joints, n), A."""
         return self.i_A.T
 
     @property
     def states(self) -> np.ndarray:
-        """Joint angles and rates (q2, q3, qd2, qd3), shape (4, n)."""
+        """Joint angles and rates (q2, q3, qd2, qd3 for the PUMA), shape (2 n_joints, n)."""
         return np.vstack([self.q.T, self.qd.T])
 
     def to_time_response(self):
@@ -94,8 +101,10 @@ class ClosedLoopResponse:
 
         return control.TimeResponseData(
             self.t, self.outputs.astype(float), self.states, self.inputs,
-            output_labels=["e2", "e3"], input_labels=["i2", "i3"],
-            state_labels=["q2", "q3", "qd2", "qd3"], title=self.label or None,
+            output_labels=[f"e{s}" for s in self._suffixes()],
+            input_labels=[f"i{s}" for s in self._suffixes()],
+            state_labels=[f"q{s}" for s in self._suffixes()] + [f"qd{s}" for s in self._suffixes()],
+            title=self.label or None,
             success=self.success, message=self.message,
         )
 
@@ -119,8 +128,8 @@ class ClosedLoopResponse:
 
         Returns
         -------
-        ndarray, shape (2,), int64
-            max abs(e) (pulses) of joints 2 and 3.
+        ndarray, shape (n_joints,), int64
+            max abs(e) (pulses) per joint.
 
         Raises
         ------
@@ -139,13 +148,13 @@ class ClosedLoopResponse:
 
         Returns
         -------
-        ndarray, shape (2,), float (pulses)
+        ndarray, shape (n_joints,), float (pulses)
         """
         e = self.e_pulses[self._mask(after_s)].astype(float)
         return np.sqrt(np.mean(e * e, axis=0))
 
     def within(self, pulses: int = 1, after_s: float = 0.0) -> bool:
-        """Whether abs(e) <= pulses on both joints for every sample with t >= after_s.
+        """Whether abs(e) <= pulses on every joint for every sample with t >= after_s.
 
         A run that failed (``success`` False) is never within.
 
@@ -173,8 +182,8 @@ class ClosedLoopResponse:
         title : str, optional
             Figure title (default: the label).
         ax : ndarray of matplotlib.axes.Axes, optional
-            Axes to draw into, shape (rows, 2) with rows = 2 if ``currents``
-            else 1; default: a new figure.
+            Axes to draw into, shape (rows, n_joints) with rows = 2 if
+            ``currents`` else 1; default: a new figure.
 
         Returns
         -------
@@ -184,20 +193,21 @@ class ClosedLoopResponse:
         Raises
         ------
         ValueError
-            If ``ax`` does not hold rows x 2 axes.
+            If ``ax`` does not hold rows x n_joints axes.
         """
         rows = 2 if currents else 1
+        nj = self.e_pulses.shape[1]
         if ax is None:
             from matplotlib.figure import Figure
 
-            fig = Figure(figsize=(10, 3.2 * rows), layout="constrained")
-            axes = fig.subplots(rows, 2, sharex=True, squeeze=False)
+            fig = Figure(figsize=(5 * nj, 3.2 * rows), layout="constrained")
+            axes = fig.subplots(rows, nj, sharex=True, squeeze=False)
         else:
-            axes = np.asarray(ax, dtype=object).reshape(-1, 2) if np.size(ax) == 2 * rows else None
+            axes = np.asarray(ax, dtype=object).reshape(-1, nj) if np.size(ax) == nj * rows else None
             if axes is None:
-                raise ValueError(f"ax must hold {rows} x 2 axes, got {np.size(ax)}")
+                raise ValueError(f"ax must hold {rows} x {nj} axes, got {np.size(ax)}")
             fig = axes[0, 0].figure
-        for j, name in enumerate(("joint 2", "joint 3")):
+        for j, name in enumerate(f"joint {s}" for s in self._suffixes()):
             a = axes[0, j]
             a.step(self.t, self.e_pulses[:, j], where="post", lw=0.8)
             a.set_ylabel("e (pulses)")

@@ -19,24 +19,27 @@ class Rig:
     """Constants of the drive, encoders and P controller of one experiment.
 
     All values come from the log's JSON sidecar; nothing is hard-coded.
-    Per-joint values are ordered (joint 2, joint 3).
+    Per-joint values are tuples of n_joints entries in the log's joint order
+    (for the PUMA 560 links 2-3: joint 2, joint 3).  ``a3_m`` and
+    ``f_bounds`` describe the PUMA links 2-3 instance (for another robot
+    model: 0 and empty).
 
     Attributes
     ----------
     sample_time_s : float
         Controller sample time Ts (s).
-    gear_ratio : tuple of 2 float
+    gear_ratio : tuple of n_joints float
         k, defined by motor angle = k * joint angle (k3 < 0 on the PUMA).
-    encoder_ppr : tuple of 2 int
+    encoder_ppr : tuple of n_joints int
         Motor-encoder pulses per motor revolution N.
-    p_gain_A_per_pulse : tuple of 2 float
+    p_gain_A_per_pulse : tuple of n_joints float
         P gain (A per pulse of error).
-    torque_constant_Nm_per_A : tuple of 2 float
+    torque_constant_Nm_per_A : tuple of n_joints float
         Motor torque constant Kt.
-    viscous_friction_Nms_per_rad : tuple of 2 float or None
+    viscous_friction_Nms_per_rad : tuple of n_joints float or None
         Motor-side viscous friction B (joint side: k^2 B); None when the
         sidecar says it is unknown (``null``; see :attr:`unknown_friction`).
-    coulomb_friction_Nm : tuple of 2 (float, float) or None
+    coulomb_friction_Nm : tuple of n_joints (float, float) or None
         Motor-side Coulomb friction per joint, (magnitude for positive joint
         velocity, magnitude for negative joint velocity); joint side:
         abs(k) Tc; None when unknown.
@@ -46,7 +49,7 @@ class Rig:
         Gravitational acceleration g.
     a3_m : float
         Link length a3 (m).
-    q0_rad, qd0_rad_per_s : tuple of 2 float or None
+    q0_rad, qd0_rad_per_s : tuple of n_joints float or None
         Start state of the run (at t = 0); None for a window log whose
         sidecar gives no ``start_state.q_rad`` / ``qd_rad_per_s`` (a robot
         that has run for hours: the run's t = 0 is not known).  A simulation
@@ -107,30 +110,31 @@ class RigConstants(NamedTuple):
     The one layout every simulation and controller kernel reads (by field
     name, never by position).  Built from a :class:`Rig` by
     :func:`rig_constants`; a ``NamedTuple`` of floats and pairs of floats, so
-    numba types it as a value (no arrays, no reference counting).  Pairs are
-    ordered (joint 2, joint 3).
+    numba types it as a value (no arrays, no reference counting).  Per-joint
+    fields are tuples of n_joints floats, in the rig's joint order (for the
+    PUMA 560 links 2-3 pairs, ordered joint 2, joint 3).
 
     Attributes
     ----------
     sample_time_s : float
         Controller sample time Ts (s).
-    pulses_per_rad : tuple of 2 float
+    pulses_per_rad : tuple of n_joints float
         Encoder pulses per joint radian, k N / (2 pi) (negative for k < 0).
-    torque_per_amp : tuple of 2 float
+    torque_per_amp : tuple of n_joints float
         Joint torque per motor current, k Kt (N m / A).
-    p_gain : tuple of 2 float
+    p_gain : tuple of n_joints float
         P gain of the logged experiment (A / pulse).
-    viscous : tuple of 2 float
+    viscous : tuple of n_joints float
         Joint-side viscous friction k^2 B (N m s / rad).
-    coulomb_pos, coulomb_neg : tuple of 2 float
+    coulomb_pos, coulomb_neg : tuple of n_joints float
         Joint-side Coulomb friction abs(k) Tc for positive / negative joint
         velocity (N m).
-    ramp_speed : tuple of 2 float
+    ramp_speed : tuple of n_joints float
         Joint-side speed below which the Coulomb friction ramps linearly to
         zero, v_ramp / abs(k) (rad/s).
     gravity : float
         Gravitational acceleration g (m/s^2).
-    q0, qd0 : tuple of 2 float
+    q0, qd0 : tuple of n_joints float
         Start angles (rad) and rates (rad/s) of the run (NaN when the rig's
         start state is unknown and none was given).
     current_limit : float
@@ -153,9 +157,9 @@ class RigConstants(NamedTuple):
     current_limit: float = math.inf
 
 
-def _pair(values) -> tuple:
-    a = np.broadcast_to(np.asarray(values, dtype=float), (2,))
-    return (float(a[0]), float(a[1]))
+def _per_joint(values, n) -> tuple:
+    a = np.broadcast_to(np.asarray(values, dtype=float), (n,))
+    return tuple(float(v) for v in a)
 
 
 def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
@@ -165,13 +169,15 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     ----------
     rig : Rig
         Sidecar constants (motor side where the sidecar gives them so).
-    q0, qd0 : array_like, shape (2,), optional
+    q0, qd0 : array_like, shape (n_joints,), optional
         Start angles (rad) and rates (rad/s); default the rig's start state
         (NaN if the rig has none: a window log without a start state).
 
     Returns
     -------
     RigConstants
+        Per-joint fields are tuples of ``n_joints = len(rig.gear_ratio)``
+        floats (2 for the PUMA 560 links 2-3).
         Joint side: viscous ``k^2 B``, Coulomb ``abs(k) Tc`` (zero where the
         rig's friction is unknown, None), ramp speed
         ``v / abs(k)``, torque per amp ``k Kt``, pulses per rad ``k N / 2 pi``.
@@ -179,33 +185,34 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     Raises
     ------
     ValueError
-        If ``q0`` or ``qd0`` is not two finite numbers.
+        If ``q0`` or ``qd0`` is not ``n_joints`` finite numbers.
     """
-    k = np.asarray(rig.gear_ratio, dtype=float)
+    k = np.asarray(rig.gear_ratio, dtype=float).reshape(-1)
+    nj = k.size
     n = np.asarray(rig.encoder_ppr, dtype=float)
     # unknown friction (None) is zero here: a plant that identifies it carries it per lane
-    tc = np.zeros((2, 2)) if rig.coulomb_friction_Nm is None else np.asarray(
-        rig.coulomb_friction_Nm, dtype=float).reshape(2, 2)
-    visc = np.zeros(2) if rig.viscous_friction_Nms_per_rad is None else np.asarray(
+    tc = np.zeros((nj, 2)) if rig.coulomb_friction_Nm is None else np.asarray(
+        rig.coulomb_friction_Nm, dtype=float).reshape(nj, 2)
+    visc = np.zeros(nj) if rig.viscous_friction_Nms_per_rad is None else np.asarray(
         rig.viscous_friction_Nms_per_rad, dtype=float)
     start = []
     for name, given, default in (("q0", q0, rig.q0_rad), ("qd0", qd0, rig.qd0_rad_per_s)):
         if given is None and default is None:  # a window without a start state
-            start.append((math.nan, math.nan))
+            start.append((math.nan,) * nj)
             continue
         v = np.asarray(default if given is None else given, dtype=float)
-        if v.shape != (2,) or not np.all(np.isfinite(v)):
-            raise ValueError(f"{name} must be 2 finite numbers, got {given!r}")
-        start.append(_pair(v))
+        if v.shape != (nj,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"{name} must be {nj} finite numbers, got {given!r}")
+        start.append(_per_joint(v, nj))
     return RigConstants(
         sample_time_s=float(rig.sample_time_s),
-        pulses_per_rad=_pair(k * n / (2.0 * math.pi)),
-        torque_per_amp=_pair(k * np.asarray(rig.torque_constant_Nm_per_A, dtype=float)),
-        p_gain=_pair(rig.p_gain_A_per_pulse),
-        viscous=_pair(k * k * visc),
-        coulomb_pos=_pair(np.abs(k) * tc[:, 0]),
-        coulomb_neg=_pair(np.abs(k) * tc[:, 1]),
-        ramp_speed=_pair(rig.coulomb_ramp_speed_rad_per_s / np.abs(k)),
+        pulses_per_rad=_per_joint(k * n / (2.0 * math.pi), nj),
+        torque_per_amp=_per_joint(k * np.asarray(rig.torque_constant_Nm_per_A, dtype=float), nj),
+        p_gain=_per_joint(rig.p_gain_A_per_pulse, nj),
+        viscous=_per_joint(k * k * visc, nj),
+        coulomb_pos=_per_joint(np.abs(k) * tc[:, 0], nj),
+        coulomb_neg=_per_joint(np.abs(k) * tc[:, 1], nj),
+        ramp_speed=_per_joint(rig.coulomb_ramp_speed_rad_per_s / np.abs(k), nj),
         gravity=float(rig.gravity_m_s2),
         q0=start[0],
         qd0=start[1],

@@ -260,16 +260,6 @@ def _rref(N, tol=1e-9):
     return N[:row]
 
 
-def _rz(t):
-    c, s = ca.cos(t), ca.sin(t)
-    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
-
-
-def _rx(t):
-    c, s = ca.cos(t), ca.sin(t)
-    return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
-
-
 def _vee(S):
     return ca.vertcat(S[2, 1], S[0, 2], S[1, 0])
 
@@ -347,10 +337,10 @@ def _isq(a):
     return (0.0 if a[0] <= 0.0 <= a[1] else min(lo2, hi2)), max(lo2, hi2)
 
 
-def _axis_rotation(axis, theta):
-    """Rodrigues' rotation about a unit axis (numeric) by theta (casadi)."""
+def _axis_rotation(axis, sin_theta, cos_theta):
+    """Rodrigues' rotation about a unit axis (numeric) by theta, from sin and cos of theta."""
     K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return ca.DM.eye(3) + ca.sin(theta) * ca.DM(K) + (1 - ca.cos(theta)) * ca.DM(K @ K)
+    return ca.DM.eye(3) + sin_theta * ca.DM(K) + (1 - cos_theta) * ca.DM(K @ K)
 
 
 class RobotModel:
@@ -472,28 +462,51 @@ class RobotModel:
         return q, qd, qdd, p
 
     @cached_property
-    def _tau_sx(self):
-        """tau(q, qd, qdd, p) as a casadi SX (Newton--Euler in the world frame)."""
-        q, qd, qdd, p = self._symbols
+    def _trig_symbols(self):
+        """SX symbols ``(s, c)``, shape (n,) each: sin and cos of the active joints' q."""
+        n = self.n_joints
+        return ca.SX.sym("s", n), ca.SX.sym("c", n)
+
+    @cached_property
+    def _tau_sc(self):
+        """tau(s, c, qd, qdd, p) as a casadi SX, with ``s = sin q``, ``c = cos q`` of the
+        active joints (Newton--Euler in the world frame; module docstring).
+
+        The joint angles enter only through their sine and cosine, so the
+        kinematics are written in them and time derivatives take the chain
+        rule ``ds/dt = c qd``, ``dc/dt = -s qd``.  This form is the one the
+        compiled plant evaluates (:mod:`plant.arm`: sine and cosine come from
+        the core's anchors); :attr:`_tau_sx` substitutes ``sin q, cos q``.
+        """
+        _, qd, qdd, p = self._symbols
+        s, c = self._trig_symbols
         col = {j: k for k, j in enumerate(self.active)}
         R = ca.SX.eye(3)
         o = ca.SX.zeros(3)
         axes, points, frames = [], [], []
         for i, link in enumerate(self.links):
-            theta = (q[col[i]] if i in col else self.locked_angles[i]) + link.offset
+            if i in col:  # sin and cos of q + offset by angle addition
+                k, co, so = col[i], math.cos(link.offset), math.sin(link.offset)
+                st, ct = s[k] * co + c[k] * so, c[k] * co - s[k] * so
+            else:
+                theta = self.locked_angles[i] + link.offset
+                st, ct = math.sin(theta), math.cos(theta)
             A, axis, B = _pieces(link, self.convention)
             # the joint frame: its axis and a point on it, in the base frame
             Rj = ca.mtimes(R, ca.DM(A[:3, :3]))
             oj = o + ca.mtimes(R, ca.DM(A[:3, 3]))
             axes.append(ca.mtimes(Rj, ca.DM(axis)))
             points.append(oj)
-            Rq = ca.mtimes(Rj, _axis_rotation(axis, theta))
+            Rq = ca.mtimes(Rj, _axis_rotation(axis, st, ct))
             o = oj + ca.mtimes(Rq, ca.DM(B[:3, 3]))
             R = ca.mtimes(Rq, ca.DM(B[:3, :3]))
             frames.append((R, o))
 
-        def ddt(x):
-            return ca.jtimes(x, q, qd) + ca.jtimes(x, qd, qdd)
+        def velocity(x):  # d/dt of x(s, c): dx/ds c qd - dx/dc s qd
+            return ca.jtimes(x, s, c * qd) - ca.jtimes(x, c, s * qd)
+
+        def ddt(x):  # d/dt of x(s, c, qd)
+            return velocity(x) + ca.jtimes(x, qd, qdd)
 
         g = ca.DM(self.gravity)
         wrench = {}
@@ -503,11 +516,10 @@ class RobotModel:
             I_o = ca.vertcat(ca.horzcat(pl[0], pl[1], pl[2]), ca.horzcat(pl[1], pl[3], pl[4]),
                              ca.horzcat(pl[2], pl[4], pl[5]))
             ms, m = pl[6:9], pl[9]
-            Rd = ca.jtimes(ca.vec(R), q, qd)
-            Rd = ca.reshape(Rd, 3, 3)
+            Rd = ca.reshape(velocity(ca.vec(R)), 3, 3)
             w = _vee(ca.mtimes(Rd, R.T))
             alpha = ddt(w)
-            a = ddt(ca.jtimes(o, q, qd)) - g
+            a = ddt(velocity(o)) - g
             msw = ca.mtimes(R, ms)
             Iw = ca.mtimes(ca.mtimes(R, I_o), R.T)
             f = m * a + ca.cross(alpha, msw) + ca.cross(w, ca.cross(w, msw))
@@ -525,6 +537,13 @@ class RobotModel:
                 t = t + ca.dot(z, nmom + ca.cross(o - pj, f))
             tau.append(t + p[n_link + k] * qdd[k])
         return ca.vertcat(*tau)
+
+    @cached_property
+    def _tau_sx(self):
+        """tau(q, qd, qdd, p) as a casadi SX (:attr:`_tau_sc` at ``s = sin q``, ``c = cos q``)."""
+        q = self._symbols[0]
+        s, c = self._trig_symbols
+        return ca.substitute(self._tau_sc, ca.vertcat(s, c), ca.vertcat(ca.sin(q), ca.cos(q)))
 
     @cached_property
     def inverse_dynamics_function(self) -> ca.Function:

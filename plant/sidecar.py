@@ -123,7 +123,8 @@ def _ramp_speed_from_note(note: Any) -> float | None:
         return None
 
 
-def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig:
+def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar", n_joints: int = 2,
+                     robot_model: bool = False) -> Rig:
     """Build the :class:`~plant.rig.Rig` described by a log sidecar.
 
     Parameters
@@ -150,6 +151,12 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
         ``DEFAULT_UNKNOWN_RAMP_SPEED`` (0.5 rad/s).
     source : str or Path, optional
         File name used in error messages.
+    n_joints : int, optional
+        Length of the per-joint lists (2 for the PUMA links 2-3).
+    robot_model : bool, optional
+        The log of a robot model's arm (a ``robot`` object in the sidecar,
+        :mod:`plant.arm_log`): ``a3_m`` and ``f_search_ranges`` (PUMA links
+        2-3 only) are not read.
 
     Returns
     -------
@@ -165,23 +172,25 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
     k = SidecarKeys(sidecar, source)
     if not isinstance(sidecar, Mapping):
         raise sidecar_error(source, "sidecar must be a JSON object")
+    nj = int(n_joints)
     ts = k.number("sample_time_s", positive=True)
-    gear = k.vector("gear_ratio", nonzero=True)
-    ppr = k.vector("encoder_ppr", integer=True, positive=True)
-    p_gain = k.vector("p_gain_A_per_pulse", positive=True)
-    kt = k.vector("torque_constant_Nm_per_A", positive=True)
+    gear = k.vector("gear_ratio", nj, nonzero=True)
+    ppr = k.vector("encoder_ppr", nj, integer=True, positive=True)
+    p_gain = k.vector("p_gain_A_per_pulse", nj, positive=True)
+    kt = k.vector("torque_constant_Nm_per_A", nj, positive=True)
     # null or absent friction: unknown (None), identified with f (plant.friction)
     visc = None
     if sidecar.get("viscous_friction_Nms_per_rad") is not None:
-        visc = k.vector("viscous_friction_Nms_per_rad", nonneg=True)
+        visc = k.vector("viscous_friction_Nms_per_rad", nj, nonneg=True)
     coul_raw = sidecar.get("coulomb_friction_Nm")
     coul = None
     if coul_raw is not None:
-        if not isinstance(coul_raw, (list, tuple)) or len(coul_raw) != 2:
-            raise k.err("coulomb_friction_Nm", "must be [[pos, neg], [pos, neg]] (2 x 2 numbers) "
+        if not isinstance(coul_raw, (list, tuple)) or len(coul_raw) != nj:
+            shape = ", ".join(["[pos, neg]"] * nj) if nj <= 3 else "[pos, neg], ..."
+            raise k.err("coulomb_friction_Nm", f"must be [{shape}] ({nj} x 2 numbers) "
                         f"or null, got {short_text(coul_raw)}")
         coul = tuple(k.vector(f"coulomb_friction_Nm[{j}]", nonneg=True, value=coul_raw[j])
-                     for j in range(2))
+                     for j in range(nj))
     ramp = k.number("coulomb_ramp_speed_rad_per_s", positive=True, required=False)
     if ramp is None:
         note = sidecar.get("coulomb_friction_note")
@@ -199,14 +208,22 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
                 )
             ramp = _UNUSED_RAMP_SPEED
     gravity = k.number("gravity_m_s2")
-    a3 = k.number("a3_m")
+    a3 = 0.0 if robot_model else k.number("a3_m")
     start = sidecar.get("start_state")
     if (sidecar.get("window_s") is not None
             and not (isinstance(start, Mapping) and ("q_rad" in start or "qd_rad_per_s" in start))):
         q0 = qd0 = None  # a window of a run whose start is unknown
     else:
-        q0 = k.vector("start_state.q_rad")
-        qd0 = k.vector("start_state.qd_rad_per_s")
+        q0 = k.vector("start_state.q_rad", nj)
+        qd0 = k.vector("start_state.qd_rad_per_s", nj)
+
+    full_scale = k.number("current_full_scale_A", positive=True, required=False)
+    if robot_model:  # no PUMA-specific search ranges, no payload mass
+        return Rig(sample_time_s=ts, gear_ratio=gear, encoder_ppr=ppr, p_gain_A_per_pulse=p_gain,
+                   torque_constant_Nm_per_A=kt, viscous_friction_Nms_per_rad=visc,
+                   coulomb_friction_Nm=coul, coulomb_ramp_speed_rad_per_s=float(ramp),
+                   gravity_m_s2=gravity, a3_m=a3, q0_rad=q0, qd0_rad_per_s=qd0, f_bounds=(),
+                   current_full_scale_A=full_scale)
 
     ranges = k.get("f_search_ranges")
     if not isinstance(ranges, Mapping):
@@ -224,7 +241,6 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar") -> Rig
             raise k.err(key, f"is empty: low == high == {lo!r}")
         bounds.append((lo, hi))
 
-    full_scale = k.number("current_full_scale_A", positive=True, required=False)
     payload = sidecar.get("payload")
     if payload is None:
         mass = None

@@ -56,18 +56,19 @@ class Trajectory:
 
     Attributes
     ----------
-    c : ndarray, shape (2,)
-        Offsets c_j (rad).
-    amplitude : ndarray, shape (2, m)
+    c : ndarray, shape (n_joints,)
+        Offsets c_j (rad); 2 joints (q2, q3) for the PUMA 560 links 2-3,
+        one per active joint for a robot model.
+    amplitude : ndarray, shape (n_joints, m)
         Amplitudes A_ji (rad); joints with fewer than m terms are padded with
         zero-amplitude terms.
-    omega : ndarray, shape (2, m)
+    omega : ndarray, shape (n_joints, m)
         Angular frequencies omega_ji (rad/s); 0 for padding.
-    phase : ndarray, shape (2, m)
+    phase : ndarray, shape (n_joints, m)
         Phases phi_ji (rad); 0 for padding.
     t_ramp_s : float
         Duration of the quintic ramp (s); 0 means no ramp.
-    n_terms : tuple of 2 int
+    n_terms : tuple of n_joints int
         Number of real (non-padding) terms per joint.
     """
 
@@ -83,11 +84,12 @@ class Trajectory:
         amp = _readonly(self.amplitude)
         om = _readonly(self.omega)
         ph = _readonly(self.phase)
-        if c.shape != (2,):
-            raise ValueError(f"Trajectory: c must have shape (2,), got {c.shape}")
-        if amp.ndim != 2 or amp.shape[0] != 2 or om.shape != amp.shape or ph.shape != amp.shape:
+        nj = c.shape[0]
+        if nj < 1:
+            raise ValueError(f"Trajectory: c must have shape (n_joints,), got {c.shape}")
+        if amp.ndim != 2 or amp.shape[0] != nj or om.shape != amp.shape or ph.shape != amp.shape:
             raise ValueError(
-                "Trajectory: amplitude, omega and phase must share a shape (2, m), got "
+                f"Trajectory: amplitude, omega and phase must share a shape ({nj}, m), got "
                 f"{amp.shape}, {om.shape}, {ph.shape}"
             )
         for name, a in (("c", c), ("amplitude", amp), ("omega", om), ("phase", ph)):
@@ -98,9 +100,9 @@ class Trajectory:
             raise ValueError(f"Trajectory: t_ramp_s must be finite and >= 0, got {t_ramp}")
         n_terms = self.n_terms
         if n_terms is None:
-            n_terms = (amp.shape[1], amp.shape[1])
+            n_terms = (amp.shape[1],) * nj
         n_terms = tuple(int(n) for n in n_terms)
-        if len(n_terms) != 2 or any(n < 0 or n > amp.shape[1] for n in n_terms):
+        if len(n_terms) != nj or any(n < 0 or n > amp.shape[1] for n in n_terms):
             raise ValueError(f"Trajectory: invalid n_terms {n_terms} for {amp.shape[1]} columns")
         for name, v in (("c", c), ("amplitude", amp), ("omega", om), ("phase", ph)):
             object.__setattr__(self, name, v)
@@ -109,7 +111,8 @@ class Trajectory:
 
     # ------------------------------------------------------------------ builders
     @classmethod
-    def from_sidecar(cls, sidecar: Mapping[str, Any], source: str = "sidecar") -> "Trajectory":
+    def from_sidecar(cls, sidecar: Mapping[str, Any], source: str = "sidecar",
+                     n_joints: int = 2) -> "Trajectory":
         """Build the trajectory described by a log sidecar.
 
         Parameters
@@ -123,6 +126,10 @@ class Trajectory:
             (s, default 0 = no ramp).
         source : str, optional
             Name of the file the mapping came from, used in error messages.
+        n_joints : int, optional
+            Joints of the reference (2 for the PUMA links 2-3; a robot
+            model's active joints otherwise): the lengths of ``c`` and
+            ``terms_A_omega_phi``.
 
         Returns
         -------
@@ -156,13 +163,14 @@ class Trajectory:
         if "c" not in p:
             raise err("c", "is missing")
         c = p["c"]
-        if not isinstance(c, (list, tuple)) or len(c) != 2 or not all(_is_number(x) for x in c):
-            raise err("c", "must be a list of 2 numbers")
+        nj = int(n_joints)
+        if not isinstance(c, (list, tuple)) or len(c) != nj or not all(_is_number(x) for x in c):
+            raise err("c", f"must be a list of {nj} numbers")
         if "terms_A_omega_phi" not in p:
             raise err("terms_A_omega_phi", "is missing")
         terms = p["terms_A_omega_phi"]
-        if not isinstance(terms, (list, tuple)) or len(terms) != 2:
-            raise err("terms_A_omega_phi", "must be a list of 2 per-joint term lists")
+        if not isinstance(terms, (list, tuple)) or len(terms) != nj:
+            raise err("terms_A_omega_phi", f"must be a list of {nj} per-joint term lists")
         rows = []
         for j, tj in enumerate(terms):
             if not isinstance(tj, (list, tuple)):
@@ -197,9 +205,9 @@ class Trajectory:
 
         Parameters
         ----------
-        c : array_like, shape (2,)
+        c : array_like, shape (n_joints,)
             Offsets (rad).
-        terms : sequence of 2 sequences of (A, omega, phi)
+        terms : sequence of n_joints sequences of (A, omega, phi)
             Per-joint cosine terms: amplitude (rad), angular frequency (rad/s),
             phase (rad). The joints may have different numbers of terms.
         t_ramp_s : float, optional
@@ -209,13 +217,14 @@ class Trajectory:
         -------
         Trajectory
         """
-        if len(terms) != 2:
-            raise ValueError("terms must hold 2 per-joint lists")
+        nj = np.asarray(c, dtype=float).reshape(-1).shape[0]
+        if len(terms) != nj:
+            raise ValueError(f"terms must hold {nj} per-joint lists (one per offset in c)")
         n_terms = tuple(len(tj) for tj in terms)
         m = max(n_terms)
-        amp = np.zeros((2, m))
-        om = np.zeros((2, m))
-        ph = np.zeros((2, m))
+        amp = np.zeros((nj, m))
+        om = np.zeros((nj, m))
+        ph = np.zeros((nj, m))
         for j, tj in enumerate(terms):
             for i, (a, w, p) in enumerate(tj):
                 amp[j, i], om[j, i], ph[j, i] = a, w, p
@@ -254,12 +263,12 @@ class Trajectory:
         Returns
         -------
         dict
-            ``{"c": [c2, c3], "terms_A_omega_phi": [[[A, omega, phi], ...], [...]],
+            ``{"c": [c_1, ..., c_n], "terms_A_omega_phi": [[[A, omega, phi], ...], [...]],
             "t_ramp_s": t_ramp}`` with plain Python floats; padding terms are
             dropped. ``Trajectory.from_sidecar(traj.to_parameters()) == traj``.
         """
         terms = []
-        for j in range(2):
+        for j in range(self.c.shape[0]):
             terms.append(
                 [
                     [float(self.amplitude[j, i]), float(self.omega[j, i]), float(self.phase[j, i])]
@@ -283,7 +292,7 @@ class Trajectory:
         return w, wd, wdd
 
     def _series(self, t: np.ndarray):
-        """Un-ramped series u, u', u'' each of shape (n, 2)."""
+        """Un-ramped series u, u', u'' each of shape (n, n_joints)."""
         # angle[n, j, i] = omega_ji * t_n + phi_ji
         ang = t[:, None, None] * self.omega[None, :, :] + self.phase[None, :, :]
         cos = np.cos(ang)
@@ -313,8 +322,8 @@ class Trajectory:
 
         Returns
         -------
-        q : ndarray, shape (n, 2)
-            Joint angles (q2, q3) in rad (n = 1 for a scalar t).
+        q : ndarray, shape (n, n_joints)
+            Joint angles in rad ((q2, q3) for the PUMA links 2-3; n = 1 for a scalar t).
         """
         return self.evaluate(t)[0]
 
@@ -333,11 +342,11 @@ class Trajectory:
 
         Returns
         -------
-        q : ndarray, shape (n, 2)
+        q : ndarray, shape (n, n_joints)
             Joint angles (rad).
-        qd : ndarray, shape (n, 2)
+        qd : ndarray, shape (n, n_joints)
             Joint velocities (rad/s).
-        qdd : ndarray, shape (n, 2)
+        qdd : ndarray, shape (n, n_joints)
             Joint accelerations (rad/s^2).
         """
         t = self._as_times(t)

@@ -124,12 +124,12 @@ def test_core_helpers_python_reference_matches_compiled(paper_log):
         p = lane_parameters(pl.kind, P, 0)
         assert len(x) == pl.n_states and len(p) == pl.n_parameters
         a = (0.3, math.sin(0.3), math.cos(0.3), -0.2, math.sin(-0.2), math.cos(-0.2))
-        args = (pl.kind, p, c, x, 1.5, -0.7, a, 0.5e-3, 1e-3, 1e-3 / 6)
+        args = (pl.kind, p, c, x, (1.5, -0.7), a, 0.5e-3, 1e-3, 1e-3 / 6)
         for exact in (False, True):
             compiled = rk4_lane(*args, exact)
             python = rk4_lane.py_func(*args, exact)
             assert compiled == python
-        xd, m = plant_rhs(pl.kind, p, c, x, 1.5, -0.7, *a[1:3], *a[4:6])
+        xd, m = plant_rhs(pl.kind, p, c, x, (1.5, -0.7), (*a[1:3], *a[4:6]))
         assert len(xd) == pl.n_states and m > 0 and _all_finite(xd)
         store_lane_state(X, 0, compiled[0])
         assert lane_state(pl.kind, X, 0) == compiled[0]

@@ -29,6 +29,7 @@ OUTPUTS = {
     "alteration_study.py": ("alteration.json",),
     "online_payload.py": ("errors.png", "results.json"),
     "your_robot.py": ("base_parameters.json",),
+    "any_arm.py": ("planar2.csv", "planar2.json", "planar2_result.json", "planar2_tracking.png"),
 }
 
 
@@ -104,6 +105,7 @@ def test_ctc_example_with_truth(tmp_path):
     ("real_rigs.py", ["--log", "missing.csv"], "missing.csv"),
     ("real_rigs.py", ["--truth", "bad.truth.json"], "bad.truth.json"),
     ("alteration_study.py", ["--truth", "missing.truth.json"], "missing.truth.json"),
+    ("any_arm.py", ["--duration", "0.2"], "--duration"),
 ])
 def test_example_bad_input_one_line(script, args, needle, tmp_path):
     (tmp_path / "bad.truth.json").write_text("{not json")

@@ -1,0 +1,313 @@
+"""An independent simulator of any serial arm's rig: the robot the library has never seen.
+
+The n-joint sibling of ``benchmarks/independent_robot.py`` (issue 23).  It
+shares no code with the library's plant (:mod:`plant.arm`, its casadi
+derivation, code generator and RK4 core):
+
+* **rigid link dynamics**: Robotics Toolbox for Python (``DHRobot``, its C
+  recursive Newton--Euler ``rne``): the inertia matrix column by column and
+  the bias torques from one multi-row ``rne`` call, joints outside the
+  active set locked at their angles.  Friction and motor inertia are
+  removed from the RTB links (the drive below adds its own);
+* **drive**, written here from the rig description: motor-shaft encoders
+  ``count = trunc(q k N / 2 pi)``, integer error ``e = trunc(q_ref k N / 2
+  pi) - count``, current from the sampled controller (``P e`` for the rig's
+  card), clipped at ``current_full_scale_A``, held over the sample; joint
+  torque ``k Kt i``, reflected motor inertia ``Jm k^2`` on the diagonal,
+  motor-side viscous and asymmetric Coulomb friction ramping to zero below
+  ``v_reg`` (joint side ``k^2 B``, ``|k| Tc``);
+* **integration**: ``scipy.integrate.solve_ivp(method="DOP853", rtol=1e-9,
+  atol=1e-12)`` restarted at every sample (zero-order hold), ``max_step =
+  Ts``.
+
+Robots (``family``): ``planar2`` -- a two-link arm in a vertical plane
+drawn at random (lengths, masses, centres of mass, inertias); ``puma123``
+-- the PUMA 560 joints 1-3 (Corke's parameters, RTB's ``Puma560``), wrist
+locked; ``puma6`` -- the six-joint PUMA 560.  Per draw, also at random: gear
+ratios, encoders, torque constants, motor inertias, friction, the P gains
+(for a loop natural frequency of 4-10 % of the sample rate, damped by the
+drawn viscous friction), and a multisine reference with a quintic ramp.
+
+Only the *reference* (``plant.Trajectory``) and the file format
+(``plant.arm_log.ArmLog``) come from the library.  Truth: the base
+parameters of the library's robot model built from the same published
+table (``RobotModel.base_parameters()`` applied to its standard
+parameters); ``tests/test_robot_model.py`` checks that model against RTB's
+``rne`` -- the one place the two meet.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+FAMILIES = ("planar2", "puma123", "puma6")
+
+
+@dataclass
+class ArmSettings:
+    """One randomly drawn robot, rig and reference (all SI, motor side where stated)."""
+
+    family: str
+    seed: int
+    links: list = field(default_factory=list)   # planar2: DH rows with inertials
+    active: tuple = ()
+    gear_ratio: tuple = ()
+    encoder_ppr: tuple = ()
+    torque_constant: tuple = ()
+    motor_inertia: tuple = ()
+    p_gain: tuple = ()
+    viscous: tuple = ()
+    coulomb: tuple = ()
+    ramp_speed: float = 0.5
+    current_full_scale: float | None = None
+    sample_time_s: float = 1e-3
+    duration_s: float = 5.0
+    trajectory: dict = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        return int(round(self.duration_s / self.sample_time_s))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _rtb_robot(s: ArmSettings):
+    """RTB DHRobot of the draw, friction and motor inertia removed."""
+    import roboticstoolbox as rtb
+
+    if s.family.startswith("puma"):
+        robot = rtb.models.DH.Puma560().nofriction(coulomb=True, viscous=True)
+    else:
+        links = [rtb.RevoluteDH(a=r["a"], alpha=r["alpha"], d=r["d"], offset=r["offset"], m=r["mass"],
+                                r=r["com"], I=np.asarray(r["inertia"]), G=1.0, Jm=0.0)
+                 for r in s.links]
+        robot = rtb.DHRobot(links, name="planar2", gravity=[0.0, -9.81, 0.0])
+    for link in robot.links:
+        link.Jm = 0.0
+        link.B = 0.0
+        link.Tc = np.zeros(2)
+    robot.dynchanged()
+    return robot
+
+
+def library_model(s: ArmSettings):
+    """The library's RobotModel of the same robot (for the truth and as the user's model)."""
+    from plant.robot_model import PUMA560_DH, Link, RobotModel
+
+    if s.family.startswith("puma"):
+        rows = [dict(r) for r in PUMA560_DH]
+        for k, j in enumerate(s.active):
+            rows[j]["gear_ratio"] = s.gear_ratio[k]
+            rows[j]["motor_inertia"] = s.motor_inertia[k]
+        return RobotModel([Link(**r) for r in rows], active=s.active, name=f"PUMA 560 {s.family}",
+                          joint_names=tuple(f"q{j + 1}" for j in s.active))
+    rows = []
+    for k, r in enumerate(s.links):
+        rows.append(Link(a=r["a"], alpha=r["alpha"], d=r["d"], offset=r["offset"], mass=r["mass"],
+                         com=tuple(r["com"]), inertia=tuple(map(tuple, r["inertia"])),
+                         gear_ratio=s.gear_ratio[k], motor_inertia=s.motor_inertia[k]))
+    return RobotModel(rows, gravity=(0.0, -9.81, 0.0), name="planar 2-link")
+
+
+def truth_beta(s: ArmSettings, model=None):
+    """True base parameters (the library model's QR base, at the draw's standard parameters)."""
+    model = library_model(s) if model is None else model
+    base = model.base_parameters()
+    return base.names, base(model.standard_parameters())
+
+
+class IndependentArm:
+    """The drawn robot under a sampled controller, integrated by DOP853."""
+
+    def __init__(self, s: ArmSettings):
+        self.s = s
+        self.robot = _rtb_robot(s)
+        self.nall = self.robot.n
+        self.act = np.asarray(s.active, dtype=int)
+        self.n = self.act.size
+        self.k = np.asarray(s.gear_ratio, float)
+        self.kt = np.asarray(s.torque_constant, float)
+        self.jm = np.asarray(s.motor_inertia, float) * self.k ** 2
+        self.visc = self.k ** 2 * np.asarray(s.viscous, float)
+        c = np.asarray(s.coulomb, float).reshape(self.n, 2)
+        self.tc_pos = np.abs(self.k) * c[:, 0]
+        self.tc_neg = np.abs(self.k) * c[:, 1]
+        self.v_reg = s.ramp_speed / np.abs(self.k)
+        self.spr = self.k * np.asarray(s.encoder_ppr, float) / (2.0 * math.pi)
+        g = [0.0, -9.81, 0.0] if s.family == "planar2" else [0.0, 0.0, -9.81]
+        self.g = np.asarray(g)
+        m = self.n + 2
+        self._Q = np.zeros((m, self.nall))
+        self._QD = np.zeros((m, self.nall))
+        self._QDD = np.zeros((m, self.nall))
+        for r, j in enumerate(self.act):
+            self._QDD[1 + r, j] = 1.0
+
+    def dynamics(self, q, qd):
+        """Inertia matrix (n, n) with the motor inertia, and bias torques (n,), by one rne call."""
+        Q, QD = self._Q, self._QD
+        Q[:, self.act] = q
+        QD[0, self.act] = qd
+        tau = np.atleast_2d(self.robot.rne(Q, QD, self._QDD, gravity=self.g))
+        g = tau[-1, self.act]
+        M = (tau[1:1 + self.n][:, self.act] - g).T
+        M[np.diag_indices(self.n)] += self.jm
+        return M, tau[0, self.act]
+
+    def friction(self, w):
+        r = np.clip(w / self.v_reg, -1.0, 1.0)
+        tc = np.where(w > 0.0, self.tc_pos, self.tc_neg)
+        return -(self.visc * w + tc * r)
+
+    def rhs(self, t, y, i):
+        q, w = y[:self.n], y[self.n:]
+        M, b = self.dynamics(q, w)
+        tau = self.k * self.kt * i + self.friction(w) - b
+        return np.concatenate([w, np.linalg.solve(M, tau)])
+
+    def run(self, controller, trajectory, n_samples, *, rtol=1e-9, atol=1e-12):
+        """Sampled closed loop from rest at q = 0; returns dict of e, i, q arrays (time-first)."""
+        from scipy.integrate import solve_ivp
+
+        ts = self.s.sample_time_s
+        lim = math.inf if self.s.current_full_scale is None else self.s.current_full_scale
+        t = np.arange(n_samples) * ts
+        ref = np.trunc(trajectory.position(t) * self.spr)
+        y = np.zeros(2 * self.n)
+        E = np.zeros((n_samples, self.n), dtype=np.int64)
+        I = np.zeros((n_samples, self.n))
+        Q = np.zeros((n_samples, self.n))
+        controller.reset()
+        ok = True
+        for k in range(n_samples):
+            act = np.trunc(y[:self.n] * self.spr)
+            E[k] = (ref[k] - act).astype(np.int64)
+            Q[k] = y[:self.n]
+            i = np.clip(np.asarray(controller(k, t[k], act / self.spr, E[k].copy()), float), -lim, lim)
+            I[k] = i
+            if k == n_samples - 1:
+                break
+            sol = solve_ivp(self.rhs, (t[k], t[k] + ts), y, method="DOP853", rtol=rtol, atol=atol,
+                            max_step=ts, args=(i,))
+            if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+                ok = False
+                E, I, Q = E[:k + 1], I[:k + 1], Q[:k + 1]
+                break
+            y = sol.y[:, -1]
+        return dict(e=E, i=I, q=Q, ok=ok)
+
+
+class PCard:
+    """The rig's P card, written here (not the library's)."""
+
+    def __init__(self, p_gain):
+        self.p = np.asarray(p_gain, float)
+
+    def reset(self):
+        pass
+
+    def __call__(self, k, t, q_meas, e_pulses):
+        return self.p * e_pulses
+
+
+def draw(family: str, seed: int) -> ArmSettings:
+    """A random robot, rig and reference of a family (module docstring)."""
+    rng = np.random.default_rng(seed)
+    s = ArmSettings(family=family, seed=int(seed))
+    if family == "planar2":
+        links = []
+        for _ in range(2):
+            L = rng.uniform(0.25, 0.7)
+            m = rng.uniform(1.0, 8.0)
+            cx = -L * rng.uniform(0.3, 0.7)
+            cy = rng.uniform(-0.02, 0.02)
+            izz = m * L * L * rng.uniform(0.02, 0.1)
+            I = np.diag([izz * 0.2, izz * rng.uniform(0.8, 1.0), izz])
+            links.append(dict(a=L, alpha=0.0, d=0.0, offset=0.0, mass=m, com=[cx, cy, 0.0],
+                              inertia=I.tolist()))
+        s.links = links
+        s.active = (0, 1)
+    elif family == "puma123":
+        s.active = (0, 1, 2)
+    elif family == "puma6":
+        s.active = (0, 1, 2, 3, 4, 5)
+    else:
+        raise ValueError(f"family must be one of {FAMILIES}")
+    n = len(s.active)
+    sign = rng.choice([-1.0, 1.0], n)
+    s.gear_ratio = tuple(float(v) for v in sign * rng.uniform(30.0, 120.0, n))
+    s.encoder_ppr = tuple(int(v) for v in rng.choice([500, 1000, 1024, 2000, 2048, 4096], n))
+    s.torque_constant = tuple(float(v) for v in rng.uniform(0.1, 0.4, n))
+    s.motor_inertia = tuple(float(v) for v in rng.uniform(30e-6, 300e-6, n))
+    s.ramp_speed = float(rng.uniform(0.2, 1.0))
+    s.coulomb = tuple((float(a), float(b)) for a, b in rng.uniform(0.0, 0.03, (n, 2)))
+    s.sample_time_s = float(rng.choice([0.5e-3, 1e-3]))
+    s.duration_s = 5.0
+    # reference: per joint a multisine with a quintic ramp, amplitude 0.3-0.9 rad in total
+    terms, c = [], []
+    for j in range(n):
+        nt = int(rng.integers(2, 4))
+        amp = rng.dirichlet(np.ones(nt)) * rng.uniform(0.3, 0.9)
+        w = 2 * math.pi * rng.uniform(0.15, 1.2, nt)
+        ph = rng.uniform(0, 2 * math.pi, nt)
+        c0 = -float(np.sum(amp * np.cos(ph)))  # starts at q = 0
+        terms.append([[float(a), float(o), float(p)] for a, o, p in zip(amp, w, ph)])
+        c.append(c0)
+    s.trajectory = dict(c=c, terms_A_omega_phi=terms, t_ramp_s=float(rng.uniform(0.3, 0.8)))
+    # P gains and viscous friction for a damped, stable sampled P loop (at q = 0, mean inertia)
+    model = library_model(s)
+    qs = rng.uniform(-0.5, 0.5, (8, n))
+    Dm = np.mean([np.diag(model.inertia_matrix(q)) for q in qs], axis=0)
+    k = np.abs(np.asarray(s.gear_ratio))
+    w_n = 2 * math.pi / s.sample_time_s * rng.uniform(0.006, 0.016, n)
+    zeta = rng.uniform(0.3, 0.8, n)
+    spr = k * np.asarray(s.encoder_ppr) / (2 * math.pi)
+    s.p_gain = tuple(float(v) for v in w_n ** 2 * Dm / (k * np.asarray(s.torque_constant) * spr))
+    s.viscous = tuple(float(v) for v in 2 * zeta * w_n * Dm / k ** 2)
+    return s
+
+
+def make_log(s: ArmSettings, name=None):
+    """The P-control log of a draw (independent simulator), as a library ``ArmLog``."""
+    from plant.arm_log import ArmLog, column_names, robot_section
+    from plant.trajectory import Trajectory
+
+    model = library_model(s)
+    rig = rig_of(s)
+    traj = Trajectory.from_sidecar(s.trajectory, "draw", n_joints=len(s.active))
+    sim = IndependentArm(s).run(PCard(s.p_gain), traj, s.n_samples)
+    if not sim["ok"]:
+        raise RuntimeError(f"independent run of draw {s.family}/{s.seed} failed")
+    t = np.arange(s.n_samples) * s.sample_time_s
+    sidecar = dict(dataset=name or f"{s.family}_{s.seed}", robot=robot_section(model),
+                   n_samples=s.n_samples, sample_time_s=s.sample_time_s,
+                   gear_ratio=list(s.gear_ratio), encoder_ppr=list(s.encoder_ppr),
+                   p_gain_A_per_pulse=list(s.p_gain), torque_constant_Nm_per_A=list(s.torque_constant),
+                   viscous_friction_Nms_per_rad=list(s.viscous),
+                   coulomb_friction_Nm=[list(c) for c in s.coulomb],
+                   coulomb_ramp_speed_rad_per_s=s.ramp_speed, gravity_m_s2=9.81,
+                   start_state=dict(q_rad=[0.0] * len(s.active), qd_rad_per_s=[0.0] * len(s.active)),
+                   trajectory=dict(parameters=s.trajectory),
+                   csv_columns={c: "" for c in column_names(model.joint_names)})
+    if s.current_full_scale is not None:
+        sidecar["current_full_scale_A"] = s.current_full_scale
+    return ArmLog(path=None, name=sidecar["dataset"], model=model, rig=rig, trajectory=traj, t=t,
+                  q_ref=traj.position(t), e_pulses=sim["e"], i_A=sim["i"], sidecar=sidecar)
+
+
+def rig_of(s: ArmSettings):
+    """The library's Rig of a draw (what the sidecar says)."""
+    from plant.rig import Rig
+
+    n = len(s.active)
+    return Rig(sample_time_s=s.sample_time_s, gear_ratio=tuple(s.gear_ratio),
+               encoder_ppr=tuple(s.encoder_ppr), p_gain_A_per_pulse=tuple(s.p_gain),
+               torque_constant_Nm_per_A=tuple(s.torque_constant),
+               viscous_friction_Nms_per_rad=tuple(s.viscous),
+               coulomb_friction_Nm=tuple(tuple(c) for c in s.coulomb),
+               coulomb_ramp_speed_rad_per_s=s.ramp_speed, gravity_m_s2=9.81, a3_m=0.0,
+               q0_rad=(0.0,) * n, qd0_rad_per_s=(0.0,) * n, f_bounds=(),
+               current_full_scale_A=s.current_full_scale)

@@ -1,0 +1,199 @@
+"""Any serial arm end to end: emulate a log, identify the base parameters, CTC vs P.
+
+The paper's pipeline for a robot given by a DH table or a URDF file
+(:class:`plant.RobotModel`), one robot per run (``--robot``):
+
+* ``planar2`` -- a two-link arm in a vertical plane, its DH table written here;
+* ``puma123`` -- the PUMA 560 joints 1-3 (Corke's parameters, wrist locked);
+* ``puma6``   -- the six-joint PUMA 560;
+* ``urdf``    -- the three-joint arm of ``tests/data/urdf/arm_3r_tool.urdf``
+  (needs the ``urdf`` extra, Robotics Toolbox's reader).
+
+Steps: the rig's P-control experiment is emulated with the library's own
+plant (:func:`plant.arm_log.emulate_arm_log`; a tutorial's log -- the
+acceptance figures come from an independent simulator,
+``benchmarks/bench_arms.py``), written as ``STEM.csv`` + ``STEM.json``
+(columns per named joint, the robot in the sidecar) and read back;
+:func:`identification.arm.identify_arm` identifies the base parameters
+(IDIM-LS start, output-error refinement); the computed-torque controller
+built from them (:class:`ctc.arm.ArmComputedTorque`) and the rig's P loop
+track the same reference on the robot.
+
+Run from the repository root::
+
+    python examples/any_arm.py --robot planar2        # seconds
+    python examples/any_arm.py --robot puma6          # about a minute (compiling included)
+    python examples/any_arm.py --quick                # a 2 s log of the planar arm
+
+Writes ``out/any_arm/<robot>.{csv,json}``, ``<robot>_result.json`` and
+``<robot>_tracking.png``.  A bad option ends with one line ``error: ...``
+and exit status 1.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+ROBOTS = ("planar2", "puma123", "puma6", "urdf")
+URDF = Path(__file__).resolve().parents[1] / "tests" / "data" / "urdf" / "arm_3r_tool.urdf"
+
+
+def parse(argv):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--robot", choices=ROBOTS, default="planar2", help="the arm (default planar2)")
+    p.add_argument("--duration", type=float, default=5.0, help="log length in s (default 5)")
+    p.add_argument("--quick", action="store_true", help="a 2 s log (smoke run)")
+    p.add_argument("--out", type=Path, default=Path("out") / "any_arm",
+                   help="output directory (default out/any_arm)")
+    a = p.parse_args(argv)
+    if a.quick:
+        a.duration = 2.0
+    if not (math.isfinite(a.duration) and 1.0 <= a.duration <= 60.0):
+        raise ValueError(f"--duration must lie in [1, 60] s, got {a.duration}")
+    return a
+
+
+def robot(name):
+    """The robot model and the rig's gear ratios."""
+    from plant import RobotModel
+
+    if name == "planar2":
+        return RobotModel.from_dh([
+            dict(a=0.6, mass=4.0, com=(-0.3, 0.01, 0), inertia=(0.01, 0.12, 0.13, 0, 0, 0),
+                 gear_ratio=80.0, motor_inertia=1e-4),
+            dict(a=0.45, mass=2.5, com=(-0.2, 0, 0), inertia=(0.005, 0.05, 0.05, 0, 0, 0),
+                 gear_ratio=-50.0, motor_inertia=1e-4),
+        ], gravity=(0.0, -9.81, 0.0), name="planar 2R arm")
+    if name == "puma123":
+        return RobotModel.puma560(active=(0, 1, 2))
+    if name == "puma6":
+        return RobotModel.puma560(active=range(6))
+    names = ("waist", "shoulder", "elbow")
+    return RobotModel.from_urdf(URDF, gear_ratios={n: g for n, g in zip(names, (60.0, 80.0, 50.0))},
+                                motor_inertias={n: 1e-4 for n in names})
+
+
+def rig_for(model, ts=1e-3, ppr=2000, kt=0.25):
+    """A rig for the model: P gains for a loop at 1 % of the sample rate, damped by viscous friction."""
+    from plant import Rig
+
+    n = model.n_joints
+    k = model.gear_ratios
+    rng = np.random.default_rng(0)
+    Dm = np.mean([np.diag(model.inertia_matrix(q)) for q in rng.uniform(-0.5, 0.5, (8, n))], axis=0)
+    w = 2 * math.pi * 0.01 / ts
+    spr = np.abs(k) * ppr / (2 * math.pi)
+    return Rig(sample_time_s=ts, gear_ratio=tuple(k), encoder_ppr=(ppr,) * n,
+               p_gain_A_per_pulse=tuple(w * w * Dm / (np.abs(k) * kt * spr)),
+               torque_constant_Nm_per_A=(kt,) * n,
+               viscous_friction_Nms_per_rad=tuple(2 * 0.5 * w * Dm / k ** 2),
+               coulomb_friction_Nm=((0.01, 0.012),) * n, coulomb_ramp_speed_rad_per_s=0.5,
+               gravity_m_s2=9.81, a3_m=0.0, q0_rad=(0.0,) * n, qd0_rad_per_s=(0.0,) * n,
+               current_full_scale_A=60.0)
+
+
+def reference(n, seed=1):
+    """A multisine per joint (two terms, 0.2-0.8 Hz) from rest at q = 0, quintic ramp 0.5 s."""
+    from plant import Trajectory
+
+    rng = np.random.default_rng(seed)
+    terms, c = [], []
+    for _ in range(n):
+        amp = rng.uniform(0.15, 0.35, 2)
+        ph = rng.uniform(0, 2 * math.pi, 2)
+        terms.append([(a, 2 * math.pi * f, p) for a, f, p in zip(amp, rng.uniform(0.2, 0.8, 2), ph)])
+        c.append(-float(np.sum(amp * np.cos(ph))))
+    return Trajectory.from_terms(c, terms, t_ramp_s=0.5)
+
+
+def main(argv=None):
+    args = parse(argv)
+    import plant
+    from ctc.arm import ArmComputedTorque, ArmPController
+    from identification.arm import identify_arm
+    from plant.arm import arm_plant
+    from plant.arm_log import emulate_arm_log, load_arm_log
+
+    if args.robot == "urdf":
+        try:
+            import roboticstoolbox  # noqa: F401  (the urdf extra)
+        except ImportError:
+            print("error: --robot urdf needs Robotics Toolbox (pip install 'puma-ga-ctc[urdf]')",
+                  file=sys.stderr)
+            return 1
+    model = robot(args.robot)
+    arm = arm_plant(model)
+    rig = rig_for(model)
+    traj = reference(model.n_joints)
+    n = int(round(args.duration / rig.sample_time_s))
+    truth = arm.beta()
+    print(f"{model!r}: {len(truth)} base parameters")
+    sidecar_robot = (dict(urdf=str(URDF), joints=list(model.joint_names),
+                          motor_inertias={j: 1e-4 for j in model.joint_names})
+                     if args.robot == "urdf" else None)
+    log = emulate_arm_log(arm, truth, rig, traj, n, name=args.robot, robot=sidecar_robot)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        path = log.save(args.out / f"{args.robot}.csv")
+    except OSError as exc:
+        print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    log = load_arm_log(path)
+    print(f"log {path}: {log.n_samples} samples, P loop max |e| {np.abs(log.e_pulses).max(0).tolist()} pulses")
+
+    res = identify_arm(log)
+    print(f"identified in {res.elapsed_s:.1f} s ({res.nit} iterations, {res.nfev} simulations): "
+          f"{res.message}")
+    print(f"  {'name':8s} {'truth':>11s} {'identified':>11s} {'error %':>9s} {'rse %':>8s}")
+    for name, t, x, r in zip(res.names, truth, res.x, res.x_rse):
+        err = 100 * (x / t - 1) if abs(t) > 1e-12 else float("nan")
+        print(f"  {name:8s} {t:11.5f} {x:11.5f} {err:9.3f} {100 * r:8.3f}")
+
+    out = {}
+    fig_rows = []
+    for label, ctrl in (("P", ArmPController(log.rig)),
+                        ("CTC", ArmComputedTorque(res.plant, res.x, log.rig, log.trajectory))):
+        t0 = time.perf_counter()
+        r = plant.simulate_closed_loop(log.rig, truth, ctrl, trajectory=log.trajectory,
+                                       n_samples=log.n_samples, plant=arm, label=label)
+        out[label] = dict(max_abs_error_after_0p1s=r.max_abs_error(0.1).tolist(),
+                          rms_error_after_0p1s=r.rms_error(0.1).tolist(),
+                          within_1_pulse=r.within(1, after_s=0.1), wall_s=time.perf_counter() - t0)
+        fig_rows.append(r)
+        print(f"{label:4s} max |e| after 0.1 s {r.max_abs_error(0.1).tolist()} pulses, "
+              f"within +-1: {r.within(1, after_s=0.1)}")
+    report = dict(robot=args.robot, model=repr(model), names=list(res.names), truth=truth.tolist(),
+                  identified=res.x.tolist(), rse=res.x_rse.tolist(), identify_s=res.elapsed_s,
+                  tracking=out)
+    try:
+        (args.out / f"{args.robot}_result.json").write_text(json.dumps(report, indent=1) + "\n")
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(3.5 * model.n_joints, 5), layout="constrained")
+        axes = fig.subplots(2, model.n_joints, squeeze=False)
+        for row, r in zip(axes, fig_rows):
+            r.plot(currents=False, ax=row[None, :], title=f"{args.robot}: P (top), CTC (bottom)")
+        fig.savefig(args.out / f"{args.robot}_tracking.png", dpi=90)
+    except OSError as exc:
+        print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.out}/{args.robot}_result.json and {args.robot}_tracking.png")
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        sys.exit(130)
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(1)

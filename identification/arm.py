@@ -1,0 +1,427 @@
+"""Identification of any serial arm's base parameters from a P-control log.
+
+The paper's method -- the simulated closed loop must reproduce the logged
+encoder pulses -- for a robot model (:class:`plant.robot_model.RobotModel`)
+of n joints with r base parameters beta (numerical QR, Gautier 1990), in two
+steps:
+
+1. **IDIM-LS start** (Khalil & Dombre, *Modeling, Identification and Control
+   of Robots*, 2002, sec. 12.4): the encoder counts taken at the centres of
+   their cells, a zero-phase Butterworth low-pass at the quantisation-floor
+   cut-off (:func:`identification.idim.idim_cutoff_hz`'s rule), rates and
+   accelerations by central differences, the joint torque ``k Kt i`` of the
+   logged current (at the sample's midpoint) plus the sidecar's friction,
+   filtered alike (parallel filtering); equations near a rate reversal are
+   dropped (Coulomb sign unknown there); least squares with the base
+   regressor, each joint weighted by 1 / its residual rms.
+2. **Output-error refinement** on the logged-input predictor
+   (:mod:`identification.refinement`'s bounded Levenberg--Marquardt, all
+   Jacobian columns of an iteration as one batch of SIMD lanes): the arm,
+   driven by the logged current plus a weak output injection
+   (:func:`plant.arm.replay_arm`), must keep its continuous encoder count in
+   the count cells the log allows.  The residuals are smooth in beta (the
+   quantised feedback is replaced by the logged current), so a local method
+   converges; their sum of squares is in pulses^2.
+
+Standard errors: Gauss--Newton sandwich with a Newey--West long-run
+covariance of the scores (:func:`identification.uncertainty.sandwich_covariance`),
+the relative standard error of each base parameter says how well the log
+excites it.
+
+The result is a :class:`scipy.optimize.OptimizeResult` with the arm's
+names (:class:`ArmIdentificationResult`).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from scipy import signal
+from scipy.optimize import OptimizeResult
+
+from plant.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
+from plant.model import friction_torque
+from plant.rig import rig_constants
+
+from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, _floor_cutoff_hz, reversal_mask
+from .refinement import DEFAULT_GAIN, refine
+from .uncertainty import RSE_WARN, sandwich_covariance
+
+__all__ = ["identify_arm", "arm_idim_ls", "ArmIdentificationResult", "ArmPredictionErrorProblem",
+           "ARM_REFINE_SUBSTEPS", "ARM_FTOL", "ARM_METHODS", "ARM_DEFAULT_METHOD"]
+
+#: Methods of :func:`identify_arm`; the default.
+ARM_METHODS = ("idim+pem", "ga+pem", "paper")
+ARM_DEFAULT_METHOD = "idim+pem"
+
+#: Relative cost decrease below which the refinement has converged: 1e-6 of a
+#: cost of ~1e3 pulses^2 is ~1e-3 pulses^2, far below what moves an estimate
+#: by its standard error.
+ARM_FTOL = 1e-6
+
+#: RK4 substeps per sample of the refinement's replay (the predictor's
+#: dynamics are the slow arm's: the logged current carries the fast P loop).
+ARM_REFINE_SUBSTEPS = 2
+
+
+def _cell_centres(counts):
+    return np.where(counts > 0, counts + 0.5, np.where(counts < 0, counts - 0.5, 0.0))
+
+
+def _plant_of(log, plant):
+    if plant is None:
+        return arm_plant(log.model)
+    if not isinstance(plant, ArmPlant):
+        raise ValueError(f"plant must be a plant.arm.ArmPlant, got {type(plant).__name__}")
+    return plant
+
+
+def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
+                reversal_guard=REVERSAL_GUARD) -> dict:
+    """Base parameters of an arm by IDIM-LS (inverse dynamic model, least squares).
+
+    Parameters
+    ----------
+    log : plant.arm_log.ArmLog
+        The logged experiment (rig friction known).
+    plant : plant.arm.ArmPlant, optional
+        The arm (default :func:`plant.arm.arm_plant` of the log's robot).
+    cutoff_hz : float, optional
+        Low-pass cut-off (Hz); default: where the encoder counts meet the
+        quantisation floor (:func:`identification.idim.idim_cutoff_hz`'s rule).
+    trim_s : float
+        Seconds dropped at both ends (filter transients).
+    decimate : int
+        Keep every ``decimate``-th sample.
+    reversal_guard : float or None
+        Equations within ``reversal_guard / cutoff_hz`` s of a rate reversal
+        are dropped (None keeps all).
+
+    Returns
+    -------
+    dict
+        ``x`` (r,), ``x_std`` (r,), ``cov`` (r, r), ``cutoff_hz``,
+        ``n_equations``, ``residual_rms_Nm`` (n,), ``condition_number``.
+
+    Raises
+    ------
+    ValueError
+        A log too short, a bad cut-off, or unknown friction (not supported
+        for robot models yet).
+    """
+    pl = _plant_of(log, plant)
+    rig = log.rig
+    if rig.unknown_friction:
+        raise ValueError("robot-model logs need the drive friction in the sidecar (unknown "
+                         "friction is identified for the PUMA 560 links 2-3 only)")
+    ts = rig.sample_time_s
+    n = log.n_joints
+    counts = log.measured_counts()
+    fc = _floor_cutoff_hz(counts, ts) if cutoff_hz is None else float(cutoff_hz)
+    if not (0.0 < fc < 0.5 / ts):
+        raise ValueError(f"cutoff_hz must lie in (0, {0.5 / ts:.4g}) Hz, got {cutoff_hz}")
+    c = rig_constants(rig)
+    spr = np.asarray(c.pulses_per_rad)
+    n_trim = int(round(trim_s / ts))
+    ns = counts.shape[0]
+    if ns - 2 * n_trim < 50:
+        raise ValueError(f"log too short for IDIM ({ns} samples)")
+    sos = signal.butter(IDIM_FILTER_ORDER, fc, fs=1.0 / ts, output="sos")
+    qf = signal.sosfiltfilt(sos, _cell_centres(counts) / spr, axis=0)
+    qd = np.gradient(qf, ts, axis=0)
+    qdd = np.gradient(qd, ts, axis=0)
+    i = np.asarray(log.i_A, dtype=float)
+    i_mid = np.vstack([i[:1], 0.5 * (i[1:] + i[:-1])])
+    fr = np.empty_like(qd)
+    for j in range(n):
+        fr[:, j] = [friction_torque(v, c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
+                                    c.ramp_speed[j]) for v in qd[:, j]]
+    tauf = signal.sosfiltfilt(sos, i_mid * np.asarray(c.torque_per_amp) + fr, axis=0)
+    sl = slice(n_trim, ns - n_trim, int(decimate))
+    keep = (np.ones(qd.shape, dtype=bool) if reversal_guard is None
+            else reversal_mask(qd, round(reversal_guard / (fc * ts))))
+    weight = keep[sl].reshape(-1).astype(float)
+    Y = pl.model.stacked_regressor(qf[sl], qd[sl], qdd[sl])[:, pl.base.independent]
+    W = Y * weight[:, None]
+    y = tauf[sl].reshape(-1) * weight
+    scale = np.linalg.norm(W, axis=0)
+    scale[scale == 0] = 1.0
+    x = np.linalg.lstsq(W / scale, y, rcond=None)[0] / scale
+    # each joint weighted by 1 / its residual rms (torques of different sizes)
+    r0 = (W @ x - y).reshape(-1, n)
+    kept = weight.reshape(-1, n) > 0
+    sigma = np.array([math.sqrt(np.mean(r0[kept[:, j], j] ** 2)) if kept[:, j].any() else 1.0
+                      for j in range(n)])
+    sigma[sigma <= 0] = 1.0
+    rw = np.tile(1.0 / sigma, W.shape[0] // n)
+    Ww, yw = W * rw[:, None], y * rw
+    x = np.linalg.lstsq(Ww / scale, yw, rcond=None)[0] / scale
+    r = Ww @ x - yw
+    cov, _ = sandwich_covariance(Ww, r, n_channels=n)
+    sv = np.linalg.svd(Ww / np.linalg.norm(Ww, axis=0).clip(1e-300), compute_uv=False)
+    res = (W @ x - y).reshape(-1, n)
+    return dict(x=x, x_std=np.sqrt(np.maximum(np.diag(cov), 0.0)), cov=cov, cutoff_hz=fc,
+                n_equations=int(np.count_nonzero(weight)),
+                residual_rms_Nm=np.sqrt(np.mean(res[kept.reshape(-1, n).any(axis=1)] ** 2, axis=0)),
+                condition_number=float(sv[0] / sv[-1]))
+
+
+class ArmPredictionErrorProblem:
+    """Residuals of the arm's logged-input predictor, in batches (:func:`identification.refinement.refine`).
+
+    Parameters
+    ----------
+    log : plant.arm_log.ArmLog
+    plant : plant.arm.ArmPlant
+    gain : float
+        Output-injection gain (fraction of the P gain).
+    substeps : int
+        RK4 steps per sample.
+    k_start : int
+        First compared sample.
+
+    Attributes
+    ----------
+    nfev : int
+        Candidates simulated so far.
+    """
+
+    def __init__(self, log, plant, *, gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, k_start=0):
+        self.log = log
+        self.plant = plant
+        self.gain = float(gain)
+        self.substeps = int(substeps)
+        self.k_start = int(k_start)
+        self.ref = log.reference_counts()
+        self.e = np.asarray(log.e_pulses, dtype=float)
+        self.i = np.asarray(log.i_A, dtype=float)
+        self.nfev = 0
+        # a failed candidate's residuals: a bound far beyond any prediction error
+        self.bound = 1e6
+
+    def residuals(self, X) -> np.ndarray:
+        """Prediction errors (pulses) of a batch of base-parameter vectors.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, r) or (r,)
+
+        Returns
+        -------
+        ndarray, shape (m, n_samples n) or (n_samples n,)
+        """
+        X = np.asarray(X, dtype=float)
+        single = X.ndim == 1
+        X = np.atleast_2d(X)
+        sim = replay_arm(self.plant, X, self.log.rig, self.ref, self.e, self.i, gain=self.gain,
+                         substeps=self.substeps, k_start=self.k_start, bound=self.bound)
+        self.nfev += X.shape[0]
+        R = sim.errors[:, self.k_start:, :].reshape(X.shape[0], -1).copy()
+        R[sim.status != 0] = self.bound
+        R[~np.isfinite(R)] = self.bound
+        return R[0] if single else R
+
+
+class ArmIdentificationResult(OptimizeResult):
+    """Base parameters of an arm identified from a log (scipy ``OptimizeResult``).
+
+    Attributes
+    ----------
+    x : ndarray, shape (r,)
+        Identified base parameters beta.
+    fun : float
+        Sum of squared prediction errors at x (pulses^2).
+    output_error : float
+        Output error of the simulated P loop with x against the log (paper
+        eq. 4, pulses^2).
+    nfev, nit : int
+        Simulated candidates (GA and refinement) and refinement iterations
+        (GA generations for ``method="paper"``).
+    method : str
+        The method that ran.
+    ga : dict or None
+        With a GA: its best ``x``, ``output_error`` (pulses^2), ``nfev``,
+        ``generations``.
+    bounds : ndarray, shape (r, 2)
+        The search box.
+    success : bool
+    message : str
+    names : tuple of str
+        Base-parameter names (:meth:`plant.robot_model.RobotModel.base_parameters`).
+    expressions : tuple of str
+        Each base parameter in the standard inertial parameters.
+    x_std : ndarray, shape (r,)
+        Standard errors (HAC sandwich).
+    x_rse : ndarray, shape (r,)
+        Relative standard errors ``x_std / abs(x)``.
+    well_excited : ndarray of bool, shape (r,)
+        ``x_rse < RSE_WARN`` (the library's poor-excitation threshold, 10 %).
+    x_idim : ndarray, shape (r,)
+        The IDIM-LS start.
+    cutoff_hz : float
+        IDIM low-pass cut-off.
+    plant : plant.arm.ArmPlant
+        The arm (for the controller: :class:`ctc.arm.ArmComputedTorque`).
+    log_name : str
+    elapsed_s : float
+        Wall time of the identification.
+    """
+
+    def plot(self, log, ax=None):
+        """Logged and simulated tracking errors per joint (P loop with x).
+
+        Parameters
+        ----------
+        log : plant.arm_log.ArmLog
+            The log identified.
+        ax : array of matplotlib Axes, optional
+            One per joint (default: a new figure).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+        """
+        n = log.n_joints
+        if ax is None:
+            from matplotlib.figure import Figure
+
+            fig = Figure(figsize=(4 * n, 3), layout="constrained")
+            axes = fig.subplots(1, n, squeeze=False)[0]
+        else:
+            axes = np.asarray(ax, dtype=object).reshape(-1)
+            if axes.size != n:
+                raise ValueError(f"ax must hold {n} axes, got {axes.size}")
+            fig = axes[0].figure
+        sim = simulate_arm(self.plant, self.x[None], log.rig, log.trajectory, log.n_samples)
+        for j, a in enumerate(axes):
+            a.step(log.t, log.e_pulses[:, j], where="post", lw=0.8, label="log")
+            a.step(log.t, sim.errors[0, :, j], where="post", lw=0.8, ls="--", label="identified")
+            a.set_title(log.joint_names[j])
+            a.set_xlabel("t (s)")
+            a.set_ylabel("e (pulses)")
+            a.grid(True, alpha=0.3)
+        axes[0].legend()
+        return fig
+
+
+def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAIN,
+                 substeps=ARM_REFINE_SUBSTEPS, max_iter=40, ftol=ARM_FTOL, cutoff_hz=None,
+                 bounds=None, ranges=None, rng=None, ga_options=None) -> ArmIdentificationResult:
+    """Identify an arm's base parameters from a P-control log (module docstring).
+
+    Parameters
+    ----------
+    log : plant.arm_log.ArmLog
+        The logged experiment of a robot model (:func:`plant.arm_log.load_arm_log`).
+    method : {"idim+pem", "ga+pem", "paper"}
+        ``"idim+pem"`` (default): IDIM-LS start, output-error refinement.
+        ``"paper"``: the paper's GA (:func:`identification.ga.run_ga` with
+        its settings: 4 x 20 individuals, 40 generations) on the output
+        error of eq. 4 -- the simulated P loop's integer errors against the
+        logged ones -- in the search box, and nothing else.  ``"ga+pem"``:
+        the same GA (Gray-coded), then the refinement from its best
+        individual and from the IDIM start (the better end wins).
+    plant : plant.arm.ArmPlant, optional
+        The arm (default :func:`plant.arm.arm_plant` of the log's robot).
+    gain : float
+        Output-injection gain of the predictor (fraction of the P gain).
+    substeps : int
+        RK4 steps per sample of the predictor.
+    max_iter : int
+        Refinement iterations at most.
+    ftol : float
+        Converged when an accepted step lowers the cost by less than ``ftol``
+        relative (:func:`identification.refinement.refine`).
+    cutoff_hz : float, optional
+        IDIM low-pass cut-off (default: the quantisation-floor rule).
+    bounds : array_like, shape (r, 2), optional
+        Box of beta.  Default: from ``ranges`` if given, else the IDIM
+        estimate +- (50 % + 10 standard errors).
+    ranges : dict, optional
+        Physical ranges of the links (masses, centres of mass, inertias,
+        motor inertias) -> the box of beta by interval arithmetic, the
+        paper's section 3.6 (:meth:`plant.robot_model.RobotModel.parameter_ranges`).
+    rng : numpy.random.Generator or int, optional
+        The GA's random numbers (methods with a GA); the same seed gives
+        the same result.
+    ga_options : dict, optional
+        Settings of :func:`identification.ga.run_ga` overriding the paper's.
+
+    Returns
+    -------
+    ArmIdentificationResult
+        ``success`` False (with a message) when the refinement's simulations
+        fail at the start point.  With a GA: ``ga`` (its best individual,
+        output error and generations).
+
+    Raises
+    ------
+    ValueError
+        As :func:`arm_idim_ls`, an unknown method, or malformed bounds.
+    """
+    from .api import PAPER_GA
+    from .ga import run_ga
+
+    t0 = time.perf_counter()
+    if method not in ARM_METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(ARM_METHODS)}")
+    pl = _plant_of(log, plant)
+    idim = arm_idim_ls(log, plant=pl, cutoff_hz=cutoff_hz)
+    x0 = idim["x"]
+    r = x0.size
+    if bounds is None and ranges is not None:
+        bounds = pl.model.parameter_ranges(ranges)
+        wide = bounds[:, 1] - bounds[:, 0] <= 0  # a parameter the ranges pin: a sliver around it
+        pad = 1e-6 * np.maximum(np.abs(bounds[:, 0]), 1e-9)
+        bounds[wide, 0] -= pad[wide]
+        bounds[wide, 1] += pad[wide]
+    if bounds is None:
+        hw = 0.5 * np.abs(x0) + 10.0 * idim["x_std"]
+        hw = np.maximum(hw, 1e-9 * max(1.0, float(np.max(np.abs(x0)))))
+        bounds = np.column_stack([x0 - hw, x0 + hw])
+    bounds = np.asarray(bounds, dtype=float)
+    if bounds.shape != (r, 2) or not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] >= bounds[:, 1]):
+        raise ValueError(f"bounds must have shape ({r}, 2) with low < high")
+    ga_info = None
+    starts = x0[None]
+    if method in ("ga+pem", "paper"):
+        settings = dict(PAPER_GA, gray=(method != "paper"))
+        settings.update(ga_options or {})
+        e_log = np.asarray(log.e_pulses, dtype=float)
+
+        def output_error(X):
+            return simulate_arm(pl, X, log.rig, log.trajectory, log.n_samples, e_log=e_log,
+                                errors=False).objective
+
+        ga = run_ga(output_error, bounds, rng=np.random.default_rng(rng), **settings)
+        ga_info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
+                       nfev=int(ga.nfev), generations=int(ga.nit))
+        starts = np.vstack([np.asarray(ga.x, dtype=float), np.clip(x0, bounds[:, 0], bounds[:, 1])])
+    problem = ArmPredictionErrorProblem(log, pl, gain=gain, substeps=substeps)
+    if method == "paper":
+        ref = OptimizeResult(x=ga_info["x"], fun=float(np.sum(problem.residuals(ga_info["x"]) ** 2)),
+                             nfev=ga_info["nfev"], nit=ga_info["generations"], message="the paper's GA",
+                             jac=None, residuals=None)
+    else:
+        ref = refine(problem, starts, bounds, max_iter=max_iter, ftol=ftol)
+    x = np.asarray(ref.x, dtype=float)
+    ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
+    n = log.n_joints
+    if ref.jac is not None and ok:
+        cov, _ = sandwich_covariance(ref.jac, ref.residuals, n_channels=n)
+        x_std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    else:
+        cov, x_std = None, np.full(r, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rse = x_std / np.abs(x)
+    sim = simulate_arm(pl, x[None], log.rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
+                       errors=False)
+    nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and method != "paper" else 0)
+    return ArmIdentificationResult(
+        x=x, fun=float(ref.fun), output_error=float(sim.objective[0]), nfev=nfev,
+        nit=int(ref.nit), success=ok, method=method, ga=ga_info, bounds=bounds, message=(ref.message or "ok") if ok else
+        "the predictor failed at the IDIM start: the log does not fit the robot model",
+        names=pl.base.names, expressions=pl.base.expressions, x_std=x_std, x_rse=rse, cov=cov,
+        well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
+        log_name=log.name, elapsed_s=time.perf_counter() - t0)

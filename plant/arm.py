@@ -1,0 +1,498 @@
+"""A robot model's rigid arm in the closed-loop core: generated right-hand side and logged runs.
+
+:func:`arm_plant` turns a :class:`plant.robot_model.RobotModel` (any serial
+arm of revolute joints, from a DH table or a URDF) into a plant of the one
+closed-loop core (:mod:`plant.core`): the rigid multibody dynamics of its
+active joints in its **base parameters** beta (numerical QR, Gautier 1990;
+:meth:`~plant.robot_model.RobotModel.base_parameters`),
+
+.. math::
+
+    D(q; \\beta)\\,\\ddot q + n(q, \\dot q; \\beta) = k K_t\\, i + \\tau_f(\\dot q),
+
+with the drive's joint-side friction ``tau_f`` (:func:`plant.model.friction_torque`,
+the rig's, per joint) and the torque ``k Kt i`` of the held motor current.
+casadi writes D and n in the sines and cosines of the joint angles
+(:attr:`~plant.robot_model.RobotModel`'s Newton--Euler derivation), the
+code generator :mod:`plant.codegen` turns them into straight-line code, and
+the generated right-hand side solves ``D qdd = tau - n`` by an unrolled
+Cholesky factorisation whose smallest pivot is the core's
+positive-definiteness margin.  The code is generated once per robot (the
+kind class and its right-hand side are cached by the generated source), so
+one robot's kernels are specialised at its joint count; two robots live
+side by side in one process (each its own kind).
+
+Drivers of the core for the arm, both in lanes (one candidate beta per
+column, :mod:`plant.lanes`):
+
+* :func:`simulate_arm` -- the logged experiment: the rig's P loop ``i = P e``
+  with the integer error ``e = trunc(q_ref k N / 2 pi) - trunc(q k N / 2
+  pi)``, current clipped at the drive's full scale; returns the simulated
+  errors in pulses and the output error (paper eq. 4) against a log;
+* :func:`replay_arm` -- the one-step-ahead predictor of the refinement
+  (:mod:`identification.arm`): the logged current plus output injection
+  ``P gain (m - c)`` toward the centre ``m`` of the count cell the log
+  allows; returns the continuous prediction errors ``m - c`` (pulses).
+
+These kernels are compiled per process (numba's on-disk cache needs the
+kind's class to be importable, which a generated class is not).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import casadi as ca
+import numba
+import numpy as np
+
+from .anchors import REANCHOR
+from .codegen import function_source
+from .core import STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, advance_sample, cell_centre, encoder_read, padded_lanes
+from .lanes import new_lanes
+from .parallel import run_chunks
+from .model import friction_torque
+from .plants import Plant, register_plant
+from .rig import rig_constants
+
+__all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
+           "reference_counts", "ARM_SUBSTEPS"]
+
+#: RK4 substeps per sample of the arm's logged runs by default.
+ARM_SUBSTEPS = 8
+
+# Per-process kernels (not cached on disk: a generated kind's class cannot be unpickled
+# in another process).
+_jit = numba.njit(nogil=True, error_model="numpy")
+
+
+@dataclass(frozen=True)
+class ArmPlant(Plant):
+    """The rigid arm of a robot model as a plant of the closed-loop core.
+
+    Build it with :func:`arm_plant`.  State ``(q_1..q_n, qd_1..qd_n)`` of the
+    model's active joints (rad, rad/s); per-lane parameters the base
+    parameters beta (``base``); the encoders read ``q``.
+
+    Parameters
+    ----------
+    name : str
+        The robot's name.
+    kind : NamedTuple
+        The kind registered for this robot's right-hand side (a class of its own).
+    encoder_row : int
+        0: the encoders read the joint angles (rows 0..n-1 of the state).
+    model : plant.robot_model.RobotModel
+        The robot.
+    base : plant.robot_model.BaseParameterSet
+        Its base parameters (names, regrouping ``beta = K p``).
+    source : str
+        The generated right-hand side (Python source compiled by numba).
+    """
+
+    model: object = None
+    base: object = None
+    source: str = field(default="", repr=False)
+
+    @property
+    def n_joints(self) -> int:
+        """Active joints n (motor currents, encoders)."""
+        return self.model.n_joints
+
+    @property
+    def parameter_names(self) -> tuple:
+        """Names of the base parameters, in order."""
+        return self.base.names
+
+    def lane_parameters(self, B, rig=None) -> np.ndarray:
+        """Per-lane parameter array of candidates ``B`` (m, r): base parameters per row.
+
+        Parameters
+        ----------
+        B : array_like, shape (m, r) or (r,)
+            Base parameters beta per candidate.
+        rig : ignored
+            (The rig's friction is the plant's; kept for the :class:`Plant` protocol.)
+
+        Returns
+        -------
+        ndarray, shape (r, m)
+
+        Raises
+        ------
+        ValueError
+            On a wrong shape or NaN/inf.
+        """
+        B = np.atleast_2d(np.asarray(B, dtype=np.float64))
+        r = self.base.rank
+        if B.ndim != 2 or B.shape[1] != r:
+            raise ValueError(f"base parameters must have shape (n_candidates, {r}), got {B.shape}")
+        if not np.all(np.isfinite(B)):
+            raise ValueError("base parameters contain NaN or inf")
+        return np.ascontiguousarray(B.T)
+
+    @property
+    def dynamics_function(self) -> ca.Function:
+        """casadi ``(sc, qd, beta) -> (D lower triangle, n)`` of the arm (the plant's own expressions).
+
+        ``sc = (sin q_1, cos q_1, ..., sin q_n, cos q_n)``; the first output
+        holds ``D(q)``'s lower triangle row by row (n (n + 1) / 2,), the
+        second the Coriolis/centrifugal plus gravity torques ``n(q, qd)``
+        (n,) in N m, both for base parameters beta (r,).
+        """
+        fn = _DYNAMICS.get(type(self.kind))
+        if fn is None:
+            fn = _DYNAMICS[type(self.kind)] = _dynamics_function(self.model, self.base)
+        return fn
+
+    def beta(self, p=None) -> np.ndarray:
+        """Base parameters of standard parameters ``p`` (default the model's own), shape (r,).
+
+        Parameters
+        ----------
+        p : array_like, shape (n_std,), optional
+        """
+        p = self.model.standard_parameters() if p is None else p
+        return self.base(p)
+
+
+def _dynamics_function(model, base) -> ca.Function:
+    """casadi ``(sc, qd, beta) -> (D lower triangle row by row, n)`` of a model's base parameters."""
+    _, qd, qdd, p = model._symbols
+    s, c = model._trig_symbols
+    n = model.n_joints
+    beta = ca.SX.sym("beta", base.rank)
+    if base.independent is None:
+        raise ValueError("the arm plant needs the QR base parameters (RobotModel.base_parameters())")
+    # Y p = Y[:, independent] beta for every p: take the p that holds beta in the independent
+    # columns and zeros elsewhere (the Newton-Euler graph at that p, zeros folded away)
+    p_beta = [0] * p.shape[0]
+    for k, col in enumerate(base.independent):
+        p_beta[int(col)] = beta[k]
+    tau_b = ca.substitute(model._tau_sc, p, ca.vertcat(*p_beta))
+    D = ca.jacobian(tau_b, qdd)
+    nvec = ca.substitute(tau_b, qdd, ca.SX.zeros(n))
+    lower = ca.vertcat(*[D[j, k] for j in range(n) for k in range(j + 1)])
+    sc = ca.vertcat(*[v for k in range(n) for v in (s[k], c[k])])
+    outs = [ca.densify(lower), ca.densify(nvec)]
+    if hasattr(ca, "cse"):
+        outs = [ca.cse(o) for o in outs]
+    return ca.Function("arm_dynamics", [sc, qd, beta], outs)
+
+
+def _rhs_source(model, base) -> str:
+    """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.core`)."""
+    n = model.n_joints
+    fn = _dynamics_function(model, base)
+    lines, (Dl, nv) = function_source(fn, "g")
+    src = ["def rhs(p, c, x, u, sc):",
+           "    in0 = sc",
+           "    in1 = (" + "".join(f"x[{n + j}], " for j in range(n)) + ")",
+           "    in2 = p"]
+    src += lines
+    for j in range(n):
+        src.append(f"    t{j} = c.torque_per_amp[{j}] * u[{j}] + friction_torque(x[{n + j}], "
+                   f"c.viscous[{j}], c.coulomb_pos[{j}], c.coulomb_neg[{j}], c.ramp_speed[{j}])"
+                   f" - {nv[j]}")
+    # unrolled Cholesky D = L L^T (D's lower triangle row by row), then two triangular solves
+    idx = {}
+    m = 0
+    for j in range(n):
+        for k in range(j + 1):
+            idx[j, k] = Dl[m]
+            m += 1
+    for j in range(n):
+        for k in range(j):
+            acc = idx[j, k] + "".join(f" - L{j}_{i} * L{k}_{i}" for i in range(k))
+            src.append(f"    L{j}_{k} = ({acc}) / L{k}_{k}")
+        src.append(f"    d{j} = {idx[j, j]}" + "".join(f" - L{j}_{i} * L{j}_{i}" for i in range(j)))
+        src.append(f"    L{j}_{j} = math.sqrt(d{j}) if d{j} > 0.0 else 1.0")
+    for j in range(n):
+        src.append(f"    y{j} = (t{j}" + "".join(f" - L{j}_{i} * y{i}" for i in range(j)) + f") / L{j}_{j}")
+    for j in reversed(range(n)):
+        src.append(f"    a{j} = (y{j}" + "".join(f" - L{i}_{j} * a{i}" for i in range(j + 1, n))
+                   + f") / L{j}_{j}")
+    margin = "d0"
+    for j in range(1, n):
+        margin = f"min({margin}, d{j})"
+    src.append(f"    margin = {margin}")
+    src.append("    return (" + "".join(f"x[{n + j}], " for j in range(n))
+               + "".join(f"a{j}, " for j in range(n)) + "), margin")
+    return "\n".join(src) + "\n"
+
+
+_PLANTS: dict = {}
+_DYNAMICS: dict = {}
+
+
+def arm_plant(model, base=None) -> ArmPlant:
+    """The rigid arm of a robot model as a plant of the core (generated once per robot).
+
+    Parameters
+    ----------
+    model : plant.robot_model.RobotModel
+        The robot (its active joints are the plant's joints).
+    base : plant.robot_model.BaseParameterSet, optional
+        Its QR base parameters (default ``model.base_parameters()``).
+
+    Returns
+    -------
+    ArmPlant
+        Registered in :data:`plant.plants.RIGHT_HAND_SIDES` under a kind of
+        its own; the same robot (same generated code) gives the same plant.
+
+    Raises
+    ------
+    ValueError
+        If ``model`` is not a RobotModel, or ``base`` is a named basis.
+    """
+    from .robot_model import RobotModel
+
+    if not isinstance(model, RobotModel):
+        raise ValueError(f"arm_plant needs a plant.RobotModel, got {type(model).__name__}")
+    base = model.base_parameters() if base is None else base
+    src = _rhs_source(model, base)
+    key = hashlib.sha1(src.encode()).hexdigest()[:16]
+    if key in _PLANTS:
+        old = _PLANTS[key]
+        return ArmPlant(name=model.name, kind=old.kind, encoder_row=0, model=model, base=base,
+                        source=src)
+    scope = {"math": math, "friction_torque": friction_torque}
+    exec(compile(src, f"<plant.arm rhs {model.name} {key}>", "exec"), scope)  # noqa: S102
+    rhs = _jit(scope["rhs"])
+    kind_class = NamedTuple(f"ArmKind_{key}", [("code", int)])
+    n = model.n_joints
+    register_plant(kind_class, rhs, 2 * n, base.rank, n_inputs=n, n_angles=n)
+    plant = ArmPlant(name=model.name, kind=kind_class(0), encoder_row=0, model=model, base=base,
+                     source=src)
+    _PLANTS[key] = plant
+    return plant
+
+
+# ----------------------------------------------------------------------------
+# Drivers
+# ----------------------------------------------------------------------------
+def reference_counts(trajectory, rig, n_samples) -> np.ndarray:
+    """Unquantised reference counts ``q_ref(t_k) k N / 2 pi``, shape (n_samples, n).
+
+    Parameters
+    ----------
+    trajectory : plant.Trajectory
+    rig : plant.Rig
+    n_samples : int
+    """
+    t = np.arange(int(n_samples)) * rig.sample_time_s
+    return np.ascontiguousarray(trajectory.position(t) * rig.pulses_per_rad)
+
+
+@_jit
+def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, out, write,
+             obj, status, compared, n_lanes):
+    """Experiment (P loop) or replay (logged current + injection) of ``n_lanes`` candidates.
+
+    ``ref`` (n_total, n) reference counts; ``e_log``, ``i_log`` (n_total, n)
+    logged errors and currents (compared from ``k_start`` on).  Results per
+    lane: ``obj`` sum of squares (experiment: ``e_log - e_sim``; replay: ``m
+    - c``), ``status``, ``compared``; with ``write`` the errors go to ``out``
+    (lanes, n_total, n).
+    """
+    P, X, U, A, S, E, idx, W = lanes
+    n_total = ref.shape[0]
+    nj = U.shape[0]
+    i_lim = c.current_limit
+    lanes_run = padded_lanes(n_lanes)
+    for j in range(lanes_run):
+        E[j] = 0.0
+    for k in range(n_total):
+        for j in range(n_lanes):
+            if status[j] == STATUS_OK:
+                for m in range(nj):
+                    if abs(ref[k, m] - X[m, j] * c.pulses_per_rad[m]) > bound:
+                        status[j] = STATUS_DIVERGED
+                        compared[j] = k
+        for j in range(lanes_run):
+            s = 0.0
+            for m in range(nj):
+                sc = c.pulses_per_rad[m]
+                cont, act = encoder_read(X[m, j], sc)
+                _, tgt = encoder_read(ref[k, m], 1.0)
+                if replay:
+                    mid = cell_centre(tgt - e_log[k, m])
+                    d = mid - cont
+                    U[m, j] = i_log[k, m] + c.p_gain[m] * gain * d
+                    if write and j < n_lanes:
+                        out[j, k, m] = d
+                else:
+                    e = tgt - act
+                    d = e_log[k, m] - e
+                    U[m, j] = min(max(c.p_gain[m] * e, -i_lim), i_lim)
+                    if write and j < n_lanes:
+                        out[j, k, m] = e
+                if k >= k_start:
+                    s += d * d
+            E[j] += s
+        if k == n_total - 1:
+            break
+        advance_sample(kind, P, c, X, U, A, S, W, lanes_run, substeps, k % REANCHOR == 0)
+        for j in range(n_lanes):
+            if status[j] == STATUS_OK and S[j] != STATUS_OK:
+                status[j] = S[j]
+                compared[j] = k + 1
+    for j in range(n_lanes):
+        obj[j] = E[j]
+        if status[j] == STATUS_OK:
+            compared[j] = n_total
+
+
+@dataclass(frozen=True)
+class ArmSimulation:
+    """Simulated runs of a batch of candidates on one rig (a driver's result).
+
+    Attributes
+    ----------
+    errors : ndarray, shape (n_candidates, n_samples, n_joints) or None
+        Experiment: the simulated tracking errors (pulses, integers);
+        replay: the prediction errors ``m - c`` (pulses, continuous).  None
+        when not requested.
+    objective : ndarray, shape (n_candidates,)
+        Sum of squares from the first compared sample (experiment: output
+        error, paper eq. 4, against the log; replay: prediction errors);
+        inf for a failed candidate.
+    status : ndarray, shape (n_candidates,), int
+        :data:`plant.core.STATUS_OK` or a failure code.
+    message : tuple of str
+        Per candidate, ``"ok"`` or the failure and its time.
+    """
+
+    errors: np.ndarray | None
+    objective: np.ndarray
+    status: np.ndarray
+    message: tuple
+
+
+def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0, qd0, k_start,
+         bound, workers=None):
+    if not isinstance(plant, ArmPlant):
+        raise ValueError(f"plant must be an ArmPlant (plant.arm.arm_plant), got {type(plant).__name__}")
+    n = plant.n_joints
+    c = rig_constants(rig, q0=q0, qd0=qd0)
+    if len(c.pulses_per_rad) != n:
+        raise ValueError(f"the rig has {len(c.pulses_per_rad)} joints, the robot {n}")
+    Pall = plant.lane_parameters(B)
+    m = Pall.shape[1]
+    x0 = plant.initial_state(c)
+    if not np.all(np.isfinite(x0)):
+        raise ValueError("the rig has no start state: give q0 and qd0")
+    ref = np.ascontiguousarray(ref, dtype=float)
+    nt = ref.shape[0]
+    e_log = np.zeros((nt, n)) if e_log is None else np.ascontiguousarray(e_log, dtype=float)
+    i_log = np.zeros((nt, n)) if i_log is None else np.ascontiguousarray(i_log, dtype=float)
+    if ref.shape != (nt, n) or e_log.shape != (nt, n) or i_log.shape != (nt, n):
+        raise ValueError(f"reference, errors and currents must have shape (n_samples, {n})")
+    substeps = int(substeps)
+    if substeps < 1:
+        raise ValueError(f"substeps must be >= 1, got {substeps}")
+    bound = float(bound) if bound is not None else 1e12
+    out = np.zeros((m if errors else 0, nt if errors else 0, n))
+    obj = np.zeros(m)
+    status = np.zeros(m, dtype=np.int64)
+    compared = np.zeros(m, dtype=np.int64)
+    def chunk(lo, hi):  # one chunk of candidates in its own lanes (the kernel releases the GIL)
+        lanes = new_lanes(Pall, lo, hi, x0, n_inputs=n, n_angles=n)
+        o = out[lo:hi] if errors else out
+        _arm_run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
+                 float(gain), bound, o, bool(errors), obj[lo:hi], status[lo:hi], compared[lo:hi],
+                 hi - lo)
+
+    run_chunks(chunk, m, workers)
+    obj = np.where(status == STATUS_OK, obj, np.inf)
+    msgs = tuple("ok" if s == STATUS_OK else
+                 f"{STATUS_MESSAGES[int(s)]} at t = {k * rig.sample_time_s:.4f} s"
+                 for s, k in zip(status, compared))
+    return ArmSimulation(errors=(out if errors else None), objective=obj, status=status, message=msgs)
+
+
+def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=ARM_SUBSTEPS,
+                 errors=True, q0=None, qd0=None, k_start=0, bound=None, workers=None) -> ArmSimulation:
+    """Simulate the logged P-control experiment of an arm for candidates ``B``.
+
+    At each sample ``t_k = k Ts`` the motor encoders are read
+    (``act = trunc(q k N / 2 pi)``), the integer error ``e = trunc(q_ref k N
+    / 2 pi) - act`` sets the current ``i = P e`` (clipped at the drive's
+    full scale), held over the sample while the core advances the arm
+    (``substeps`` RK4 steps; :func:`plant.core.advance_sample`).
+
+    Parameters
+    ----------
+    plant : ArmPlant
+        The robot (:func:`arm_plant`).
+    B : array_like, shape (m, r) or (r,)
+        Base parameters per candidate.
+    rig : plant.Rig
+        Rig constants (per-joint tuples of n entries).
+    trajectory : plant.Trajectory
+        Reference of the n joints.
+    n_samples : int
+        Samples from t = 0.
+    e_log : array_like, shape (n_samples, n), optional
+        Logged errors (pulses) for the output error (default zeros).
+    substeps : int
+        RK4 steps per sample.
+    errors : bool
+        Return the simulated errors.
+    q0, qd0 : array_like, shape (n,), optional
+        Start state (default the rig's).
+    k_start : int
+        First sample of the output error.
+    bound : float, optional
+        Divergence bound on ``abs(ref - c)`` (pulses).
+    workers : int, optional
+        Threads (default: the CPUs this process may use); candidates are
+        split into one chunk per thread.
+
+    Returns
+    -------
+    ArmSimulation
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes, a rig of another joint count, no start state.
+    """
+    ref = reference_counts(trajectory, rig, n_samples)
+    return _run(plant, B, rig, ref, e_log, None, replay=False, gain=0.0, substeps=substeps,
+                errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, workers=workers)
+
+
+def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS, errors=True,
+               q0=None, qd0=None, k_start=0, bound=None, workers=None) -> ArmSimulation:
+    """One-step-ahead predictor of a logged run: logged current plus output injection.
+
+    The current ``i_log + P gain (m - c)`` is held over each sample, with
+    ``m`` the centre of the count cell the logged error allows and ``c`` the
+    continuous count of the simulated arm; the prediction errors ``m - c``
+    (pulses) are smooth in the parameters (the refinement's residuals,
+    :mod:`identification.arm`).
+
+    Parameters
+    ----------
+    plant : ArmPlant
+    B : array_like, shape (m, r) or (r,)
+    rig : plant.Rig
+    ref : array_like, shape (n_samples, n)
+        Unquantised reference counts (:func:`reference_counts`).
+    e_log, i_log : array_like, shape (n_samples, n)
+        Logged errors (pulses) and currents (A).
+    gain : float
+        Output-injection gain (fraction of the P gain).
+    substeps, errors, q0, qd0, k_start, bound, workers
+        As :func:`simulate_arm`.
+
+    Returns
+    -------
+    ArmSimulation
+    """
+    return _run(plant, B, rig, ref, e_log, i_log, replay=True, gain=gain, substeps=substeps,
+                errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, workers=workers)

@@ -1,0 +1,247 @@
+"""Any serial arm through the one core: generated plant, logs, identification, CTC (issue 23)."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import plant
+from plant.arm import arm_plant, replay_arm, simulate_arm
+from plant.arm_log import ArmLog, emulate_arm_log, load_arm_log
+from plant.codegen import function_source
+from plant.core import plant_rhs
+from plant.rig import Rig, rig_constants
+from plant.robot_model import Link, RobotModel
+from plant.trajectory import Trajectory
+
+
+def planar_arm(**kw):
+    return RobotModel([Link(a=0.5, mass=3.0, com=(-0.25, 0.01, 0), inertia=np.diag([0.01, 0.05, 0.06]),
+                            gear_ratio=50.0, motor_inertia=1e-4),
+                       Link(a=0.4, mass=2.0, com=(-0.2, 0, 0), inertia=np.diag([0.01, 0.03, 0.04]),
+                            gear_ratio=-40.0, motor_inertia=1.5e-4)],
+                      gravity=(0, -9.81, 0), name="planar", **kw)
+
+
+def planar_rig(p_gain=(0.05, 0.05), limit=None):
+    return Rig(sample_time_s=1e-3, gear_ratio=(50.0, -40.0), encoder_ppr=(1000, 2000),
+               p_gain_A_per_pulse=p_gain, torque_constant_Nm_per_A=(0.2, 0.25),
+               viscous_friction_Nms_per_rad=(2e-3, 3e-3),
+               coulomb_friction_Nm=((0.01, 0.012), (0.008, 0.01)), coulomb_ramp_speed_rad_per_s=0.5,
+               gravity_m_s2=9.81, a3_m=0.0, q0_rad=(0.0, 0.0), qd0_rad_per_s=(0.0, 0.0),
+               current_full_scale_A=limit)
+
+
+TRAJ = Trajectory.from_terms([0.3, -0.2], [[(0.6, 2.0, 0.0), (0.2, 5.1, 0.4)],
+                                           [(0.7, 3.0, 1.0), (0.2, 6.3, 0.2)]], t_ramp_s=0.5)
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return arm_plant(planar_arm())
+
+
+def test_codegen_matches_casadi():
+    import casadi as ca
+
+    x = ca.SX.sym("x", 3)
+    f = ca.Function("f", [x], [ca.densify(ca.vertcat(ca.sin(x[0]) * x[1] / x[2], ca.sqrt(x[1]) - x[0] ** 3,
+                                                     ca.fmax(x[0], x[2]), 0))])
+    lines, outs = function_source(f, "g")
+    src = "def h(in0):\n" + "\n".join(lines) + "\n    return (" + ", ".join(outs[0]) + ",)\n"
+    scope = {"math": math}
+    exec(src, scope)
+    v = [0.3, 2.0, -1.5]
+    assert np.allclose(scope["h"](v), np.asarray(f(v)).ravel(), rtol=1e-15, atol=0)
+
+
+def test_arm_plant_is_the_models_forward_dynamics(arm):
+    """The generated right-hand side solves D(q) qdd = k Kt i + tau_f - c - g of the robot model."""
+    model = arm.model
+    rig = planar_rig()
+    c = rig_constants(rig)
+    rng = np.random.default_rng(3)
+    beta = arm.beta()
+    for _ in range(5):
+        q, qd, u = rng.uniform(-2, 2, 2), rng.uniform(-3, 3, 2), rng.uniform(-2, 2, 2)
+        sc = tuple(v for a in q for v in (math.sin(a), math.cos(a)))
+        xd, margin = plant_rhs(arm.kind, tuple(beta), c, tuple(q) + tuple(qd), tuple(u), sc)
+        tau = np.asarray(c.torque_per_amp) * u + np.array(
+            [plant.model.friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
+                                         c.ramp_speed[j]) for j in range(2)])
+        D = model.inertia_matrix(q)
+        qdd = np.linalg.solve(D, tau - model.coriolis_centrifugal(q, qd) - model.gravity_vector(q))
+        assert np.allclose(xd[2:], qdd, rtol=1e-10, atol=1e-10)
+        assert np.allclose(xd[:2], qd) and margin > 0
+    # the same robot gives the same kind; the plant's parameter names are the base parameters
+    assert type(arm_plant(planar_arm()).kind) is type(arm.kind)
+    assert arm.parameter_names == model.base_parameters().names
+
+
+def test_two_robots_side_by_side(arm):
+    """A second robot (three joints) lives in the same process; each keeps its own results."""
+    three = RobotModel([Link(a=0.4, mass=2.0, com=(-0.2, 0, 0), inertia=np.diag([0.01, 0.02, 0.02]),
+                             gear_ratio=30.0, motor_inertia=1e-4)] * 3, gravity=(0, -9.81, 0))
+    pl3 = arm_plant(three)
+    assert type(pl3.kind) is not type(arm.kind) and pl3.n_joints == 3
+    rig3 = Rig(**{**planar_rig().__dict__, "gear_ratio": (30.0,) * 3, "encoder_ppr": (1000,) * 3,
+                  "p_gain_A_per_pulse": (0.05,) * 3, "torque_constant_Nm_per_A": (0.2,) * 3,
+                  "viscous_friction_Nms_per_rad": (2e-3,) * 3,
+                  "coulomb_friction_Nm": ((0.01, 0.01),) * 3, "q0_rad": (0.0,) * 3,
+                  "qd0_rad_per_s": (0.0,) * 3})
+    traj3 = Trajectory.from_terms([0.0] * 3, [[(0.3, 2.0, 0.0)]] * 3, t_ramp_s=0.3)
+    a = simulate_arm(arm, arm.beta()[None], planar_rig(), TRAJ, 300)
+    b = simulate_arm(pl3, pl3.beta()[None], rig3, traj3, 300)
+    a2 = simulate_arm(arm, arm.beta()[None], planar_rig(), TRAJ, 300)
+    assert b.errors.shape == (1, 300, 3) and np.array_equal(a.errors, a2.errors)
+    with pytest.raises(ValueError, match="joints"):
+        simulate_arm(pl3, pl3.beta()[None], planar_rig(), TRAJ, 10)
+
+
+def test_lanes_are_independent(arm):
+    """A candidate's pulses do not depend on the other candidates in the batch (or the threads)."""
+    rig = planar_rig()
+    B = arm.beta() * np.array([[1.0], [1.02], [0.97], [1.05]])
+    one = simulate_arm(arm, B[2:3], rig, TRAJ, 800, workers=1)
+    many = simulate_arm(arm, B, rig, TRAJ, 800, workers=2)
+    assert np.array_equal(one.errors[0], many.errors[2])
+    assert np.array_equal(one.objective, many.objective[2:3])
+
+
+def test_arm_log_round_trip_and_errors(arm, tmp_path):
+    rig = planar_rig()
+    log = emulate_arm_log(arm, arm.beta(), rig, TRAJ, 600, name="planar_test")
+    assert log.e_pulses.shape == (600, 2) and log.e_pulses.dtype == np.int64
+    assert np.array_equal(log.i_A, log.e_pulses * np.asarray(rig.p_gain_A_per_pulse))
+    path = log.save(tmp_path / "planar_test.csv")
+    header = path.read_text().splitlines()[0].split(",")
+    assert header == ["t_s", "q1_ref_rad", "q2_ref_rad", "e1_pulses", "e2_pulses", "i1_A", "i2_A"]
+    back = load_arm_log(path)
+    assert np.array_equal(back.e_pulses, log.e_pulses) and np.array_equal(back.i_A, log.i_A)
+    assert back.model.joint_names == ("q1", "q2") and back.rig.gear_ratio == rig.gear_ratio
+    assert np.allclose(arm_plant(back.model).beta(), arm.beta(), rtol=1e-12)
+    # the PUMA development logs stay PUMA logs
+    with pytest.raises(plant.LogError, match="plant.load_log"):
+        load_arm_log(plant.example_log_path())
+    # a broken robot section: one line naming the key
+    side = json.loads(path.with_suffix(".json").read_text())
+    side["robot"]["links"][0]["mass"] = -1.0
+    path.with_suffix(".json").write_text(json.dumps(side))
+    with pytest.raises(plant.LogError, match="'robot'"):
+        load_arm_log(path)
+
+
+def test_identify_arm_recovers_the_base_parameters(arm):
+    """Identification on a log of the library's plant (plumbing; acceptance: benchmarks/bench_arms.py)."""
+    from identification.arm import identify_arm
+
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 4000)
+    res = identify_arm(log)
+    assert res.success and res.x.shape == (arm.base.rank,) and res.nfev > 0 and res.nit > 0
+    truth = arm.beta()
+    well = res.x_rse < 0.01
+    assert well.sum() >= 5
+    assert np.all(np.abs(res.x[well] / truth[well] - 1) < 0.002)
+    # refinement improved on the IDIM start
+    assert np.linalg.norm(res.x - truth) < np.linalg.norm(res.x_idim - truth)
+
+
+def test_arm_ctc_tracks_within_a_pulse_and_p_does_not(arm):
+    from ctc.arm import ArmComputedTorque, ArmPController
+
+    rig = planar_rig(p_gain=(0.05, 0.05), limit=40.0)
+    ctc = ArmComputedTorque(arm, arm.beta(), rig, TRAJ)
+    r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000, plant=arm)
+    p = plant.simulate_closed_loop(rig, arm.beta(), ArmPController(rig), trajectory=TRAJ,
+                                   n_samples=2000, plant=arm)
+    assert r.success and r.within(1, after_s=0.1)
+    assert np.all(p.max_abs_error(0.1) > 10)
+    assert r.joint_names == ("q1", "q2") and r.to_time_response().noutputs == 2
+    # the current respects the drive's limit
+    assert np.all(np.abs(r.i_A) <= 40.0)
+
+
+def test_arm_replay_prediction_errors_are_small_at_the_truth(arm):
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1000)
+    sim = replay_arm(arm, np.vstack([arm.beta(), 1.05 * arm.beta()]), log.rig,
+                     log.reference_counts(), log.e_pulses, log.i_A, gain=0.02)
+    assert np.all(sim.status == 0)
+    rms = np.sqrt(np.mean(sim.errors ** 2, axis=(1, 2)))
+    assert rms[0] < 0.5 < rms[1]
+
+
+def test_bad_inputs_give_one_line_errors(arm):
+    from ctc.arm import ArmComputedTorque
+
+    with pytest.raises(ValueError, match="RobotModel"):
+        arm_plant("puma")
+    with pytest.raises(ValueError, match="shape"):
+        simulate_arm(arm, np.ones((1, 3)), planar_rig(), TRAJ, 10)
+    with pytest.raises(ValueError, match="NaN"):
+        simulate_arm(arm, np.full((1, arm.base.rank), np.nan), planar_rig(), TRAJ, 10)
+    with pytest.raises(ValueError, match="ArmPlant"):
+        ArmComputedTorque(plant.RIGID, np.ones(9), planar_rig(), TRAJ)
+
+
+def test_independent_simulator_agrees_with_the_library_plant():
+    """The acceptance simulator (RTB rne, DOP853) and the library's plant see the same robot."""
+    pytest.importorskip("roboticstoolbox")
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import independent_arm as ia
+
+    s = ia.draw("puma123", 7)
+    sim = ia.IndependentArm(s)
+    model = ia.library_model(s)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        q, qd = rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3)
+        M, b = sim.dynamics(q, qd)
+        assert np.allclose(M, model.inertia_matrix(q), rtol=1e-9, atol=1e-9)
+        assert np.allclose(b, model.coriolis_centrifugal(q, qd) + model.gravity_vector(q),
+                           rtol=1e-9, atol=1e-9)
+
+
+def test_urdf_robot_in_the_sidecar(tmp_path):
+    """A log whose sidecar names a URDF file (relative to it) and the joints loads end to end."""
+    pytest.importorskip("roboticstoolbox")
+    import shutil
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parent / "data" / "urdf" / "arm_3r_tool.urdf"
+    shutil.copy(src, tmp_path / "arm.urdf")
+    joints = ("shoulder", "elbow")
+    model = RobotModel.from_urdf(src, active=joints, gear_ratios={"shoulder": 60.0, "elbow": 40.0},
+                                 motor_inertias={j: 1e-4 for j in joints})
+    arm = arm_plant(model)
+    rig = planar_rig()
+    rig = Rig(**{**rig.__dict__, "gear_ratio": (60.0, 40.0)})
+    log = emulate_arm_log(arm, arm.beta(), rig, TRAJ, 300,
+                          robot=dict(urdf="arm.urdf", joints=list(joints),
+                                     motor_inertias={j: 1e-4 for j in joints}))
+    back = load_arm_log(log.save(tmp_path / "urdf_log.csv"))
+    assert back.model.joint_names == joints and back.model.convention == "urdf"
+    assert np.allclose(arm_plant(back.model).beta(), arm.beta(), rtol=1e-12)
+    assert np.array_equal(back.e_pulses, log.e_pulses)
+
+
+def test_identify_arm_with_the_papers_ga(arm):
+    """method="paper" (GA on eq. 4) is reproducible from its seed; "ga+pem" refines to the truth."""
+    from identification.arm import identify_arm
+
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1500)
+    small = dict(n_subpops=2, n_ind=8, n_gen=4)
+    a = identify_arm(log, method="paper", rng=5, ga_options=small)
+    b = identify_arm(log, method="paper", rng=5, ga_options=small)
+    assert np.array_equal(a.x, b.x) and a.method == "paper" and a.ga["generations"] == 4
+    # the GA's best is its output error (eq. 4), the one the result reports for x
+    assert a.ga["output_error"] == a.output_error and np.all(a.x >= a.bounds[:, 0])
+    c = identify_arm(log, method="ga+pem", rng=5, ga_options=small)
+    well = c.x_rse < 0.01
+    assert c.success and np.all(np.abs(c.x[well] / arm.beta()[well] - 1) < 0.005)
+    with pytest.raises(ValueError, match="unknown method"):
+        identify_arm(log, method="nope")
