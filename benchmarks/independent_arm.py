@@ -20,6 +20,9 @@ derivation, code generator and RK4 core):
   atol=1e-12)`` restarted at every sample (zero-order hold), ``max_step =
   Ts``.
 
+Friction: known (in the sidecar) on half of the draws, ``null`` on the
+other half (the library identifies it).
+
 Robots (``family``): ``planar2`` -- a two-link arm in a vertical plane
 drawn at random (lengths, masses, centres of mass, inertias); ``puma123``
 -- the PUMA 560 joints 1-3 (Corke's parameters, RTB's ``Puma560``), wrist
@@ -65,6 +68,7 @@ class ArmSettings:
     sample_time_s: float = 1e-3
     duration_s: float = 5.0
     trajectory: dict = field(default_factory=dict)
+    friction_known: bool = True
 
     @property
     def n_samples(self) -> int:
@@ -267,6 +271,8 @@ def draw(family: str, seed: int) -> ArmSettings:
     spr = k * np.asarray(s.encoder_ppr) / (2 * math.pi)
     s.p_gain = tuple(float(v) for v in w_n ** 2 * Dm / (k * np.asarray(s.torque_constant) * spr))
     s.viscous = tuple(float(v) for v in 2 * zeta * w_n * Dm / k ** 2)
+    # drawn last, so that the draws before it do not depend on it
+    s.friction_known = bool(rng.random() < 0.5)
     return s
 
 
@@ -286,8 +292,8 @@ def make_log(s: ArmSettings, name=None):
                    n_samples=s.n_samples, sample_time_s=s.sample_time_s,
                    gear_ratio=list(s.gear_ratio), encoder_ppr=list(s.encoder_ppr),
                    p_gain_A_per_pulse=list(s.p_gain), torque_constant_Nm_per_A=list(s.torque_constant),
-                   viscous_friction_Nms_per_rad=list(s.viscous),
-                   coulomb_friction_Nm=[list(c) for c in s.coulomb],
+                   viscous_friction_Nms_per_rad=list(s.viscous) if s.friction_known else None,
+                   coulomb_friction_Nm=[list(c) for c in s.coulomb] if s.friction_known else None,
                    coulomb_ramp_speed_rad_per_s=s.ramp_speed, gravity_m_s2=9.81,
                    start_state=dict(q_rad=[0.0] * len(s.active), qd_rad_per_s=[0.0] * len(s.active)),
                    trajectory=dict(parameters=s.trajectory),
@@ -306,8 +312,8 @@ def rig_of(s: ArmSettings):
     return Rig(sample_time_s=s.sample_time_s, gear_ratio=tuple(s.gear_ratio),
                encoder_ppr=tuple(s.encoder_ppr), p_gain_A_per_pulse=tuple(s.p_gain),
                torque_constant_Nm_per_A=tuple(s.torque_constant),
-               viscous_friction_Nms_per_rad=tuple(s.viscous),
-               coulomb_friction_Nm=tuple(tuple(c) for c in s.coulomb),
+               viscous_friction_Nms_per_rad=tuple(s.viscous) if s.friction_known else None,
+               coulomb_friction_Nm=tuple(tuple(c) for c in s.coulomb) if s.friction_known else None,
                coulomb_ramp_speed_rad_per_s=s.ramp_speed, gravity_m_s2=9.81, a3_m=0.0,
                q0_rad=(0.0,) * n, qd0_rad_per_s=(0.0,) * n, f_bounds=(),
                current_full_scale_A=s.current_full_scale)

@@ -128,6 +128,31 @@ class ArmComputedTorque:
             raise ValueError("the controller's D_hat(q) is not positive definite at the reference's start")
         self.reset()
 
+    @classmethod
+    def from_result(cls, result, log, **design):
+        """The controller of an identification result on its log's rig and reference.
+
+        Parameters
+        ----------
+        result : identification.arm.ArmIdentificationResult
+        log : plant.arm_log.ArmLog
+        **design
+            As the constructor (``gains=`` or :func:`ctc.design.design_gains` keywords).
+
+        Returns
+        -------
+        ArmComputedTorque
+
+        Raises
+        ------
+        ValueError
+            As the constructor, or a result that is not a success.
+        """
+        if not result.get("success", False):
+            raise ValueError(f"the identification did not succeed: {result.get('message')}")
+        # the result's rig: the log's, with the friction the identification found
+        return cls(result["plant"], result["beta"], result["rig"], log.trajectory, **design)
+
     def terms(self, q, qd):
         """``D_hat(q)`` (n, n) and ``n_hat(q, qd)`` (n,) of the controller's model.
 

@@ -68,7 +68,7 @@ it in ``optimisers``):
     changes on the independent simulator, P / static CTC / adaptive CTC
     (``figures/changes.rst``, ``figures/changes.txt``).
 ``arms``
-    ``benchmarks/bench_arms.py --n 8 6 4 --seed 20261122``: any serial arm
+    ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
     independent simulator (``figures/arms.rst``), and
     ``examples/any_arm.py --robot planar2`` (``figures/any_arm.txt``).
@@ -325,7 +325,7 @@ def changes(ctx):
 
 
 def arms(ctx):
-    q = ["--n", "1", "1", "1"] if ctx["quick"] else ["--n", "8", "6", "4"]
+    q = ["--n", "1", "1", "1"] if ctx["quick"] else ["--n", "10", "8", "6"]
     text, wall = _run(["benchmarks/bench_arms.py", *q, "--seed", "20261122",
                        "--rst", ctx["raw"] / "arms.rst"], ctx["raw"], "bench_arms")
     # relative --out: the printed paths do not depend on where the repository is

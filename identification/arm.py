@@ -33,6 +33,7 @@ names (:class:`ArmIdentificationResult`).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -49,7 +50,8 @@ from .refinement import DEFAULT_GAIN, refine
 from .uncertainty import RSE_WARN, sandwich_covariance
 
 __all__ = ["identify_arm", "arm_idim_ls", "ArmIdentificationResult", "ArmPredictionErrorProblem",
-           "ARM_REFINE_SUBSTEPS", "ARM_FTOL", "ARM_METHODS", "ARM_DEFAULT_METHOD"]
+           "ARM_REFINE_SUBSTEPS", "ARM_FTOL", "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout",
+           "motor_side_friction", "FRICTION_COMPONENTS"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper")
@@ -101,20 +103,27 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
     Returns
     -------
     dict
-        ``x`` (r,), ``x_std`` (r,), ``cov`` (r, r), ``cutoff_hz``,
-        ``n_equations``, ``residual_rms_Nm`` (n,), ``condition_number``.
+        ``x`` (r + u,): beta, then the u unknown friction components
+        (joint side, :func:`identification.arm.friction_layout`); ``x_std``, ``cov`` (r + u,
+        r + u), ``cutoff_hz``, ``n_equations``, ``residual_rms_Nm`` (n,),
+        ``condition_number``.
 
     Raises
     ------
     ValueError
-        A log too short, a bad cut-off, or unknown friction (not supported
-        for robot models yet).
+        A log too short, a bad cut-off, or unknown friction of a joint that
+        never moves in one direction among the equations kept.
+
+    Notes
+    -----
+    When the sidecar leaves the friction unknown (``null``), its joint-side
+    components are identified with beta (the paper: friction constants, "if
+    unknown, have to be included as unknown parameters"): the model ``Y beta
+    + v qd + Tc+ r [qd > 0] + Tc- r [qd <= 0] = k Kt i`` with ``r = clip(qd /
+    v_ramp, -1, 1)`` gets their columns, filtered like the torque.
     """
     pl = _plant_of(log, plant)
     rig = log.rig
-    if rig.unknown_friction:
-        raise ValueError("robot-model logs need the drive friction in the sidecar (unknown "
-                         "friction is identified for the PUMA 560 links 2-3 only)")
     ts = rig.sample_time_s
     n = log.n_joints
     counts = log.measured_counts()
@@ -143,6 +152,21 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
             else reversal_mask(qd, round(reversal_guard / (fc * ts))))
     weight = keep[sl].reshape(-1).astype(float)
     Y = pl.model.stacked_regressor(qf[sl], qd[sl], qdd[sl])[:, pl.base.independent]
+    unknown = friction_layout(rig)[1]
+    if unknown:  # the unknown friction's columns, joint by joint, filtered like the torque
+        r_ = np.clip(qd / np.asarray(c.ramp_speed), -1.0, 1.0)
+        cols = np.zeros((ns, n, len(unknown)))
+        for k, (j, what) in enumerate(unknown):
+            cols[:, j, k] = (qd[:, j] if what == 0 else
+                             r_[:, j] * (qd[:, j] > 0) if what == 1 else r_[:, j] * (qd[:, j] <= 0))
+        cols = signal.sosfiltfilt(sos, cols, axis=0)[sl].reshape(-1, len(unknown))
+        empty = [k for k in range(len(unknown)) if not np.any(cols[weight > 0, k] != 0)]
+        if empty:
+            j, what = unknown[empty[0]]
+            raise ValueError(f"the log cannot identify the unknown friction of joint "
+                             f"{log.joint_names[j]}: it never moves "
+                             f"{'down' if what == 2 else 'up'} in the equations kept")
+        Y = np.hstack([Y, cols])
     W = Y * weight[:, None]
     y = tauf[sl].reshape(-1) * weight
     scale = np.linalg.norm(W, axis=0)
@@ -167,6 +191,66 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
                 condition_number=float(sv[0] / sv[-1]))
 
 
+#: Joint-side friction components of a joint, in the lane order of
+#: :func:`plant.arm.arm_plant` (``lane_friction``).
+FRICTION_COMPONENTS = ("viscous", "coulomb_pos", "coulomb_neg")
+
+
+def friction_layout(rig):
+    """The rig's known joint-side friction (n, 3) and its unknown components.
+
+    Parameters
+    ----------
+    rig : plant.Rig
+
+    Returns
+    -------
+    known : ndarray, shape (n, 3)
+        Joint-side viscous, Coulomb +, Coulomb - (zero where unknown).
+    unknown : list of (int, int)
+        ``(joint, component)`` of each unknown value (component 0 viscous,
+        1 Coulomb +, 2 Coulomb -), in the order they follow beta.
+    """
+    c = rig_constants(rig)
+    known = np.column_stack([c.viscous, c.coulomb_pos, c.coulomb_neg])
+    comps = ([0] if rig.viscous_friction_Nms_per_rad is None else []) + \
+        ([1, 2] if rig.coulomb_friction_Nm is None else [])
+    unknown = [(j, w) for j in range(known.shape[0]) for w in comps]
+    return known, unknown
+
+
+def _lane_friction(rig, X, r):
+    """Lane parameters ``[beta, joint-side friction (3 n)]`` from ``X = [beta, unknown]`` (m, r + u)."""
+    known, unknown = friction_layout(rig)
+    F = np.tile(known.reshape(-1), (X.shape[0], 1))
+    for k, (j, w) in enumerate(unknown):
+        F[:, 3 * j + w] = X[:, r + k]
+    return np.hstack([X[:, :r], F])
+
+
+def motor_side_friction(rig, X, r) -> dict:
+    """The sidecar's friction keys (motor side) with the identified values filled in.
+
+    Parameters
+    ----------
+    rig : plant.Rig
+    X : ndarray, shape (r + u,)
+        beta, then the unknown joint-side friction components.
+    r : int
+        Base parameters.
+
+    Returns
+    -------
+    dict
+        ``viscous_friction_Nms_per_rad`` (n,) and ``coulomb_friction_Nm``
+        (n, 2) as lists, motor side (joint side / k^2 and / abs(k)).
+    """
+    F = _lane_friction(rig, np.asarray(X, dtype=float)[None], r)[0, r:].reshape(-1, 3)
+    k = np.abs(np.asarray(rig.gear_ratio, dtype=float))
+    return dict(viscous_friction_Nms_per_rad=(F[:, 0] / k ** 2).tolist(),
+                coulomb_friction_Nm=np.column_stack([F[:, 1] / k, F[:, 2] / k]).tolist())
+
+
 class ArmPredictionErrorProblem:
     """Residuals of the arm's logged-input predictor, in batches (:func:`identification.refinement.refine`).
 
@@ -180,6 +264,8 @@ class ArmPredictionErrorProblem:
         RK4 steps per sample.
     k_start : int
         First compared sample.
+    workers : int, optional
+        Threads (default: the CPUs this process may use).
 
     Attributes
     ----------
@@ -187,8 +273,10 @@ class ArmPredictionErrorProblem:
         Candidates simulated so far.
     """
 
-    def __init__(self, log, plant, *, gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, k_start=0):
+    def __init__(self, log, plant, *, gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, k_start=0,
+                 workers=None):
         self.log = log
+        self.workers = workers
         self.plant = plant
         self.gain = float(gain)
         self.substeps = int(substeps)
@@ -214,8 +302,11 @@ class ArmPredictionErrorProblem:
         X = np.asarray(X, dtype=float)
         single = X.ndim == 1
         X = np.atleast_2d(X)
-        sim = replay_arm(self.plant, X, self.log.rig, self.ref, self.e, self.i, gain=self.gain,
-                         substeps=self.substeps, k_start=self.k_start, bound=self.bound)
+        P = X if not self.plant.lane_friction else _lane_friction(self.log.rig, X,
+                                                                   self.plant.base.rank)
+        sim = replay_arm(self.plant, P, self.log.rig, self.ref, self.e, self.i, gain=self.gain,
+                         substeps=self.substeps, k_start=self.k_start, bound=self.bound,
+                         workers=self.workers)
         self.nfev += X.shape[0]
         R = sim.errors[:, self.k_start:, :].reshape(X.shape[0], -1).copy()
         R[sim.status != 0] = self.bound
@@ -228,8 +319,11 @@ class ArmIdentificationResult(OptimizeResult):
 
     Attributes
     ----------
-    x : ndarray, shape (r,)
-        Identified base parameters beta.
+    x : ndarray, shape (r + u,)
+        Identified base parameters beta, then the u friction components the
+        sidecar left unknown (joint side; none when it knows them).
+    beta : ndarray, shape (r,)
+        The base parameters (``x[:r]``): the controller's model.
     fun : float
         Sum of squared prediction errors at x (pulses^2).
     output_error : float
@@ -245,10 +339,22 @@ class ArmIdentificationResult(OptimizeResult):
         ``generations``.
     bounds : ndarray, shape (r, 2)
         The search box.
+    interrupted : bool
+        A Ctrl-C stopped the refinement (x is the best point so far).
+    friction : dict
+        The drive friction, motor side, in the sidecar's keys
+        (``viscous_friction_Nms_per_rad``, ``coulomb_friction_Nm``): the
+        sidecar's known values, the identified unknown ones.
+    friction_identified : bool
+        Whether any friction was identified.
+    rig : plant.Rig
+        The log's rig with that friction (for the controller's feed-forward).
     success : bool
     message : str
     names : tuple of str
-        Base-parameter names (:meth:`plant.robot_model.RobotModel.base_parameters`).
+        Base-parameter names (:meth:`plant.robot_model.RobotModel.base_parameters`),
+        then ``viscous_<joint>``, ``coulomb_pos_<joint>``, ``coulomb_neg_<joint>``
+        of the unknown friction.
     expressions : tuple of str
         Each base parameter in the standard inertial parameters.
     x_std : ndarray, shape (r,)
@@ -267,6 +373,64 @@ class ArmIdentificationResult(OptimizeResult):
     elapsed_s : float
         Wall time of the identification.
     """
+
+    def to_dict(self) -> dict:
+        """The result as JSON-ready data (no plant, no arrays).
+
+        Returns
+        -------
+        dict
+            ``x``, ``names``, ``expressions``, ``x_std``, ``x_rse``,
+            ``well_excited``, ``x_idim``, ``fun`` (pulses^2), ``output_error``
+            (pulses^2, eq. 4), ``nfev``, ``nit``, ``success``, ``message``,
+            ``method``, ``robot``, ``joint_names``, ``log_name``,
+            ``cutoff_hz``, ``elapsed_s``, ``bounds``, ``beta``, ``friction``,
+            ``friction_identified``.
+        """
+        def floats(v):
+            return [None if not np.isfinite(a) else float(a) for a in np.asarray(v, dtype=float)]
+
+        return dict(x=floats(self.x), names=list(self.names), expressions=list(self.expressions),
+                    x_std=floats(self.x_std), x_rse=floats(self.x_rse),
+                    well_excited=[bool(b) for b in self.well_excited], x_idim=floats(self.x_idim),
+                    fun=float(self.fun), output_error=float(self.output_error), nfev=int(self.nfev),
+                    nit=int(self.nit), success=bool(self.success), message=str(self.message),
+                    method=self.get("method"), robot=self.plant.model.name,
+                    joint_names=list(self.plant.model.joint_names), log_name=self.log_name,
+                    cutoff_hz=float(self.cutoff_hz), elapsed_s=float(self.elapsed_s),
+                    bounds=np.asarray(self.bounds, dtype=float).tolist(), beta=floats(self.beta),
+                    friction=self.friction, friction_identified=bool(self.friction_identified))
+
+    def save_json(self, path, *, create_dirs=False):
+        """Write :meth:`to_dict` as JSON, atomically (:func:`plant.fileio.write_text_atomic`).
+
+        Parameters
+        ----------
+        path : path-like
+        create_dirs : bool
+            Create a missing directory.
+
+        Returns
+        -------
+        plant.fileio.OutputTarget
+        """
+        import json
+
+        from plant.fileio import write_text_atomic
+
+        return write_text_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n",
+                                 create_dirs=create_dirs)
+
+    def table(self) -> str:
+        """The base parameters with their standard errors, as text (one line each)."""
+        lines = [f"{'param':<8}{'value':>14}{'± std':>12}{'rse %':>9}  expression"]
+        for name, v, sd, r, ex in zip(self.names, self.x, self.x_std, self.x_rse, self.expressions):
+            lines.append(f"{name:<8}{v:>14.6g}  ± {sd:<8.2g}{100 * r:>8.3g}  {ex}")
+        lines.append(f"prediction-error cost: {self.fun:.6g} pulses^2   output error Y (eq. 4): "
+                     f"{self.output_error:.6g} pulses^2")
+        lines.append(f"simulations: {self.nfev}   iterations: {self.nit}   wall time: "
+                     f"{self.elapsed_s:.2f} s")
+        return "\n".join(lines)
 
     def plot(self, log, ax=None):
         """Logged and simulated tracking errors per joint (P loop with x).
@@ -293,7 +457,7 @@ class ArmIdentificationResult(OptimizeResult):
             if axes.size != n:
                 raise ValueError(f"ax must hold {n} axes, got {axes.size}")
             fig = axes[0].figure
-        sim = simulate_arm(self.plant, self.x[None], log.rig, log.trajectory, log.n_samples)
+        sim = simulate_arm(self.plant, self.beta[None], self.rig, log.trajectory, log.n_samples)
         for j, a in enumerate(axes):
             a.step(log.t, log.e_pulses[:, j], where="post", lw=0.8, label="log")
             a.step(log.t, sim.errors[0, :, j], where="post", lw=0.8, ls="--", label="identified")
@@ -307,7 +471,8 @@ class ArmIdentificationResult(OptimizeResult):
 
 def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAIN,
                  substeps=ARM_REFINE_SUBSTEPS, max_iter=40, ftol=ARM_FTOL, cutoff_hz=None,
-                 bounds=None, ranges=None, rng=None, ga_options=None) -> ArmIdentificationResult:
+                 bounds=None, ranges=None, rng=None, ga_options=None,
+                 workers=None) -> ArmIdentificationResult:
     """Identify an arm's base parameters from a P-control log (module docstring).
 
     Parameters
@@ -347,6 +512,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         the same result.
     ga_options : dict, optional
         Settings of :func:`identification.ga.run_ga` overriding the paper's.
+    workers : int, optional
+        Threads of the simulations (default: the CPUs this process may use).
 
     Returns
     -------
@@ -367,6 +534,16 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     if method not in ARM_METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(ARM_METHODS)}")
     pl = _plant_of(log, plant)
+    rig = log.rig
+    nb = pl.base.rank
+    unknown = friction_layout(rig)[1]
+    # the simulated plant: the rig's friction, or the lane's when the sidecar does not know it
+    sim_plant = arm_plant(pl.model, pl.base, lane_friction=True) if unknown else pl
+
+    def lane(X):
+        X = np.atleast_2d(X)
+        return _lane_friction(rig, X, nb) if unknown else X
+
     idim = arm_idim_ls(log, plant=pl, cutoff_hz=cutoff_hz)
     x0 = idim["x"]
     r = x0.size
@@ -376,10 +553,14 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         pad = 1e-6 * np.maximum(np.abs(bounds[:, 0]), 1e-9)
         bounds[wide, 0] -= pad[wide]
         bounds[wide, 1] += pad[wide]
+    hw = 0.5 * np.abs(x0) + 10.0 * idim["x_std"]
+    hw = np.maximum(hw, 1e-9 * max(1.0, float(np.max(np.abs(x0)))))
+    around = np.column_stack([x0 - hw, x0 + hw])
+    around[nb:, 0] = np.maximum(around[nb:, 0], 0.0)  # friction is not negative
     if bounds is None:
-        hw = 0.5 * np.abs(x0) + 10.0 * idim["x_std"]
-        hw = np.maximum(hw, 1e-9 * max(1.0, float(np.max(np.abs(x0)))))
-        bounds = np.column_stack([x0 - hw, x0 + hw])
+        bounds = around
+    elif np.shape(bounds)[0] == nb and unknown:  # ranges or bounds of beta: friction around IDIM
+        bounds = np.vstack([np.asarray(bounds, dtype=float), around[nb:]])
     bounds = np.asarray(bounds, dtype=float)
     if bounds.shape != (r, 2) or not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] >= bounds[:, 1]):
         raise ValueError(f"bounds must have shape ({r}, 2) with low < high")
@@ -391,14 +572,14 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         e_log = np.asarray(log.e_pulses, dtype=float)
 
         def output_error(X):
-            return simulate_arm(pl, X, log.rig, log.trajectory, log.n_samples, e_log=e_log,
-                                errors=False).objective
+            return simulate_arm(sim_plant, lane(X), rig, log.trajectory, log.n_samples,
+                                e_log=e_log, errors=False, workers=workers).objective
 
         ga = run_ga(output_error, bounds, rng=np.random.default_rng(rng), **settings)
         ga_info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
                        nfev=int(ga.nfev), generations=int(ga.nit))
         starts = np.vstack([np.asarray(ga.x, dtype=float), np.clip(x0, bounds[:, 0], bounds[:, 1])])
-    problem = ArmPredictionErrorProblem(log, pl, gain=gain, substeps=substeps)
+    problem = ArmPredictionErrorProblem(log, sim_plant, gain=gain, substeps=substeps, workers=workers)
     if method == "paper":
         ref = OptimizeResult(x=ga_info["x"], fun=float(np.sum(problem.residuals(ga_info["x"]) ** 2)),
                              nfev=ga_info["nfev"], nit=ga_info["generations"], message="the paper's GA",
@@ -415,13 +596,24 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         cov, x_std = None, np.full(r, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         rse = x_std / np.abs(x)
-    sim = simulate_arm(pl, x[None], log.rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
+    sim = simulate_arm(sim_plant, lane(x), rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
                        errors=False)
     nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and method != "paper" else 0)
+    friction = motor_side_friction(rig, x, nb)
+    names = tuple(pl.base.names) + tuple(
+        f"{FRICTION_COMPONENTS[w]}_{log.joint_names[j]}" for j, w in unknown)
+    expressions = tuple(pl.base.expressions) + tuple(
+        f"joint-side {FRICTION_COMPONENTS[w]} friction of {log.joint_names[j]}" for j, w in unknown)
     return ArmIdentificationResult(
-        x=x, fun=float(ref.fun), output_error=float(sim.objective[0]), nfev=nfev,
-        nit=int(ref.nit), success=ok, method=method, ga=ga_info, bounds=bounds, message=(ref.message or "ok") if ok else
+        x=x, beta=x[:nb].copy(), fun=float(ref.fun), output_error=float(sim.objective[0]),
+        nfev=nfev, nit=int(ref.nit), success=ok, method=method, ga=ga_info, bounds=bounds,
+        interrupted=bool(ref.get("interrupted", False) if isinstance(ref, dict) else
+                         getattr(ref, "interrupted", False)), message=(ref.message or "ok") if ok else
         "the predictor failed at the IDIM start: the log does not fit the robot model",
-        names=pl.base.names, expressions=pl.base.expressions, x_std=x_std, x_rse=rse, cov=cov,
+        names=names, expressions=expressions, x_std=x_std, x_rse=rse, cov=cov,
         well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
+        friction=friction, friction_identified=bool(unknown),
+        rig=rig if not unknown else dataclasses.replace(
+            rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
+            coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"])),
         log_name=log.name, elapsed_s=time.perf_counter() - t0)

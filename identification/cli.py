@@ -146,9 +146,11 @@ def build_parser():
     p.add_argument("--plot", metavar="DIR",
                    help="write convergence.png and tracking_errors.png into DIR (created "
                         "if missing; same rules as --output)")
-    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+    p.add_argument("--method", choices=METHODS, default=None,
                    help=f"'{DEFAULT_METHOD}' (default): the GA, then prediction-error "
-                        "refinement; 'paper': the paper's GA alone")
+                        "refinement; 'paper': the paper's GA alone.  A robot-model log "
+                        "(a 'robot' object in its sidecar) defaults to IDIM-LS, then "
+                        "prediction-error refinement, and takes 'ga+pem' and 'paper' too")
     p.add_argument("--generations", type=int, metavar="N",
                    help="GA generations (default: the paper's 40); fewer for a quick look")
     p.add_argument("--workers", type=int, metavar="N",
@@ -468,6 +470,10 @@ def _run(args, stdout, stderr) -> int:
     inputs = [log_path, log_path.with_suffix(".json"), log_path.with_suffix(".csv"),
               args.prior]
     _check_output_targets(out, plot_dir, [p for p in inputs if p is not None])
+    if not args.example and _is_robot_model_log(log_path):
+        return _run_arm(args, log_path, out, plot_dir, stdout, stderr)
+    if args.method is None:
+        args.method = api.DEFAULT_METHOD
     prior = _load_prior(args.prior) if args.prior else None
     log = plant.load_log(log_path)
     from plant.sanity import check_experiment  # identify() checks too; here before any output
@@ -533,6 +539,63 @@ def _run(args, stdout, stderr) -> int:
         args.written.append(str(out))
     if plot_dir is not None:
         _save_plots(result, plot_dir, status, args.written)
+    return EXIT_INTERRUPTED if result.get("interrupted") else 0
+
+
+def _is_robot_model_log(log_path) -> bool:
+    """Whether the log's sidecar names a robot model (a ``robot`` object; :mod:`plant.arm_log`)."""
+    from plant.arm_log import is_arm_sidecar
+    from plant.sidecar import read_sidecar
+
+    side = Path(log_path).with_suffix(".json")
+    if not side.is_file():
+        return False  # plant.load_log says what is missing
+    return is_arm_sidecar(read_sidecar(side))
+
+
+def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
+    """The CLI on a robot model's log: :func:`identification.arm.identify_arm`."""
+    from plant.arm_log import load_arm_log
+    from plant.fileio import atomic_output, check_output_path
+
+    from .api import METHODS
+    from .arm import ARM_DEFAULT_METHOD, ARM_METHODS, identify_arm
+
+    unsupported = [opt for opt, on in (("--payload", args.payload), ("--consistent", args.consistent),
+                                       ("--lowpass", args.lowpass is not None),
+                                       ("--model", args.model != "auto")) if on]
+    if unsupported:
+        raise CLIError(f"{', '.join(unsupported)} is for PUMA 560 links 2-3 logs; {log_path} "
+                       "names a robot model")
+    method = args.method or ARM_DEFAULT_METHOD
+    if method not in ARM_METHODS:
+        raise CLIError(f"--method {method} is for PUMA 560 links 2-3 logs; a robot-model log "
+                       f"takes {', '.join(m for m in ARM_METHODS if m in METHODS)} "
+                       f"(default: {ARM_DEFAULT_METHOD})")
+    status = _Status(stderr, args.quiet, None)
+    log = load_arm_log(log_path)
+    status.say(f"identifying {log.name} ({log.n_samples} samples, {log.model.name}, "
+               f"joints {', '.join(log.joint_names)}), method {method}, seed {args.seed}")
+    ga_options = {"n_gen": args.generations} if args.generations is not None else None
+    result = identify_arm(log, method=method, rng=args.seed, ga_options=ga_options,
+                          workers=args.workers)
+    print(f"log: {log.name} ({log.n_samples} samples)   robot: {log.model.name}   method: {method}"
+          f"   seed: {args.seed}", file=stdout)
+    print(result.table(), file=stdout, flush=True)
+    if result.get("interrupted"):
+        print(f"INTERRUPTED: {result.message} (best so far)", file=stdout, flush=True)
+    if not result.success:
+        raise CLIError(f"no valid result: {result.message}")
+    if out is not None:
+        _wrote(status, result.save_json(out, create_dirs=True))
+        args.written.append(str(out))
+    if plot_dir is not None:
+        path = plot_dir / "tracking_errors.png"
+        info = check_output_path(path, create_dirs=True)
+        with atomic_output(path, create_dirs=True) as tmp:
+            result.plot(log).savefig(tmp, dpi=120, format="png")
+        _wrote(status, info)
+        args.written.append(str(path))
     return EXIT_INTERRUPTED if result.get("interrupted") else 0
 
 

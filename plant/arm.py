@@ -90,11 +90,14 @@ class ArmPlant(Plant):
         Its base parameters (names, regrouping ``beta = K p``).
     source : str
         The generated right-hand side (Python source compiled by numba).
+    lane_friction : bool
+        The drive friction is per lane, after beta (:func:`arm_plant`).
     """
 
     model: object = None
     base: object = None
     source: str = field(default="", repr=False)
+    lane_friction: bool = False
 
     @property
     def n_joints(self) -> int:
@@ -106,19 +109,25 @@ class ArmPlant(Plant):
         """Names of the base parameters, in order."""
         return self.base.names
 
+    @property
+    def n_parameters(self) -> int:
+        """Per-lane parameters: r base parameters (then 3 n friction with ``lane_friction``)."""
+        return self.base.rank + (3 * self.n_joints if self.lane_friction else 0)
+
     def lane_parameters(self, B, rig=None) -> np.ndarray:
-        """Per-lane parameter array of candidates ``B`` (m, r): base parameters per row.
+        """Per-lane parameter array of candidates ``B`` (m, n_parameters), one row each.
 
         Parameters
         ----------
-        B : array_like, shape (m, r) or (r,)
-            Base parameters beta per candidate.
+        B : array_like, shape (m, n_parameters) or (n_parameters,)
+            Base parameters beta per candidate (then, with ``lane_friction``,
+            the joint-side friction: per joint viscous, Coulomb +, Coulomb -).
         rig : ignored
             (The rig's friction is the plant's; kept for the :class:`Plant` protocol.)
 
         Returns
         -------
-        ndarray, shape (r, m)
+        ndarray, shape (n_parameters, m)
 
         Raises
         ------
@@ -126,7 +135,7 @@ class ArmPlant(Plant):
             On a wrong shape or NaN/inf.
         """
         B = np.atleast_2d(np.asarray(B, dtype=np.float64))
-        r = self.base.rank
+        r = self.n_parameters
         if B.ndim != 2 or B.shape[1] != r:
             raise ValueError(f"base parameters must have shape (n_candidates, {r}), got {B.shape}")
         if not np.all(np.isfinite(B)):
@@ -182,9 +191,15 @@ def _dynamics_function(model, base) -> ca.Function:
     return ca.Function("arm_dynamics", [sc, qd, beta], outs)
 
 
-def _rhs_source(model, base) -> str:
-    """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.core`)."""
+def _rhs_source(model, base, lane_friction=False) -> str:
+    """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.core`).
+
+    With ``lane_friction`` the joint-side friction of joint j is the lane's
+    ``p[r + 3 j : r + 3 j + 3]`` (viscous, Coulomb for positive and for
+    negative rate) instead of the rig's.
+    """
     n = model.n_joints
+    r = base.rank
     fn = _dynamics_function(model, base)
     lines, (Dl, nv) = function_source(fn, "g")
     src = ["def rhs(p, c, x, u, sc):",
@@ -193,9 +208,10 @@ def _rhs_source(model, base) -> str:
            "    in2 = p"]
     src += lines
     for j in range(n):
+        fr = (f"p[{r + 3 * j}], p[{r + 3 * j + 1}], p[{r + 3 * j + 2}]" if lane_friction else
+              f"c.viscous[{j}], c.coulomb_pos[{j}], c.coulomb_neg[{j}]")
         src.append(f"    t{j} = c.torque_per_amp[{j}] * u[{j}] + friction_torque(x[{n + j}], "
-                   f"c.viscous[{j}], c.coulomb_pos[{j}], c.coulomb_neg[{j}], c.ramp_speed[{j}])"
-                   f" - {nv[j]}")
+                   f"{fr}, c.ramp_speed[{j}]) - {nv[j]}")
     # unrolled Cholesky D = L L^T (D's lower triangle row by row), then two triangular solves
     idx = {}
     m = 0
@@ -227,7 +243,7 @@ _PLANTS: dict = {}
 _DYNAMICS: dict = {}
 
 
-def arm_plant(model, base=None) -> ArmPlant:
+def arm_plant(model, base=None, *, lane_friction=False) -> ArmPlant:
     """The rigid arm of a robot model as a plant of the core (generated once per robot).
 
     Parameters
@@ -236,6 +252,11 @@ def arm_plant(model, base=None) -> ArmPlant:
         The robot (its active joints are the plant's joints).
     base : plant.robot_model.BaseParameterSet, optional
         Its QR base parameters (default ``model.base_parameters()``).
+    lane_friction : bool
+        Take the joint-side drive friction per lane, as parameters after beta
+        (per joint: viscous N m s/rad, Coulomb for positive and for negative
+        rate N m; :attr:`ArmPlant.n_parameters` ``= r + 3 n``), for
+        identifying it when the rig does not know it; else the rig's.
 
     Returns
     -------
@@ -253,20 +274,21 @@ def arm_plant(model, base=None) -> ArmPlant:
     if not isinstance(model, RobotModel):
         raise ValueError(f"arm_plant needs a plant.RobotModel, got {type(model).__name__}")
     base = model.base_parameters() if base is None else base
-    src = _rhs_source(model, base)
+    src = _rhs_source(model, base, lane_friction)
     key = hashlib.sha1(src.encode()).hexdigest()[:16]
     if key in _PLANTS:
         old = _PLANTS[key]
         return ArmPlant(name=model.name, kind=old.kind, encoder_row=0, model=model, base=base,
-                        source=src)
+                        source=src, lane_friction=lane_friction)
     scope = {"math": math, "friction_torque": friction_torque}
     exec(compile(src, f"<plant.arm rhs {model.name} {key}>", "exec"), scope)  # noqa: S102
     rhs = _jit(scope["rhs"])
     kind_class = NamedTuple(f"ArmKind_{key}", [("code", int)])
     n = model.n_joints
-    register_plant(kind_class, rhs, 2 * n, base.rank, n_inputs=n, n_angles=n)
+    register_plant(kind_class, rhs, 2 * n, base.rank + (3 * n if lane_friction else 0),
+                   n_inputs=n, n_angles=n)
     plant = ArmPlant(name=model.name, kind=kind_class(0), encoder_row=0, model=model, base=base,
-                     source=src)
+                     source=src, lane_friction=lane_friction)
     _PLANTS[key] = plant
     return plant
 

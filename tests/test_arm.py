@@ -245,3 +245,51 @@ def test_identify_arm_with_the_papers_ga(arm):
     assert c.success and np.all(np.abs(c.x[well] / arm.beta()[well] - 1) < 0.005)
     with pytest.raises(ValueError, match="unknown method"):
         identify_arm(log, method="nope")
+
+
+def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
+    """``python -m identification LOG.csv`` takes a robot-model log; PUMA-only options say so."""
+    from ctc.arm import ArmComputedTorque
+    from identification.cli import main
+
+    path = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 2000, name="cli").save(tmp_path / "cli.csv")
+    out = tmp_path / "res.json"
+    assert main([str(path), "-o", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "robot: planar" in printed and "ZZ1R" in printed
+    data = json.loads(out.read_text())
+    assert data["names"] == list(arm.parameter_names) and data["success"] is True
+    assert np.allclose(data["x"], arm.beta(), rtol=5e-3, atol=1e-3)
+    for args, needle in ((["--payload", "--prior", str(out)], "--payload"),
+                         (["--method", "idim-ls"], "idim-ls")):
+        assert main([str(path), *args, "--quiet"]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
+    # the result builds the controller
+    from identification.arm import identify_arm
+
+    log = load_arm_log(path)
+    ctc = ArmComputedTorque.from_result(identify_arm(log), log)
+    assert ctc.n == 2
+
+
+def test_unknown_friction_is_identified_with_the_base_parameters(arm):
+    """A sidecar with null friction: the joint-side friction is identified, the CTC uses it."""
+    import dataclasses
+
+    from ctc.arm import ArmComputedTorque
+    from identification.arm import identify_arm
+
+    rig = planar_rig(limit=40.0)
+    log = emulate_arm_log(arm, arm.beta(), rig, TRAJ, 4000)
+    blind = dataclasses.replace(log, rig=dataclasses.replace(
+        rig, viscous_friction_Nms_per_rad=None, coulomb_friction_Nm=None))
+    res = identify_arm(blind)
+    assert res.success and res.friction_identified and res.x.size == arm.base.rank + 6
+    assert res.names[-1] == "coulomb_neg_q2"
+    assert np.allclose(res.friction["viscous_friction_Nms_per_rad"], rig.viscous_friction_Nms_per_rad,
+                       rtol=0.05)
+    assert np.allclose(res.friction["coulomb_friction_Nm"], rig.coulomb_friction_Nm, rtol=0.05)
+    ctc = ArmComputedTorque.from_result(res, blind)
+    r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000, plant=arm)
+    assert r.within(1, after_s=0.1)
