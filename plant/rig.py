@@ -82,7 +82,7 @@ class Rig:
 
     @property
     def pulses_per_rad(self) -> np.ndarray:
-        """Encoder pulses per joint radian, k N / (2 pi), shape (2,); negative for k < 0."""
+        """Encoder pulses per joint radian, k N / (2 pi), shape (n_joints,); negative for k < 0."""
         return np.array(
             [k * n / (2.0 * math.pi) for k, n in zip(self.gear_ratio, self.encoder_ppr)]
         )
