@@ -34,11 +34,11 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
 The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
 :func:`plant.simulate_closed_loop` (``plant=`` the arm) and the independent
-simulator of ``benchmarks/`` run it.
+simulator of ``benchmarks/`` run it; :class:`ctc.PController` is the rig's
+P loop for any number of joints.
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -48,29 +48,7 @@ from plant.rig import rig_constants
 
 from .design import gains_for
 
-__all__ = ["ArmComputedTorque", "ArmPController"]
-
-
-class ArmPController:
-    """The rig's decentralised P law ``i = P e`` for n joints (sampled-controller protocol).
-
-    Parameters
-    ----------
-    rig : plant.Rig
-        Its ``p_gain_A_per_pulse`` (n,) and current full scale.
-    """
-
-    def __init__(self, rig):
-        self.p = np.asarray(rig.p_gain_A_per_pulse, dtype=float)
-        lim = rig.current_full_scale_A
-        self.limit = math.inf if lim is None else float(lim)
-
-    def reset(self):
-        """Nothing to reset (memoryless)."""
-
-    def __call__(self, k, t, q_meas, e_pulses):
-        """Currents ``clip(P e)`` (n,), A."""
-        return np.clip(self.p * np.asarray(e_pulses, dtype=float), -self.limit, self.limit)
+__all__ = ["ArmComputedTorque"]
 
 
 class ArmComputedTorque:

@@ -44,13 +44,14 @@ class PController:
 
     Parameters
     ----------
-    p_gain_A_per_pulse : array_like, shape (2,)
-        P gains of joints 2 and 3 (A per pulse of error), > 0.
+    p_gain_A_per_pulse : array_like, shape (n_joints,)
+        P gains (A per pulse of error), > 0: joints 2 and 3 of the PUMA
+        links 2-3, or one per joint of a robot model's rig.
 
     Raises
     ------
     ValueError
-        If the gains are not 2 finite positive numbers.
+        If the gains are not finite positive numbers (at least one).
 
     Notes
     -----
@@ -61,8 +62,9 @@ class PController:
 
     def __init__(self, p_gain_A_per_pulse):
         p = np.asarray(p_gain_A_per_pulse, dtype=np.float64)
-        if p.shape != (2,) or not np.all(np.isfinite(p)) or np.any(p <= 0):
-            raise ValueError(f"p_gain_A_per_pulse must be 2 finite numbers > 0, got {p_gain_A_per_pulse!r}")
+        if p.ndim != 1 or p.size < 1 or not np.all(np.isfinite(p)) or np.any(p <= 0):
+            raise ValueError("p_gain_A_per_pulse must be finite numbers > 0, one per joint, "
+                             f"got {p_gain_A_per_pulse!r}")
         self.p_gain = p
 
     @classmethod
@@ -71,7 +73,7 @@ class PController:
 
         Parameters
         ----------
-        log : plant.ExperimentLog or plant.rig.Rig
+        log : plant.ExperimentLog, plant.arm_log.ArmLog or plant.rig.Rig
 
         Returns
         -------
@@ -84,7 +86,7 @@ class PController:
         """Nothing to reset (stateless)."""
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
-        """Currents ``P e`` (2,) A from the pulse errors ``e_pulses`` (2,)."""
+        """Currents ``P e`` (n_joints,) A from the pulse errors ``e_pulses`` (n_joints,)."""
         return self.p_gain * e_pulses
 
     def __repr__(self) -> str:

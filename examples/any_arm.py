@@ -117,7 +117,8 @@ def reference(n, seed=1):
 def main(argv=None):
     args = parse(argv)
     import plant
-    from ctc.arm import ArmComputedTorque, ArmPController
+    from ctc import PController
+    from ctc.arm import ArmComputedTorque
     from identification.arm import identify_arm
     from plant.arm import arm_plant
     from plant.arm_log import emulate_arm_log, load_arm_log
@@ -159,7 +160,7 @@ def main(argv=None):
 
     out = {}
     fig_rows = []
-    for label, ctrl in (("P", ArmPController(log.rig)),
+    for label, ctrl in (("P", PController.from_log(log)),
                         ("CTC", ArmComputedTorque(res.plant, res.x, log.rig, log.trajectory))):
         t0 = time.perf_counter()
         r = plant.simulate_closed_loop(log.rig, truth, ctrl, trajectory=log.trajectory,

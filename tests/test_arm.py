@@ -149,12 +149,13 @@ def test_identify_arm_recovers_the_base_parameters(arm):
 
 
 def test_arm_ctc_tracks_within_a_pulse_and_p_does_not(arm):
-    from ctc.arm import ArmComputedTorque, ArmPController
+    from ctc import PController
+    from ctc.arm import ArmComputedTorque
 
     rig = planar_rig(p_gain=(0.05, 0.05), limit=40.0)
     ctc = ArmComputedTorque(arm, arm.beta(), rig, TRAJ)
     r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000, plant=arm)
-    p = plant.simulate_closed_loop(rig, arm.beta(), ArmPController(rig), trajectory=TRAJ,
+    p = plant.simulate_closed_loop(rig, arm.beta(), PController.from_log(rig), trajectory=TRAJ,
                                    n_samples=2000, plant=arm)
     assert r.success and r.within(1, after_s=0.1)
     assert np.all(p.max_abs_error(0.1) > 10)
