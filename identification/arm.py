@@ -368,7 +368,14 @@ class ArmIdentificationResult(OptimizeResult):
     cutoff_hz : float
         IDIM low-pass cut-off.
     plant : plant.arm.ArmPlant
-        The arm (for the controller: :class:`ctc.arm.ArmComputedTorque`).
+        The arm (for the controller: :class:`ctc.arm.ArmComputedTorque`);
+        not in results sent between processes
+        (:func:`identification.distributed.identify_many`: rebuild it with
+        ``plant.arm.arm_plant(log.model)``).
+    robot : str
+        The robot's name.
+    joint_names : tuple of str
+        Its joint names.
     log_name : str
     elapsed_s : float
         Wall time of the identification.
@@ -395,8 +402,8 @@ class ArmIdentificationResult(OptimizeResult):
                     well_excited=[bool(b) for b in self.well_excited], x_idim=floats(self.x_idim),
                     fun=float(self.fun), output_error=float(self.output_error), nfev=int(self.nfev),
                     nit=int(self.nit), success=bool(self.success), message=str(self.message),
-                    method=self.get("method"), robot=self.plant.model.name,
-                    joint_names=list(self.plant.model.joint_names), log_name=self.log_name,
+                    method=self.get("method"), robot=self.robot,
+                    joint_names=list(self.joint_names), log_name=self.log_name,
                     cutoff_hz=float(self.cutoff_hz), elapsed_s=float(self.elapsed_s),
                     bounds=np.asarray(self.bounds, dtype=float).tolist(), beta=floats(self.beta),
                     friction=self.friction, friction_identified=bool(self.friction_identified))
@@ -612,7 +619,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         "the predictor failed at the IDIM start: the log does not fit the robot model",
         names=names, expressions=expressions, x_std=x_std, x_rse=rse, cov=cov,
         well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
-        friction=friction, friction_identified=bool(unknown),
+        friction=friction, friction_identified=bool(unknown), robot=pl.model.name,
+        joint_names=tuple(pl.model.joint_names),
         rig=rig if not unknown else dataclasses.replace(
             rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
             coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"])),

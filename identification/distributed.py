@@ -61,12 +61,15 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Optional, Sequence
 
 from .api import identify
+from .arm import identify_arm
 
 __all__ = ["Job", "JobResult", "identify_many", "seed_jobs", "default_executor"]
 
 #: Keyword arguments of :func:`identification.identify` a job may set
 #: (``rng`` is set from the job's ``seed``).
 _IDENTIFY_KWARGS = frozenset(inspect.signature(identify).parameters) - {"log", "rng"}
+#: identify_arm's keywords (a robot model's log, :mod:`identification.arm`).
+_IDENTIFY_ARM_KWARGS = frozenset(inspect.signature(identify_arm).parameters) - {"log", "rng"}
 
 
 @dataclass
@@ -121,7 +124,7 @@ class Job:
 
     def check(self) -> "Job":
         """Validate the job's structure (not the log file: that fails in the job)."""
-        unknown = set(self.options) - _IDENTIFY_KWARGS
+        unknown = set(self.options) - (_IDENTIFY_KWARGS | _IDENTIFY_ARM_KWARGS)
         if unknown:
             raise ValueError(f"unknown identify() option(s) in job: {', '.join(sorted(unknown))}")
         if self.seed is not None:
@@ -177,7 +180,8 @@ class JobResult:
     def to_dict(self) -> dict:
         """JSON-ready record: ``index``, ``seed``, ``log``, ``ok``, ``error``,
         ``error_type``, ``wall_time_s`` and ``result``
-        (:meth:`IdentificationResult.to_dict`, or None)."""
+        (:meth:`IdentificationResult.to_dict`, or None; a robot model's
+        result: its base parameters, names, standard errors and costs)."""
         import math
 
         return {
@@ -214,14 +218,40 @@ def _as_job(j) -> Job:
                     f"got {type(j).__name__}")
 
 
+def _is_arm_log(log) -> bool:
+    """A robot model's log (an ArmLog, or a path whose sidecar names a robot)."""
+    from plant.arm_log import ArmLog, is_arm_sidecar
+    from plant.sidecar import read_sidecar
+
+    if isinstance(log, ArmLog):
+        return True
+    if isinstance(log, str):
+        side = Path(log).with_suffix(".json")
+        return side.is_file() and is_arm_sidecar(read_sidecar(side))
+    return False
+
+
 def _run_job(index: int, log, seed, options: dict) -> JobResult:
-    """Worker side: one ``identify`` call; never raises (errors are returned)."""
+    """Worker side: one ``identify`` (or ``identify_arm``) call; never raises (errors are returned)."""
     t0 = time.perf_counter()
     label = _log_label(log)
     try:
         if isinstance(log, os.PathLike):
             log = os.fspath(log)
-        result = identify(log, rng=seed, **options)
+        if _is_arm_log(log):  # a robot model's log: identification.arm
+            from plant.arm_log import load_arm_log
+
+            options = {k: v for k, v in options.items() if k != "progress"}  # identify_many's default
+            extra = set(options) - _IDENTIFY_ARM_KWARGS
+            if extra:
+                raise ValueError(f"option(s) {', '.join(sorted(extra))} are for PUMA 560 links 2-3 "
+                                 "logs, not a robot model's")
+            arm_log = load_arm_log(log) if isinstance(log, str) else log
+            result = identify_arm(arm_log, rng=seed, **options)
+            # its generated plant is rebuilt from the log's robot (plant.arm.arm_plant), not sent
+            result.pop("plant", None)
+        else:
+            result = identify(log, rng=seed, **options)
         result.pop("log", None)  # the caller has the log; keep the pickle small
         return JobResult(index, seed, label, result=result,
                          wall_time_s=time.perf_counter() - t0)

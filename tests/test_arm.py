@@ -294,3 +294,20 @@ def test_unknown_friction_is_identified_with_the_base_parameters(arm):
     ctc = ArmComputedTorque.from_result(res, blind)
     r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000, plant=arm)
     assert r.within(1, after_s=0.1)
+
+
+def test_identify_many_takes_robot_model_logs(arm, tmp_path):
+    """A study over robot-model logs (identification.distributed): results come back by path."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from identification.distributed import identify_many
+
+    paths = [emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1500, name=f"s{i}").save(
+        tmp_path / f"s{i}.csv") for i in range(2)]
+    with ThreadPoolExecutor(2) as pool:
+        out = identify_many([dict(log=str(p)) for p in paths] + [dict(log=str(paths[0]), lowpass_hz=5.0)],
+                            executor=pool)
+    assert out[0].ok and out[1].ok and not out[2].ok and "PUMA" in out[2].error
+    assert np.allclose(out[0].result.beta, arm.beta(), rtol=5e-3, atol=1e-3)
+    rec = out[1].to_dict()
+    assert rec["result"]["names"] == list(arm.parameter_names) and rec["result"]["robot"] == "planar"
