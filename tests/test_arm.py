@@ -311,3 +311,30 @@ def test_identify_many_takes_robot_model_logs(arm, tmp_path):
     assert np.allclose(out[0].result.beta, arm.beta(), rtol=5e-3, atol=1e-3)
     rec = out[1].to_dict()
     assert rec["result"]["names"] == list(arm.parameter_names) and rec["result"]["robot"] == "planar"
+
+
+def test_generated_anchor_code_matches_its_reference():
+    """The compiled per-angle anchor update and stage sin/cos equal their Python references."""
+    import numba
+
+    from plant.anchors import lane_sincos, update_anchors, update_anchors_impl
+
+    rng = np.random.default_rng(1)
+    for m in (1, 3, 6):
+        X = rng.uniform(-3, 3, (2 * m, 8))
+        A = np.zeros((3 * m, 8))
+        A[0::3] = X[:m] + rng.normal(0, 0.03, (m, 8))  # anchors near the angles
+        A[1::3], A[2::3] = np.sin(A[0::3]), np.cos(A[0::3])
+        A[0, 3] += 0.2  # one lane far from its anchor: libm
+        B = A.copy()
+        update_anchors(X, A, 8, False)
+        numba.njit(update_anchors_impl(m))(0, X, B, 8, False)
+        assert np.array_equal(A, B)
+        assert np.allclose(A[1::3], np.sin(X[:m]), atol=1e-15) and np.allclose(A[2::3], np.cos(X[:m]),
+                                                                             atol=1e-15)
+        x = tuple(X[:, 0] + 0.01)
+        a = tuple(A[:, 0])
+        sc, near = numba.njit(lambda x, a: lane_sincos(x, a, True))(x, a)
+        assert near and np.allclose(sc[0::2], np.sin(x[:m]), atol=1e-15)
+        ref, near_ref = lane_sincos(x, a, True)
+        assert np.array_equal(sc, ref) and near == near_ref
