@@ -22,7 +22,7 @@ track the same reference on the robot.
 Run from the repository root::
 
     python examples/any_arm.py --robot planar2        # seconds
-    python examples/any_arm.py --robot puma6          # about a minute (compiling included)
+    python examples/any_arm.py --robot puma6          # about half a minute (compiling included)
     python examples/any_arm.py --quick                # a 2 s log of the planar arm
 
 Writes ``out/any_arm/<robot>.{csv,json}``, ``<robot>_result.json`` and
