@@ -42,6 +42,7 @@ from scipy import signal
 from scipy.optimize import OptimizeResult
 
 from plant.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
+from plant.core import cell_centre
 from plant.model import friction_torque
 from plant.rig import rig_constants
 
@@ -67,8 +68,8 @@ ARM_FTOL = 1e-6
 ARM_REFINE_SUBSTEPS = 2
 
 
-def _cell_centres(counts):
-    return np.where(counts > 0, counts + 0.5, np.where(counts < 0, counts - 0.5, 0.0))
+#: :func:`plant.core.cell_centre` element by element (the one definition of a cell's centre).
+_cell_centres = np.vectorize(cell_centre, otypes=[float])
 
 
 def _plant_of(log, plant):

@@ -44,7 +44,7 @@ import numpy as np
 from ._errors import LogError
 from .fileio import write_text_atomic
 from .rig import Rig
-from .sidecar import read_sidecar, read_text, rig_from_sidecar, sidecar_error
+from .sidecar import read_sidecar, read_text, rig_from_sidecar, rig_into_sidecar, sidecar_error
 from .trajectory import Trajectory
 
 __all__ = ["ArmLog", "load_arm_log", "robot_from_sidecar", "robot_section", "emulate_arm_log",
@@ -238,8 +238,11 @@ class ArmLog:
         return self.model.joint_names
 
     def reference_counts(self) -> np.ndarray:
-        """Unquantised reference counts ``q_ref(t_k) k N / 2 pi`` from the trajectory, (n_samples, n)."""
-        return np.ascontiguousarray(self.trajectory.position(self.t) * self.rig.pulses_per_rad)
+        """Unquantised reference counts ``q_ref(t_k) k N / 2 pi`` at ``t_k = k Ts``, (n_samples, n)
+        (:func:`plant.arm.reference_counts`)."""
+        from .arm import reference_counts
+
+        return reference_counts(self.trajectory, self.rig, self.n_samples)
 
     def measured_counts(self) -> np.ndarray:
         """Encoder counts the log implies, ``trunc(ref) - e`` (n_samples, n)."""
@@ -271,24 +274,6 @@ class ArmLog:
         write_text_atomic(path, buf.getvalue())
         write_text_atomic(path.with_suffix(".json"), json.dumps(self.sidecar, indent=2) + "\n")
         return path
-
-
-def _rig_sidecar(rig: Rig) -> dict:
-    d = dict(sample_time_s=float(rig.sample_time_s), gear_ratio=[float(v) for v in rig.gear_ratio],
-             encoder_ppr=[int(v) for v in rig.encoder_ppr],
-             p_gain_A_per_pulse=[float(v) for v in rig.p_gain_A_per_pulse],
-             torque_constant_Nm_per_A=[float(v) for v in rig.torque_constant_Nm_per_A],
-             viscous_friction_Nms_per_rad=(None if rig.viscous_friction_Nms_per_rad is None
-                                           else [float(v) for v in rig.viscous_friction_Nms_per_rad]),
-             coulomb_friction_Nm=(None if rig.coulomb_friction_Nm is None
-                                  else [[float(a), float(b)] for a, b in rig.coulomb_friction_Nm]),
-             coulomb_ramp_speed_rad_per_s=float(rig.coulomb_ramp_speed_rad_per_s),
-             gravity_m_s2=float(rig.gravity_m_s2),
-             start_state=dict(q_rad=[float(v) for v in rig.q0_rad],
-                              qd_rad_per_s=[float(v) for v in rig.qd0_rad_per_s]))
-    if rig.current_full_scale_A is not None:
-        d["current_full_scale_A"] = float(rig.current_full_scale_A)
-    return d
 
 
 def emulate_arm_log(plant, beta, rig, trajectory, n_samples, *, name="emulated", substeps=32,
@@ -334,8 +319,9 @@ def emulate_arm_log(plant, beta, rig, trajectory, n_samples, *, name="emulated",
     lim = math.inf if rig.current_full_scale_A is None else rig.current_full_scale_A
     i = np.clip(e * np.asarray(rig.p_gain_A_per_pulse), -lim, lim)
     sidecar = dict(dataset=name, robot=robot if robot is not None else robot_section(plant.model),
-                   n_samples=int(n_samples), **_rig_sidecar(rig),
-                   trajectory=dict(parameters=trajectory.to_parameters()),
+                   n_samples=int(n_samples))
+    rig_into_sidecar(rig, sidecar)
+    sidecar.update(trajectory=dict(parameters=trajectory.to_parameters()),
                    csv_columns={c: "" for c in column_names(plant.model.joint_names)})
     return ArmLog(path=None, name=name, model=plant.model, rig=rig, trajectory=trajectory, t=t,
                   q_ref=trajectory.position(t), e_pulses=e, i_A=i, sidecar=sidecar)

@@ -269,7 +269,12 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar", n_join
 
 
 def rig_into_sidecar(rig: Rig, d: dict) -> None:
-    """Write the numeric values of ``rig`` into sidecar dict ``d`` (in place)."""
+    """Write the numeric values of ``rig`` into sidecar dict ``d`` (in place).
+
+    ``a3_m`` and ``f_search_ranges`` describe the PUMA 560 links 2-3: they
+    are written for a rig with search ranges (``rig.f_bounds``), not for a
+    robot model's rig (:mod:`plant.arm_log`).
+    """
     d["sample_time_s"] = float(rig.sample_time_s)
     d["gear_ratio"] = [float(x) for x in rig.gear_ratio]
     d["encoder_ppr"] = [int(x) for x in rig.encoder_ppr]
@@ -285,7 +290,8 @@ def rig_into_sidecar(rig: Rig, d: dict) -> None:
     if "coulomb_ramp_speed_rad_per_s" in d or note_speed != ramp:
         d["coulomb_ramp_speed_rad_per_s"] = ramp
     d["gravity_m_s2"] = float(rig.gravity_m_s2)
-    d["a3_m"] = float(rig.a3_m)
+    if rig.f_bounds:
+        d["a3_m"] = float(rig.a3_m)
     start = d.get("start_state")
     start = dict(start) if isinstance(start, Mapping) else {}
     if rig.q0_rad is None or rig.qd0_rad_per_s is None:  # window without a start state
@@ -295,11 +301,12 @@ def rig_into_sidecar(rig: Rig, d: dict) -> None:
         start["q_rad"] = [float(x) for x in rig.q0_rad]
         start["qd_rad_per_s"] = [float(x) for x in rig.qd0_rad_per_s]
     d["start_state"] = start
-    ranges = d.get("f_search_ranges")
-    ranges = dict(ranges) if isinstance(ranges, Mapping) else {}
-    for name, (lo, hi) in zip(F_NAMES, rig.f_bounds):
-        ranges[name] = [float(lo), float(hi)]
-    d["f_search_ranges"] = ranges
+    if rig.f_bounds:
+        ranges = d.get("f_search_ranges")
+        ranges = dict(ranges) if isinstance(ranges, Mapping) else {}
+        for name, (lo, hi) in zip(F_NAMES, rig.f_bounds):
+            ranges[name] = [float(lo), float(hi)]
+        d["f_search_ranges"] = ranges
     if rig.current_full_scale_A is None:
         d.pop("current_full_scale_A", None)
     else:
