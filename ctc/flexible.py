@@ -115,7 +115,7 @@ from .computed_torque import (
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
-           "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING"]
+           "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING", "two_mass_observer_gains"]
 
 #: RK4 steps per sample of the controller's link model.  The link modes of
 #: industrial gearboxes (sqrt(K / D_link), 10-40 Hz) give ``w Ts < 0.2`` at
@@ -353,18 +353,50 @@ def link_observer_gains(link_f, stiffness, damping, motor_inertia, gains, link_d
     -------
     ndarray, shape (2, 4)
     """
+    from plant.model import inertia_matrix
+
+    dl = np.diag(inertia_matrix(link_f, np.zeros(2)))
+    return two_mass_observer_gains(dl, stiffness, damping, motor_inertia, gains, link_damping)
+
+
+def two_mass_observer_gains(link_inertia, stiffness, damping, motor_inertia, gains, link_damping):
+    """Gains (n, 4) ``[l_th, l_thd, l_q, l_qd]`` per joint of a two-mass joint's observer.
+
+    Per joint, the linear two-mass model (motor ``Ia = Jm k^2``, link inertia
+    ``link_inertia``, spring K, damper D) sampled at Ts (ZOH); the
+    current-estimator gain places ``eig(Phi - L C Phi)`` (C reads the motor)
+    at the double pole of ``gains.estimator_bandwidth_hz`` and at the link
+    mode ``sqrt(K / link_inertia)`` with damping ratio ``link_damping``
+    (:func:`link_observer_gains` is the PUMA 560 links 2-3 instance).
+
+    Parameters
+    ----------
+    link_inertia, stiffness, damping, motor_inertia : array_like, shape (n,)
+        Link diagonal inertia (kg m^2), K (N m/rad), D (N m s/rad), Ia (kg m^2).
+    gains : ctc.design.GainDesign
+        Motor-loop design (sample time, observer bandwidth per joint).
+    link_damping : float
+        Damping ratio of the link-estimate error poles, > 0.
+
+    Returns
+    -------
+    ndarray, shape (n, 4)
+
+    Raises
+    ------
+    ValueError
+        On a link damping that is not > 0.
+    """
     import control
     from scipy.linalg import expm
-
-    from plant.model import inertia_matrix
 
     if not (np.isfinite(link_damping) and link_damping > 0):
         raise ValueError(f"link_damping must be > 0, got {link_damping!r}")
     ts = float(gains.ts)
-    dl = np.diag(inertia_matrix(link_f, np.zeros(2)))
-    out = np.zeros((2, 4))
-    for j in range(2):
-        K, D, jm, jl = stiffness[j], damping[j], motor_inertia[j], dl[j]
+    dl = np.asarray(link_inertia, dtype=float)
+    out = np.zeros((dl.size, 4))
+    for j in range(dl.size):
+        K, D, jm, jl = float(stiffness[j]), float(damping[j]), float(motor_inertia[j]), dl[j]
         a = np.array([[0.0, 1.0, 0.0, 0.0],
                       [-K / jm, -D / jm, K / jm, D / jm],
                       [0.0, 0.0, 0.0, 1.0],

@@ -28,6 +28,13 @@ covariance of the scores (:func:`identification.uncertainty.sandwich_covariance`
 the relative standard error of each base parameter says how well the log
 excites it.
 
+Compliant joints: a log that the rigid model does not predict to the
+encoder's quantisation floor goes through the model choice of
+:func:`identify_arm` (``model="auto"``): the two-mass joints with gearbox
+backlash of :mod:`identification.arm_flexible`, compared with the rigid
+model on held-back blocks, as the PUMA 560 path does
+(:mod:`identification.flexible`).
+
 The result is a :class:`scipy.optimize.OptimizeResult` with the arm's
 names (:class:`ArmIdentificationResult`).
 """
@@ -41,6 +48,7 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import OptimizeResult
 
+from plant.arm import ARM_SUBSTEPS as ARM_SUBSTEPS_SIM
 from plant.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
 from plant.core import cell_centre
 from plant.model import friction_torque
@@ -52,7 +60,7 @@ from .uncertainty import RSE_WARN, sandwich_covariance
 
 __all__ = ["identify_arm", "arm_idim_ls", "ArmIdentificationResult", "ArmPredictionErrorProblem",
            "ARM_REFINE_SUBSTEPS", "ARM_FTOL", "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout",
-           "motor_side_friction", "FRICTION_COMPONENTS"]
+           "motor_side_friction", "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper")
@@ -267,6 +275,14 @@ class ArmPredictionErrorProblem:
         First compared sample.
     workers : int, optional
         Threads (default: the CPUs this process may use).
+    to_lanes : callable, optional
+        Maps the searched vectors X (m, k) to the plant's rows (m,
+        ``plant.n_parameters``) (default: beta, then the unknown friction
+        into the rig's, :func:`friction_layout`).
+    feasible : callable, optional
+        ``feasible(X) -> (m,) bool``: candidates outside it are not
+        simulated and get the failed candidate's residuals (e.g. a link
+        model that is no robot, :meth:`~identification.arm_flexible.ArmFlexibleSpace.feasible`).
 
     Attributes
     ----------
@@ -275,8 +291,10 @@ class ArmPredictionErrorProblem:
     """
 
     def __init__(self, log, plant, *, gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, k_start=0,
-                 workers=None):
+                 workers=None, to_lanes=None, feasible=None):
         self.log = log
+        self.to_lanes = to_lanes
+        self.feasible = feasible
         self.workers = workers
         self.plant = plant
         self.gain = float(gain)
@@ -303,15 +321,25 @@ class ArmPredictionErrorProblem:
         X = np.asarray(X, dtype=float)
         single = X.ndim == 1
         X = np.atleast_2d(X)
-        P = X if not self.plant.lane_friction else _lane_friction(self.log.rig, X,
-                                                                   self.plant.base.rank)
-        sim = replay_arm(self.plant, P, self.log.rig, self.ref, self.e, self.i, gain=self.gain,
-                         substeps=self.substeps, k_start=self.k_start, bound=self.bound,
-                         workers=self.workers)
+        ok = np.ones(X.shape[0], dtype=bool) if self.feasible is None else \
+            np.asarray(self.feasible(X), dtype=bool)
+        R = np.full((X.shape[0], (self.ref.shape[0] - self.k_start) * self.ref.shape[1]),
+                    self.bound)
+        if np.any(ok):
+            Xs = X[ok]
+            if self.to_lanes is not None:
+                P = self.to_lanes(Xs)
+            else:
+                P = Xs if not self.plant.lane_friction else _lane_friction(self.log.rig, Xs,
+                                                                            self.plant.base.rank)
+            sim = replay_arm(self.plant, P, self.log.rig, self.ref, self.e, self.i, gain=self.gain,
+                             substeps=self.substeps, k_start=self.k_start, bound=self.bound,
+                             workers=self.workers)
+            Rs = sim.errors[:, self.k_start:, :].reshape(Xs.shape[0], -1).copy()
+            Rs[sim.status != 0] = self.bound
+            Rs[~np.isfinite(Rs)] = self.bound
+            R[ok] = Rs
         self.nfev += X.shape[0]
-        R = sim.errors[:, self.k_start:, :].reshape(X.shape[0], -1).copy()
-        R[sim.status != 0] = self.bound
-        R[~np.isfinite(R)] = self.bound
         return R[0] if single else R
 
 
@@ -379,7 +407,27 @@ class ArmIdentificationResult(OptimizeResult):
         Its joint names.
     log_name : str
     elapsed_s : float
-        Wall time of the identification.
+        Wall time of the identification (every stage).
+    stage_times_s : dict
+        Wall time per stage (``rigid``, ``model_choice_and_flexible_fit``).
+    model : str
+        ``"rigid"`` or ``"flexible"`` (:mod:`identification.arm_flexible`).
+    model_choice : dict or None
+        The model choice: ``model`` (``"rigid"``, ``"flexible"`` or
+        ``"flexible+backlash"``), ``reason``, the held-back costs
+        (pulses^2), ``floor_pulses2``, ``floor_ratio``, ``adequate``.
+    warnings : list of str
+        E.g. a chosen model that does not describe the log.
+    joint_stiffness_Nm_per_rad, joint_damping_Nms_per_rad, motor_inertia_reflected_kgm2 : list or None
+        A flexible result's joints (n each); x then holds
+        ``[beta, log10 K, D, Ia, (b), friction]``, and beta is the
+        rigid-equivalent (link plus ``Ia``).
+    joint_backlash_rad : list or None
+        Its backlash widths (n), None without backlash.
+    flexible_plant : plant.arm.ArmPlant or None
+        A flexible result's two-mass arm, ``plant_row`` its lane
+        parameters (:meth:`plant.arm.ArmPlant.lane_parameters`) and
+        ``flexible_substeps`` the RK4 steps per sample of its fit.
     """
 
     def to_dict(self) -> dict:
@@ -393,7 +441,10 @@ class ArmIdentificationResult(OptimizeResult):
             (pulses^2, eq. 4), ``nfev``, ``nit``, ``success``, ``message``,
             ``method``, ``robot``, ``joint_names``, ``log_name``,
             ``cutoff_hz``, ``elapsed_s``, ``bounds``, ``beta``, ``friction``,
-            ``friction_identified``.
+            ``friction_identified``, ``model``, ``model_choice``, ``warnings``,
+            ``stage_times_s`` and the joints (``joint_stiffness_Nm_per_rad``,
+            ``joint_damping_Nms_per_rad``, ``motor_inertia_reflected_kgm2``,
+            ``joint_backlash_rad``; None for a rigid result).
         """
         def floats(v):
             return [None if not np.isfinite(a) else float(a) for a in np.asarray(v, dtype=float)]
@@ -407,7 +458,11 @@ class ArmIdentificationResult(OptimizeResult):
                     joint_names=list(self.joint_names), log_name=self.log_name,
                     cutoff_hz=float(self.cutoff_hz), elapsed_s=float(self.elapsed_s),
                     bounds=np.asarray(self.bounds, dtype=float).tolist(), beta=floats(self.beta),
-                    friction=self.friction, friction_identified=bool(self.friction_identified))
+                    friction=self.friction, friction_identified=bool(self.friction_identified),
+                    model=self.get("model", "rigid"), model_choice=_jsonable(self.get("model_choice")),
+                    warnings=list(self.get("warnings") or []),
+                    stage_times_s=_jsonable(self.get("stage_times_s")),
+                    **{k: self.get(k) for k in _NO_JOINTS})
 
     def save_json(self, path, *, create_dirs=False):
         """Write :meth:`to_dict` as JSON, atomically (:func:`plant.fileio.write_text_atomic`).
@@ -465,7 +520,11 @@ class ArmIdentificationResult(OptimizeResult):
             if axes.size != n:
                 raise ValueError(f"ax must hold {n} axes, got {axes.size}")
             fig = axes[0].figure
-        sim = simulate_arm(self.plant, self.beta[None], self.rig, log.trajectory, log.n_samples)
+        if self.get("flexible_plant") is not None:
+            sim = simulate_arm(self.flexible_plant, np.asarray(self.plant_row)[None], log.rig,
+                               log.trajectory, log.n_samples)
+        else:
+            sim = simulate_arm(self.plant, self.beta[None], self.rig, log.trajectory, log.n_samples)
         for j, a in enumerate(axes):
             a.step(log.t, log.e_pulses[:, j], where="post", lw=0.8, label="log")
             a.step(log.t, sim.errors[0, :, j], where="post", lw=0.8, ls="--", label="identified")
@@ -480,7 +539,7 @@ class ArmIdentificationResult(OptimizeResult):
 def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAIN,
                  substeps=ARM_REFINE_SUBSTEPS, max_iter=40, ftol=ARM_FTOL, cutoff_hz=None,
                  bounds=None, ranges=None, rng=None, ga_options=None,
-                 workers=None) -> ArmIdentificationResult:
+                 workers=None, model="auto") -> ArmIdentificationResult:
     """Identify an arm's base parameters from a P-control log (module docstring).
 
     Parameters
@@ -522,18 +581,40 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         Settings of :func:`identification.ga.run_ga` overriding the paper's.
     workers : int, optional
         Threads of the simulations (default: the CPUs this process may use).
+    model : {"auto", "rigid", "flexible"}
+        The robot model (:mod:`identification.arm_flexible`): ``"rigid"``;
+        ``"flexible"``, two-mass joints; ``"auto"`` (default): rigid when
+        its prediction errors sit at the encoder's quantisation floor,
+        otherwise the springs when their held-back prediction-error cost is
+        below :data:`~identification.flexible.CHOICE_RATIO` times the rigid
+        model's.  With springs (or when neither model predicts the held-back
+        samples within :data:`~identification.flexible.INADEQUATE_FACTOR`
+        floors) the gearbox backlash is fitted too and kept when it halves
+        the held-back cost or lowers it per held-back block by more than
+        :data:`BACKLASH_T` standard errors (a paired t test).  A flexible
+        fit whose link model is no robot near the log's configurations
+        (:meth:`~identification.arm_flexible.ArmFlexibleSpace.link_check`)
+        or whose output error exceeds the rigid model's by more than a
+        quantisation floor is rejected, with the reason.  ``model_choice``
+        says which model and why.
 
     Returns
     -------
     ArmIdentificationResult
         ``success`` False (with a message) when the refinement's simulations
         fail at the start point.  With a GA: ``ga`` (its best individual,
-        output error and generations).
+        output error and generations).  ``model``, ``model_choice`` and,
+        for a flexible result, the joints (``joint_stiffness_Nm_per_rad``,
+        ``joint_damping_Nms_per_rad``, ``motor_inertia_reflected_kgm2``,
+        ``joint_backlash_rad``, n each); a chosen model that does not
+        predict the held-back samples within
+        :data:`~identification.flexible.INADEQUATE_FACTOR` quantisation
+        floors says so in ``warnings`` and ``model_choice['adequate']``.
 
     Raises
     ------
     ValueError
-        As :func:`arm_idim_ls`, an unknown method, or malformed bounds.
+        As :func:`arm_idim_ls`, an unknown method or model, or malformed bounds.
     """
     from .api import PAPER_GA
     from .ga import run_ga
@@ -541,6 +622,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     t0 = time.perf_counter()
     if method not in ARM_METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(ARM_METHODS)}")
+    if model not in ARM_MODELS:
+        raise ValueError(f"unknown model {model!r}; choose one of {', '.join(ARM_MODELS)}")
     pl = _plant_of(log, plant)
     rig = log.rig
     nb = pl.base.rank
@@ -612,7 +695,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         f"{FRICTION_COMPONENTS[w]}_{log.joint_names[j]}" for j, w in unknown)
     expressions = tuple(pl.base.expressions) + tuple(
         f"joint-side {FRICTION_COMPONENTS[w]} friction of {log.joint_names[j]}" for j, w in unknown)
-    return ArmIdentificationResult(
+    res = ArmIdentificationResult(
         x=x, beta=x[:nb].copy(), fun=float(ref.fun), output_error=float(sim.objective[0]),
         nfev=nfev, nit=int(ref.nit), success=ok, method=method, ga=ga_info, bounds=bounds,
         interrupted=bool(ref.get("interrupted", False) if isinstance(ref, dict) else
@@ -625,4 +708,241 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         rig=rig if not unknown else dataclasses.replace(
             rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
             coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"])),
-        log_name=log.name, elapsed_s=time.perf_counter() - t0)
+        log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=[],
+        flexible_plant=None, plant_row=None, flexible_substeps=None,
+        stage_times_s=dict(rigid=time.perf_counter() - t0),
+        **_NO_JOINTS)
+    if ok and model != "rigid":
+        t1 = time.perf_counter()
+        res = _apply_arm_model(res, log, model, problem, bounds, workers=workers, max_iter=max_iter,
+                               ftol=ftol)
+        res.stage_times_s["model_choice_and_flexible_fit"] = time.perf_counter() - t1
+    res.elapsed_s = time.perf_counter() - t0
+    return res
+
+
+#: Models of :func:`identify_arm`.
+ARM_MODELS = ("auto", "rigid", "flexible")
+
+_NO_JOINTS = dict(joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=None,
+                  motor_inertia_reflected_kgm2=None, joint_backlash_rad=None)
+
+
+def _jsonable(d):
+    """A dict of floats, strings, bools and None (numpy scalars converted; inf -> None)."""
+    if d is None:
+        return None
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, (bool, np.bool_)):
+            out[k] = bool(v)
+        elif isinstance(v, (int, float, np.integer, np.floating)):
+            out[k] = float(v) if np.isfinite(v) else None
+        else:
+            out[k] = v
+    return out
+
+
+def _held_cost(problem, x, held):
+    r = problem.residuals(np.asarray(x, dtype=float)[None])[0]
+    return float(r[held] @ r[held])
+
+
+def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, ftol):
+    """The model choice and the flexible fit of :func:`identify_arm` (its docstring)."""
+    from .arm_flexible import ARM_BACKLASH_GRID, ArmFlexibleSpace, fit_flexible_arm
+    from .flexible import CHOICE_RATIO, FLOOR_FACTOR, INADEQUATE_FACTOR
+    from .refinement import MaskedProblem, held_back_mask
+
+    n, nb = log.n_joints, res.plant.base.rank
+    floor = log.n_samples * n / 12.0
+    level = res.fun / floor
+    if model == "auto" and level <= FLOOR_FACTOR:
+        res.model_choice = dict(
+            model="rigid", floor_ratio=level, adequate=True,
+            reason=f"the rigid model predicts the log to the quantisation floor "
+                   f"(prediction-error cost {level:.3g} x n/12 <= {FLOOR_FACTOR})")
+        return res
+    fit_mask, held = held_back_mask(log.n_samples, n, log.rig.sample_time_s)
+    floor_h = float(held.sum()) / 12.0
+    limit = INADEQUATE_FACTOR * floor_h
+    # the rigid model refit without the held-back blocks
+    ref_r = refine(MaskedProblem(problem, fit_mask), res.x[None], bounds, max_iter=20, ftol=ftol)
+    c_rigid = _held_cost(problem, ref_r.x, held)
+    try:
+        space = ArmFlexibleSpace(log, res.plant, res.beta, bounds[nb:])
+    except ValueError as exc:
+        res.model_choice = dict(model="rigid", reason=f"no flexible fit: {exc}")
+        return res
+    problems = {}
+
+    def problem_at(sp, box):
+        sub = sp.substeps(box)
+
+        def make(g):
+            key = (sp.backlash, g)
+            if key not in problems:
+                problems[key] = ArmPredictionErrorProblem(
+                    log, sp.plant, gain=g, substeps=sub, workers=workers, to_lanes=sp.to_lanes,
+                    feasible=lambda X: sp.feasible(X, sub))
+            return problems[key]
+        return make
+
+    box = space.bounds(bounds[:nb])
+    at = problem_at(space, box)
+    flex = fit_flexible_arm(space, at, box, pool=space.pool(res.beta, res.x[nb:]), mask=fit_mask,
+                            max_iter=max_iter, ftol=ftol)
+    c_flex = _held_cost(at(DEFAULT_GAIN), flex["x"], held)
+    if not np.isfinite(c_flex):
+        c_flex = np.inf
+    choice = dict(rule=f"flexible if held-back cost ratio < {CHOICE_RATIO}",
+                  held_back_cost_rigid_pulses2=c_rigid, held_back_cost_flexible_pulses2=c_flex,
+                  floor_pulses2=floor_h)
+    fspace, fbox, fat, fx, c_f = space, box, at, flex["x"], c_flex
+    note = ""
+    spring_chosen = c_flex < CHOICE_RATIO * c_rigid or model == "flexible"
+    if spring_chosen or not (c_flex <= limit or c_rigid <= limit):
+        # the gearbox backlash (the paper's second cause of the oscillations), from the spring
+        # fit's point at a few widths: when the springs are chosen, or when neither the rigid
+        # model nor the springs predict the held-back samples to the floor
+        bspace = ArmFlexibleSpace(log, res.plant, res.beta, bounds[nb:], backlash=True)
+        bbox = bspace.bounds(bounds[:nb])
+        bat = problem_at(bspace, bbox)
+        starts = bspace.with_backlash(flex["x"], (0.0,) + ARM_BACKLASH_GRID)
+        bl = fit_flexible_arm(bspace, bat, bbox, starts=starts, mask=fit_mask, max_iter=max_iter,
+                              ftol=ftol, continuation=CONTINUATION_BACKLASH)
+        c_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held)
+        choice["held_back_cost_backlash_pulses2"] = c_bl
+        t = _paired_t(at(DEFAULT_GAIN), flex["x"], bat(DEFAULT_GAIN), bl["x"], log)
+        choice["backlash_paired_t"] = t
+        if np.isfinite(c_bl) and (c_bl < CHOICE_RATIO * min(c_flex, c_rigid)
+                                  or (spring_chosen and t > BACKLASH_T)):
+            fspace, fbox, fat, fx, c_f = bspace, bbox, bat, bl["x"], c_bl
+            note = (f"; with backlash the held-back cost is {c_bl:.4g} pulses^2 (paired t over "
+                    f"the held-back blocks {t:.3g})")
+        else:
+            note = (f"; backlash tried, held-back cost {c_bl:.4g} pulses^2 (not < {CHOICE_RATIO} x "
+                    f"the better of the others, paired t {t:.3g} <= {BACKLASH_T:g}): no backlash")
+    ratio = c_f / c_rigid if c_rigid > 0 else 1.0
+    chosen = "flexible" if (ratio < CHOICE_RATIO or model == "flexible") else "rigid"
+    name = "flexible+backlash" if fspace.backlash else "flexible"
+    choice.update(held_back_cost_flexible_pulses2=c_f, ratio=ratio,
+                  reason=(f"held-back prediction-error cost {name}/rigid = {ratio:.3g} "
+                          f"({c_f:.4g} / {c_rigid:.4g} pulses^2) "
+                          f"{'<' if ratio < CHOICE_RATIO else '>='} {CHOICE_RATIO}" + note
+                          + ("; model='flexible' requested" if model == "flexible" else "")))
+    if chosen == "rigid":
+        res.nfev = int(problem.nfev) + sum(int(p.nfev) for p in problems.values())
+        return _judge_arm(res, dict(choice, model="rigid"), c_rigid, floor_h)
+    # the full fit from the held-back fit's point
+    full = fit_flexible_arm(fspace, fat, fbox, starts=fx[None], max_iter=max_iter, ftol=ftol,
+                            continuation=())
+    flex_res = _flexible_arm_result(res, log, fspace, fbox, full, workers)
+    # every simulated candidate of the model choice and the fits (the rigid ones included)
+    flex_res.nfev = int(problem.nfev) + sum(int(p.nfev) for p in problems.values())
+    allowance = floor
+    physical, unphysical = fspace.link_check(full["x"], fspace.substeps(fbox))
+    if not physical or not flex_res.success or flex_res.output_error > res.output_error + allowance:
+        why = (unphysical if not physical else
+               "its predictor or closed loop fails" if not flex_res.success else
+               f"its output error {flex_res.output_error:.4g} pulses^2 exceeds the rigid model's "
+               f"{res.output_error:.4g} by more than the quantisation floor {allowance:.4g}")
+        if model == "flexible":
+            flex_res.success = False
+            flex_res.message = f"flexible fit rejected: {why}"
+            return _judge_arm(flex_res, dict(choice, model=name), c_f, floor_h)
+        res.nfev = flex_res.nfev
+        return _judge_arm(res, dict(choice, model="rigid",
+                                    reason=f"flexible fit rejected: {why}; " + choice["reason"]),
+                          c_rigid, floor_h)
+    return _judge_arm(flex_res, dict(choice, model=name), c_f, floor_h)
+
+
+#: Gains of the backlash fit's continuation (it starts from the spring fit's point).
+CONTINUATION_BACKLASH = (0.1,)
+
+#: The backlash is kept when it lowers the held-back cost of every 0.1 s held-back block on
+#: average by more than this many standard errors of the mean (a one-sided paired t test
+#: across the blocks, about 0.1 % false alarms; blocks 0.3 s apart are nearly independent,
+#: unlike the quantisation errors of neighbouring samples).
+BACKLASH_T = 3.0
+
+
+def _paired_t(problem_a, xa, problem_b, xb, log) -> float:
+    """Paired t statistic of the held-back block costs, model a minus model b (> 0: b better)."""
+    from .refinement import HOLD_BLOCK_S, HOLD_EVERY
+
+    n = log.n_joints
+    ra = problem_a.residuals(np.asarray(xa, dtype=float)[None])[0].reshape(-1, n)
+    rb = problem_b.residuals(np.asarray(xb, dtype=float)[None])[0].reshape(-1, n)
+    block = max(1, int(round(HOLD_BLOCK_S / log.rig.sample_time_s)))
+    idx = np.arange(ra.shape[0]) // block
+    held = idx % HOLD_EVERY == HOLD_EVERY - 1
+    ids = np.unique(idx[held])
+    d = np.array([np.sum(ra[idx == b] ** 2) - np.sum(rb[idx == b] ** 2) for b in ids])
+    if d.size < 3 or not np.all(np.isfinite(d)):
+        return 0.0  # too few blocks, or a failed prediction: no evidence
+    sd = d.std(ddof=1)
+    if sd == 0:
+        return math.inf if d.mean() > 0 else 0.0
+    return float(d.mean() / (sd / math.sqrt(d.size)))
+
+
+def _judge_arm(res, choice, cost, floor_h):
+    """Flag a chosen model whose held-back cost stays far above the quantisation floor."""
+    from .flexible import INADEQUATE_FACTOR
+
+    level = float(cost) / float(floor_h)
+    choice["floor_ratio"] = level
+    choice["adequate"] = bool(level <= INADEQUATE_FACTOR)
+    if not choice["adequate"]:
+        res.warnings = list(res.warnings) + [
+            f"the {choice['model']} model does not describe the log: its held-back "
+            f"prediction-error cost is {level:.3g} x the quantisation floor ({float(cost):.4g} / "
+            f"{float(floor_h):.4g} pulses^2, limit {INADEQUATE_FACTOR:g}); beta may be biased"]
+    res.model_choice = choice
+    return res
+
+
+def _flexible_arm_result(rigid, log, space, box, fit, workers):
+    """The ArmIdentificationResult of a flexible fit (the rigid result's bookkeeping kept)."""
+    x = np.asarray(fit["x"], dtype=float)
+    ref = fit["refine"]
+    nb, n = space.r, space.n
+    ok = bool(np.isfinite(ref.fun) and ref.fun < 1e12)
+    if ref.jac is not None and ok:
+        cov, _ = sandwich_covariance(ref.jac, ref.residuals, n_channels=n)
+        x_std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    else:
+        cov, x_std = None, np.full(x.size, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rse = x_std / np.abs(x)
+    row = space.to_lanes(x)
+    sim = simulate_arm(space.plant, row, log.rig, log.trajectory, log.n_samples,
+                       e_log=log.e_pulses, errors=False, substeps=max(ARM_SUBSTEPS_SIM, space.substeps(box)),
+                       workers=workers)
+    ok = ok and sim.status[0] == 0
+    o = nb + (4 if space.backlash else 3) * n
+    fr_x = np.concatenate([x[:nb], x[o:]])
+    friction = motor_side_friction(log.rig, fr_x, nb)
+    unknown = bool(space.unknown)
+    names = tuple(space.names())
+    rig = log.rig if not unknown else dataclasses.replace(
+        log.rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
+        coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"]))
+    expressions = tuple(rigid.expressions[:nb]) + tuple(
+        f"joint {what} of {j}" for what in ("log10 stiffness (N m/rad)", "damping (N m s/rad)",
+                                             "reflected motor inertia Jm k^2 (kg m^2)")
+        + (("backlash width (rad)",) if space.backlash else ()) for j in log.joint_names)         + tuple(rigid.expressions[nb:])
+    out = ArmIdentificationResult(dict(rigid))
+    out.update(x=x, beta=x[:nb].copy(), fun=float(ref.fun), output_error=float(sim.objective[0]),
+               nfev=int(rigid.nfev) + int(fit["nfev"]), nit=int(rigid.nit) + int(ref.nit),
+               success=ok, message=(ref.message or "ok") if ok else
+               "the flexible fit's simulated closed loop fails",
+               names=names, expressions=expressions, x_std=x_std, x_rse=rse, cov=cov,
+               well_excited=rse < RSE_WARN, bounds=box, friction=friction, rig=rig,
+               model="flexible", flexible_plant=space.plant, plant_row=row[0],
+               flexible_substeps=space.substeps(box),
+               warnings=list(rigid.warnings), stage_times_s=dict(rigid.stage_times_s),
+               **space.joints(x))
+    return out

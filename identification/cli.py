@@ -562,8 +562,7 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
     from .arm import ARM_DEFAULT_METHOD, ARM_METHODS, identify_arm
 
     unsupported = [opt for opt, on in (("--payload", args.payload), ("--consistent", args.consistent),
-                                       ("--lowpass", args.lowpass is not None),
-                                       ("--model", args.model != "auto")) if on]
+                                       ("--lowpass", args.lowpass is not None)) if on]
     if unsupported:
         raise CLIError(f"{', '.join(unsupported)} is for PUMA 560 links 2-3 logs; {log_path} "
                        "names a robot model")
@@ -578,10 +577,15 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
                f"joints {', '.join(log.joint_names)}), method {method}, seed {args.seed}")
     ga_options = {"n_gen": args.generations} if args.generations is not None else None
     result = identify_arm(log, method=method, rng=args.seed, ga_options=ga_options,
-                          workers=args.workers)
+                          workers=args.workers, model=args.model)
     print(f"log: {log.name} ({log.n_samples} samples)   robot: {log.model.name}   method: {method}"
           f"   seed: {args.seed}", file=stdout)
     print(result.table(), file=stdout, flush=True)
+    choice = result.get("model_choice")
+    if choice:
+        print(f"model: {choice.get('model', result.model)} ({choice.get('reason', '')})", file=stdout)
+    for w in result.get("warnings") or []:
+        print(f"warning: {w}", file=stdout, flush=True)
     if result.get("interrupted"):
         print(f"INTERRUPTED: {result.message} (best so far)", file=stdout, flush=True)
     if not result.success:

@@ -86,7 +86,7 @@ from plant.friction import FRICTION_NAMES, friction_fields
 
 from .friction import default_friction_bounds, full_friction, unknown_friction_indices
 from .parameters import BaseParameters, Parameterisation, PayloadParameters, check_bounds
-from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
+from .refinement import DEFAULT_GAIN, MaskedProblem, PredictionErrorProblem, held_back_mask, refine
 
 __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "BACKLASH_SIGNIFICANCE", "identify_flexible", "choose_model",
@@ -118,9 +118,6 @@ CHOICE_RATIO = 0.5
 #: (``1/12`` pulse^2 per residual: a count known to a unit cell).
 FLOOR_FACTOR = 2.0
 
-#: Held-back blocks: every ``HOLD_EVERY``-th block of ``HOLD_BLOCK_S`` seconds.
-HOLD_BLOCK_S = 0.1
-HOLD_EVERY = 4
 
 _PLANT = FlexibleJoints(1.0, 0.0, 1.0)  # constants unused: every lane carries its joints
 
@@ -356,27 +353,8 @@ def flexible_substeps(log, joint_bounds=DEFAULT_JOINT_BOUNDS, bounds=None) -> in
 
 
 def _hold_mask(log):
-    """Residual mask (2 n,) of the fitted samples: every HOLD_EVERY-th block held back."""
-    n = log.n_samples
-    block = max(1, int(round(HOLD_BLOCK_S / log.rig.sample_time_s)))
-    held = (np.arange(n) // block) % HOLD_EVERY == HOLD_EVERY - 1
-    return np.repeat(~held, 2), np.repeat(held, 2)
-
-
-class _Masked:
-    """A prediction-error problem restricted to some residuals (the fitted samples)."""
-
-    def __init__(self, problem, mask):
-        self.problem = problem
-        self.mask = mask
-
-    @property
-    def nfev(self):
-        return self.problem.nfev
-
-    def residuals(self, X):
-        R = self.problem.residuals(X)
-        return R[..., self.mask]
+    """Residual masks (2 n,) of the fitted and the held-back samples (:func:`held_back_mask`)."""
+    return held_back_mask(log.n_samples, 2, log.rig.sample_time_s)
 
 
 def _problem(log, space, substeps, workers, gain):
@@ -459,7 +437,7 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
     problem = _problem(log, space, substeps, workers, gain)
     fit = problem
     if hold_back:
-        fit = _Masked(problem, _hold_mask(log)[0])
+        fit = MaskedProblem(problem, _hold_mask(log)[0])
     # the start pool: the stiffness grid at the rigid f (with a few backlash widths
     # when they are searched); its best n_starts are refined, and the given start
     n_fr = len(unknown_friction_indices(log.rig))
@@ -622,7 +600,7 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
     # rigid, refit without the held-back blocks (from the full fit's x)
     rp = _rigid_problem(log, space, rigid, workers, gain)
     mask_fit, held = _hold_mask(log)
-    ref_r = refine(_Masked(rp, mask_fit), np.atleast_2d(_rigid_x(rigid)), space.bounds(log),
+    ref_r = refine(MaskedProblem(rp, mask_fit), np.atleast_2d(_rigid_x(rigid)), space.bounds(log),
                    max_iter=20, callback=_stop_callback())
     _raise_if_stopped(ref_r)
     r_rigid = rp.residuals(ref_r.x)

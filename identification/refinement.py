@@ -36,7 +36,72 @@ from plant import STATUS_OK
 
 from .filtering import apply_lowpass, lowpass_sos
 
-__all__ = ["PredictionErrorProblem", "RefineResult", "refine", "DEFAULT_GAIN"]
+__all__ = ["PredictionErrorProblem", "RefineResult", "refine", "DEFAULT_GAIN", "MaskedProblem",
+           "held_back_mask", "HOLD_BLOCK_S", "HOLD_EVERY"]
+
+#: Length (s) of the held-back blocks of the model choice (:func:`held_back_mask`).
+HOLD_BLOCK_S = 0.1
+
+#: Every ``HOLD_EVERY``-th block of :data:`HOLD_BLOCK_S` seconds is held back (not
+#: fitted, only predicted).
+HOLD_EVERY = 4
+
+
+def held_back_mask(n_samples, n_joints, sample_time_s):
+    """Residual masks of the fitted and of the held-back samples (model choice).
+
+    Every :data:`HOLD_EVERY`-th block of :data:`HOLD_BLOCK_S` seconds is held
+    back: its residuals are not fitted (the replay still runs through it),
+    and the cost on them judges a model by samples it did not fit.
+
+    Parameters
+    ----------
+    n_samples, n_joints : int
+        Residuals are sample-major, ``n_samples * n_joints`` of them.
+    sample_time_s : float
+
+    Returns
+    -------
+    fitted, held : ndarray of bool, shape (n_samples * n_joints,)
+    """
+    block = max(1, int(round(HOLD_BLOCK_S / float(sample_time_s))))
+    held = (np.arange(int(n_samples)) // block) % HOLD_EVERY == HOLD_EVERY - 1
+    return np.repeat(~held, int(n_joints)), np.repeat(held, int(n_joints))
+
+
+class MaskedProblem:
+    """A prediction-error problem restricted to some residuals (e.g. the fitted samples).
+
+    Parameters
+    ----------
+    problem : object
+        Has ``residuals(X) -> (m, n_residuals)`` and ``nfev``.
+    mask : ndarray of bool, shape (n_residuals,)
+        The residuals kept.
+    """
+
+    def __init__(self, problem, mask):
+        self.problem = problem
+        self.mask = mask
+
+    @property
+    def nfev(self):
+        """Candidates simulated by the underlying problem."""
+        return self.problem.nfev
+
+    def residuals(self, X):
+        """The kept residuals of a batch.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, k)
+
+        Returns
+        -------
+        ndarray, shape (m, mask.sum())
+        """
+        R = self.problem.residuals(X)
+        return R[..., self.mask]
 
 #: Output-injection gain of the replay, as a fraction of the P gain.
 DEFAULT_GAIN = 0.02

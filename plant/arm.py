@@ -83,7 +83,8 @@ class ArmPlant(Plant):
     kind : NamedTuple
         The kind registered for this robot's right-hand side (a class of its own).
     encoder_row : int
-        0: the encoders read the joint angles (rows 0..n-1 of the state).
+        First state row the encoders read: 0 (the joint angles) for a rigid
+        arm, 2 n (the motor angles) for a flexible one.
     model : plant.robot_model.RobotModel
         The robot.
     base : plant.robot_model.BaseParameterSet
@@ -92,12 +93,17 @@ class ArmPlant(Plant):
         The generated right-hand side (Python source compiled by numba).
     lane_friction : bool
         The drive friction is per lane, after beta (:func:`arm_plant`).
+    flexible : bool
+        Two-mass flexible joints with gearbox backlash (:func:`arm_plant`):
+        state ``(q, qd, th, thd)`` (4 n), the encoders read the motor angles
+        ``th`` (rows 2 n .. 3 n - 1).
     """
 
     model: object = None
     base: object = None
     source: str = field(default="", repr=False)
     lane_friction: bool = False
+    flexible: bool = False
 
     @property
     def n_joints(self) -> int:
@@ -106,13 +112,33 @@ class ArmPlant(Plant):
 
     @property
     def parameter_names(self) -> tuple:
-        """Names of the base parameters, in order."""
-        return self.base.names
+        """Names of the lane parameters, in order (:meth:`lane_parameters`)."""
+        names = tuple(self.base.names)
+        j = self.model.joint_names
+        if self.flexible:
+            names += tuple(f"{w}_{a}" for w in ("K", "D", "Ia", "b") for a in j)
+        if self.lane_friction:
+            names += tuple(f"{w}_{a}" for a in j for w in ("viscous", "coulomb_pos", "coulomb_neg"))
+        return names
 
     @property
     def n_parameters(self) -> int:
-        """Per-lane parameters: r base parameters (then 3 n friction with ``lane_friction``)."""
-        return self.base.rank + (3 * self.n_joints if self.lane_friction else 0)
+        """Per-lane parameters: r base parameters, then 4 n joint constants when
+        ``flexible``, then 3 n friction with ``lane_friction``."""
+        n = self.n_joints
+        return self.base.rank + (4 * n if self.flexible else 0) + (3 * n if self.lane_friction else 0)
+
+    @property
+    def motor_inertia_columns(self) -> np.ndarray:
+        """How each reflected motor inertia ``Ia_j = Jm_j k_j^2`` enters beta, shape (n, r).
+
+        Row j is the column of ``Ia_j`` in the regrouping ``beta = K p``
+        (:class:`~plant.robot_model.BaseParameterSet`): the rigid-equivalent
+        beta of a flexible arm is its link's beta plus ``Ia @ columns``.
+        """
+        names = list(self.model.standard_parameter_names)
+        cols = [names.index(f"Ia{i + 1}") for i in self.model.active]
+        return np.ascontiguousarray(np.asarray(self.base.K, dtype=float)[:, cols].T)
 
     def lane_parameters(self, B, rig=None) -> np.ndarray:
         """Per-lane parameter array of candidates ``B`` (m, n_parameters), one row each.
@@ -120,14 +146,21 @@ class ArmPlant(Plant):
         Parameters
         ----------
         B : array_like, shape (m, n_parameters) or (n_parameters,)
-            Base parameters beta per candidate (then, with ``lane_friction``,
-            the joint-side friction: per joint viscous, Coulomb +, Coulomb -).
+            Base parameters beta per candidate -- the rigid-equivalent ones
+            (link plus reflected motor inertias) also for a flexible arm;
+            then, with ``flexible``, per joint the spring stiffness K (N
+            m/rad), damping D (N m s/rad), reflected motor inertia ``Ia = Jm
+            k^2`` (kg m^2) and backlash width b (rad), each a block of n;
+            then, with ``lane_friction``, the joint-side friction (per joint
+            viscous, Coulomb +, Coulomb -; on the motor for a flexible arm).
         rig : ignored
             (The rig's friction is the plant's; kept for the :class:`Plant` protocol.)
 
         Returns
         -------
         ndarray, shape (n_parameters, m)
+            For a flexible arm the first r rows hold the link's beta
+            (``beta - Ia @`` :attr:`motor_inertia_columns`).
 
         Raises
         ------
@@ -140,7 +173,25 @@ class ArmPlant(Plant):
             raise ValueError(f"base parameters must have shape (n_candidates, {r}), got {B.shape}")
         if not np.all(np.isfinite(B)):
             raise ValueError("base parameters contain NaN or inf")
-        return np.ascontiguousarray(B.T)
+        P = np.array(B.T, order="C")
+        if self.flexible:
+            nb, n = self.base.rank, self.n_joints
+            P[:nb] -= self.motor_inertia_columns.T @ B[:, nb + 2 * n:nb + 3 * n].T
+        return P
+
+    def initial_state(self, c) -> np.ndarray:
+        """Start state from the rig's ``q0``, ``qd0`` (flexible: springs relaxed, motor = link).
+
+        Parameters
+        ----------
+        c : plant.rig.RigConstants
+
+        Returns
+        -------
+        ndarray, shape (2 n,) or (4 n,)
+        """
+        x = super().initial_state(c)
+        return np.concatenate([x, x]) if self.flexible else x
 
     @property
     def dynamics_function(self) -> ca.Function:
@@ -191,12 +242,15 @@ def _dynamics_function(model, base) -> ca.Function:
     return ca.Function("arm_dynamics", [sc, qd, beta], outs)
 
 
-def _rhs_source(model, base, lane_friction=False) -> str:
+def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
     """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.core`).
 
     With ``lane_friction`` the joint-side friction of joint j is the lane's
-    ``p[r + 3 j : r + 3 j + 3]`` (viscous, Coulomb for positive and for
-    negative rate) instead of the rig's.
+    ``p[o + 3 j : o + 3 j + 3]`` (viscous, Coulomb for positive and for
+    negative rate; ``o`` after beta and the flexible joints) instead of the
+    rig's.  With ``flexible``, Spong's two-mass joint with backlash per
+    joint (:func:`arm_plant`): the link is driven by the spring torque, the
+    motor by the current, its friction and the spring's reaction.
     """
     n = model.n_joints
     r = base.rank
@@ -207,11 +261,22 @@ def _rhs_source(model, base, lane_friction=False) -> str:
            "    in1 = (" + "".join(f"x[{n + j}], " for j in range(n)) + ")",
            "    in2 = p"]
     src += lines
+    o = r + (4 * n if flexible else 0)
     for j in range(n):
-        fr = (f"p[{r + 3 * j}], p[{r + 3 * j + 1}], p[{r + 3 * j + 2}]" if lane_friction else
+        fr = (f"p[{o + 3 * j}], p[{o + 3 * j + 1}], p[{o + 3 * j + 2}]" if lane_friction else
               f"c.viscous[{j}], c.coulomb_pos[{j}], c.coulomb_neg[{j}]")
-        src.append(f"    t{j} = c.torque_per_amp[{j}] * u[{j}] + friction_torque(x[{n + j}], "
-                   f"{fr}, c.ramp_speed[{j}]) - {nv[j]}")
+        if flexible:  # spring torque through the gearbox dead zone, motor acceleration
+            k_, d_, ia, b_ = (r + j, r + n + j, r + 2 * n + j, r + 3 * n + j)
+            src.append(f"    dl{j} = x[{2 * n + j}] - x[{j}]")
+            src.append(f"    hb{j} = 0.5 * p[{b_}]")
+            src.append(f"    ts{j} = p[{k_}] * (dl{j} - min(max(dl{j}, -hb{j}), hb{j})) + "
+                       f"p[{d_}] * (x[{3 * n + j}] - x[{n + j}])")
+            src.append(f"    t{j} = ts{j} - {nv[j]}")
+            src.append(f"    m{j} = (c.torque_per_amp[{j}] * u[{j}] + friction_torque(x[{3 * n + j}], "
+                       f"{fr}, c.ramp_speed[{j}]) - ts{j}) / p[{ia}]")
+        else:
+            src.append(f"    t{j} = c.torque_per_amp[{j}] * u[{j}] + friction_torque(x[{n + j}], "
+                       f"{fr}, c.ramp_speed[{j}]) - {nv[j]}")
     # unrolled Cholesky D = L L^T (D's lower triangle row by row), then two triangular solves
     idx = {}
     m = 0
@@ -233,9 +298,14 @@ def _rhs_source(model, base, lane_friction=False) -> str:
     margin = "d0"
     for j in range(1, n):
         margin = f"min({margin}, d{j})"
+    if flexible:  # a motor inertia <= 0 is no plant either
+        for j in range(n):
+            margin = f"min({margin}, p[{r + 2 * n + j}])"
     src.append(f"    margin = {margin}")
+    tail = ("".join(f"x[{3 * n + j}], " for j in range(n)) + "".join(f"m{j}, " for j in range(n))
+            if flexible else "")
     src.append("    return (" + "".join(f"x[{n + j}], " for j in range(n))
-               + "".join(f"a{j}, " for j in range(n)) + "), margin")
+               + "".join(f"a{j}, " for j in range(n)) + tail + "), margin")
     return "\n".join(src) + "\n"
 
 
@@ -243,8 +313,24 @@ _PLANTS: dict = {}
 _DYNAMICS: dict = {}
 
 
-def arm_plant(model, base=None, *, lane_friction=False) -> ArmPlant:
-    """The rigid arm of a robot model as a plant of the core (generated once per robot).
+def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPlant:
+    """A robot model's arm as a plant of the core (generated once per robot).
+
+    Rigid (default), or with ``flexible=True`` Spong's two-mass joints with
+    gearbox backlash, per joint j::
+
+        Ia_j th_j'' = k_j Kt_j i_j + tau_f,j(th_j') - tau_s,j          (motor)
+        D_link(q) q'' + n_link(q, q') = tau_s                           (link)
+        tau_s,j = K_j (d_j - clip(d_j, -b_j / 2, b_j / 2)) + D_j (th_j' - q_j'),  d_j = th_j - q_j
+
+    with ``th`` the motor angle divided by the gear ratio (what the encoder
+    reads), ``D_link`` and ``n_link`` the rigid model without the reflected
+    motor inertias ``Ia = Jm k^2`` (:attr:`ArmPlant.motor_inertia_columns`),
+    and the drive friction on the motor.  Source: M. W. Spong, "Modeling and
+    control of elastic joint robots", J. Dyn. Syst. Meas. Control 109 (1987);
+    backlash as a dead zone: M. Nordin and P.-O. Gutman, Automatica 38
+    (2002).  The PUMA 560 links 2-3 instance is
+    :class:`plant.plants.FlexibleJoints`.
 
     Parameters
     ----------
@@ -257,6 +343,10 @@ def arm_plant(model, base=None, *, lane_friction=False) -> ArmPlant:
         (per joint: viscous N m s/rad, Coulomb for positive and for negative
         rate N m; :attr:`ArmPlant.n_parameters` ``= r + 3 n``), for
         identifying it when the rig does not know it; else the rig's.
+    flexible : bool
+        Two-mass joints with backlash: the lane parameters get K, D, Ia and
+        b per joint after beta (:meth:`ArmPlant.lane_parameters`), the state
+        is ``(q, qd, th, thd)`` and the encoders read ``th``.
 
     Returns
     -------
@@ -274,21 +364,23 @@ def arm_plant(model, base=None, *, lane_friction=False) -> ArmPlant:
     if not isinstance(model, RobotModel):
         raise ValueError(f"arm_plant needs a plant.RobotModel, got {type(model).__name__}")
     base = model.base_parameters() if base is None else base
-    src = _rhs_source(model, base, lane_friction)
+    src = _rhs_source(model, base, lane_friction, flexible)
     key = hashlib.sha1(src.encode()).hexdigest()[:16]
+    n = model.n_joints
+    enc = 2 * n if flexible else 0
     if key in _PLANTS:
         old = _PLANTS[key]
-        return ArmPlant(name=model.name, kind=old.kind, encoder_row=0, model=model, base=base,
-                        source=src, lane_friction=lane_friction)
+        return ArmPlant(name=model.name, kind=old.kind, encoder_row=enc, model=model, base=base,
+                        source=src, lane_friction=lane_friction, flexible=flexible)
     scope = {"math": math, "friction_torque": friction_torque}
     exec(compile(src, f"<plant.arm rhs {model.name} {key}>", "exec"), scope)  # noqa: S102
     rhs = _jit(scope["rhs"])
     kind_class = NamedTuple(f"ArmKind_{key}", [("code", int)])
-    n = model.n_joints
-    register_plant(kind_class, rhs, 2 * n, base.rank + (3 * n if lane_friction else 0),
+    register_plant(kind_class, rhs, (4 if flexible else 2) * n,
+                   base.rank + (4 * n if flexible else 0) + (3 * n if lane_friction else 0),
                    n_inputs=n, n_angles=n)
-    plant = ArmPlant(name=model.name, kind=kind_class(0), encoder_row=0, model=model, base=base,
-                     source=src, lane_friction=lane_friction)
+    plant = ArmPlant(name=model.name, kind=kind_class(0), encoder_row=enc, model=model, base=base,
+                     source=src, lane_friction=lane_friction, flexible=flexible)
     _PLANTS[key] = plant
     return plant
 
@@ -311,14 +403,14 @@ def reference_counts(trajectory, rig, n_samples) -> np.ndarray:
 
 @_jit
 def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, out, write,
-             obj, status, compared, n_lanes):
+             obj, status, compared, n_lanes, enc):
     """Experiment (P loop) or replay (logged current + injection) of ``n_lanes`` candidates.
 
     ``ref`` (n_total, n) reference counts; ``e_log``, ``i_log`` (n_total, n)
     logged errors and currents (compared from ``k_start`` on).  Results per
     lane: ``obj`` sum of squares (experiment: ``e_log - e_sim``; replay: ``m
     - c``), ``status``, ``compared``; with ``write`` the errors go to ``out``
-    (lanes, n_total, n).
+    (lanes, n_total, n).  The encoders read state rows ``enc .. enc + n - 1``.
     """
     P, X, U, A, S, E, idx, W = lanes
     n_total = ref.shape[0]
@@ -331,14 +423,14 @@ def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain,
         for j in range(n_lanes):
             if status[j] == STATUS_OK:
                 for m in range(nj):
-                    if abs(ref[k, m] - X[m, j] * c.pulses_per_rad[m]) > bound:
+                    if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
                         status[j] = STATUS_DIVERGED
                         compared[j] = k
         for j in range(lanes_run):
             s = 0.0
             for m in range(nj):
                 sc = c.pulses_per_rad[m]
-                cont, act = encoder_read(X[m, j], sc)
+                cont, act = encoder_read(X[enc + m, j], sc)
                 _, tgt = encoder_read(ref[k, m], 1.0)
                 if replay:
                     mid = cell_centre(tgt - e_log[k, m])
@@ -426,7 +518,7 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
         o = out[lo:hi] if errors else out
         _arm_run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
                  float(gain), bound, o, bool(errors), obj[lo:hi], status[lo:hi], compared[lo:hi],
-                 hi - lo)
+                 hi - lo, int(plant.encoder_row))
 
     run_chunks(chunk, m, workers)
     obj = np.where(status == STATUS_OK, obj, np.inf)

@@ -258,7 +258,9 @@ def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
     assert main([str(path), "-o", str(out), "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "robot: planar" in printed and "ZZ1R" in printed
+    assert "model: rigid (the rigid model predicts the log to the quantisation floor" in printed
     data = json.loads(out.read_text())
+    assert data["model"] == "rigid" and data["joint_stiffness_Nm_per_rad"] is None
     assert data["names"] == list(arm.parameter_names) and data["success"] is True
     assert np.allclose(data["x"], arm.beta(), rtol=5e-3, atol=1e-3)
     for args, needle in ((["--payload", "--prior", str(out)], "--payload"),

@@ -1,0 +1,234 @@
+"""Flexible joints and backlash of any serial arm: plant, identification, CTC (issues 20 and 23)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import plant
+from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
+from identification.arm import identify_arm
+from plant.arm import arm_plant, simulate_arm
+from plant.arm_log import load_arm_log
+from plant.rig import Rig
+from plant.robot_model import Link, RobotModel
+from plant.trajectory import Trajectory
+
+DATA = Path(__file__).parent / "data" / "independent_arm"
+STEM = "indep_arm_planar2_compliant_backlash"
+
+
+def planar_arm():
+    return RobotModel([Link(a=0.5, mass=3.0, com=(-0.25, 0.01, 0), inertia=np.diag([0.01, 0.05, 0.06]),
+                            gear_ratio=50.0, motor_inertia=1e-4),
+                       Link(a=0.4, mass=2.0, com=(-0.2, 0, 0), inertia=np.diag([0.01, 0.03, 0.04]),
+                            gear_ratio=-40.0, motor_inertia=1.5e-4)],
+                      gravity=(0, -9.81, 0), name="planar")
+
+
+RIG = Rig(sample_time_s=1e-3, gear_ratio=(50.0, -40.0), encoder_ppr=(1000, 2000),
+          p_gain_A_per_pulse=(0.05, 0.05), torque_constant_Nm_per_A=(0.2, 0.25),
+          viscous_friction_Nms_per_rad=(2e-3, 3e-3),
+          coulomb_friction_Nm=((0.01, 0.012), (0.008, 0.01)), coulomb_ramp_speed_rad_per_s=0.5,
+          gravity_m_s2=9.81, a3_m=0.0, q0_rad=(0.0, 0.0), qd0_rad_per_s=(0.0, 0.0))
+TRAJ = Trajectory.from_terms([0.3, -0.2], [[(0.6, 2.0, 0.0), (0.2, 5.1, 0.4)],
+                                           [(0.7, 3.0, 1.0), (0.2, 6.3, 0.2)]], t_ramp_s=0.5)
+
+
+def test_motor_inertia_columns_give_the_link_beta():
+    model = planar_arm()
+    flex = arm_plant(model, flexible=True)
+    p = model.standard_parameters()
+    ia = p[-2:]
+    link = p.copy()
+    link[-2:] = 0.0
+    beta = flex.base(p)
+    assert np.allclose(beta - ia @ flex.motor_inertia_columns, flex.base(link), rtol=0, atol=1e-12)
+    row = np.concatenate([beta, [1e4, 2e4], [1.0, 2.0], ia, [0.0, 0.0]])
+    P = flex.lane_parameters(row)
+    assert P.shape == (flex.n_parameters, 1)
+    assert np.allclose(P[:beta.size, 0], flex.base(link), atol=1e-12)
+    assert flex.encoder_row == 2 * model.n_joints
+    assert flex.parameter_names[beta.size:beta.size + 2] == ("K_q1", "K_q2")
+
+
+def test_stiff_flexible_arm_is_the_rigid_arm():
+    """With stiff springs and no backlash the two-mass arm logs the rigid arm's pulses."""
+    model = planar_arm()
+    rigid, flex = arm_plant(model), arm_plant(model, flexible=True)
+    beta = rigid.beta()
+    ia = model.standard_parameters()[-2:]
+    n = 1500
+    e_r = simulate_arm(rigid, beta[None], RIG, TRAJ, n, substeps=16).errors[0]
+    stiff = np.concatenate([beta, [1e7, 1e7], [50.0, 50.0], ia, [0.0, 0.0]])
+    e_f = simulate_arm(flex, stiff[None], RIG, TRAJ, n, substeps=64).errors[0]
+    # the quantised loop spreads a one-pulse difference now and then, no more
+    d = np.abs(e_f - e_r)
+    assert d.max() <= 2 and np.mean(d <= 1) >= 0.99
+    soft = stiff.copy()
+    soft[beta.size:beta.size + 2] = 2e3
+    e_s = simulate_arm(flex, soft[None], RIG, TRAJ, n, substeps=16).errors[0]
+    assert np.abs(e_s - e_r).max() >= 3  # a soft spring shows in the motor's pulses
+
+
+def test_flexible_arm_rejects_a_non_positive_motor_inertia():
+    model = planar_arm()
+    flex = arm_plant(model, flexible=True)
+    beta = flex.beta()
+    row = np.concatenate([beta, [1e4, 1e4], [1.0, 1.0], [0.0, 0.1], [0.0, 0.0]])
+    sim = simulate_arm(flex, row[None], RIG, TRAJ, 50)
+    assert sim.status[0] != 0 and np.isinf(sim.objective[0])
+
+
+@pytest.fixture(scope="module")
+def compliant():
+    """The committed independent log (benchmarks/independent_arm.py, planar2 draw 1, 3 s)."""
+    log = load_arm_log(DATA / f"{STEM}.csv")
+    truth = json.loads((DATA / f"{STEM}.truth.json").read_text())
+    return log, truth, identify_arm(log)
+
+
+def test_identify_compliant_arm_with_backlash(compliant):
+    """Independent robot: the model choice finds the springs and the backlash, within tolerance."""
+    log, truth, res = compliant
+    s = truth["settings"]
+    assert res.success and res.model == "flexible"
+    assert res.model_choice["model"] == "flexible+backlash"
+    assert res.model_choice["adequate"] and res.warnings == []
+    assert np.allclose(res.joint_stiffness_Nm_per_rad, s["stiffness"], rtol=0.10)
+    assert np.allclose(res.motor_inertia_reflected_kgm2, truth["motor_inertia_reflected_kgm2"],
+                       rtol=0.10)
+    assert np.allclose(res.joint_backlash_rad, s["backlash"], rtol=0.30)
+    beta = np.asarray(truth["beta"])
+    well = res.x_rse[:beta.size] < 0.01 / 3
+    assert well.sum() >= 3
+    assert np.all(np.abs(res.beta[well] / beta[well] - 1) <= 0.01)
+    d = res.to_dict()
+    json.dumps(d)  # JSON-ready
+    assert d["model"] == "flexible" and len(d["joint_backlash_rad"]) == 2
+    assert res.elapsed_s >= sum(res.stage_times_s.values()) - 1e-6
+
+
+def test_rigid_model_on_request(compliant):
+    log, _, _ = compliant
+    res = identify_arm(log, model="rigid")
+    assert res.model == "rigid" and res.model_choice is None
+    assert res.joint_stiffness_Nm_per_rad is None
+    with pytest.raises(ValueError, match="unknown model"):
+        identify_arm(log, model="elastic")
+
+
+def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
+    """A flexible result: the flexible-joint CTC tracks its identified robot within +-1 pulse;
+    ``from_result`` returns whichever of it and the rigid-equivalent CTC holds the model-error
+    set (stiffness +-30 %, damping x0.5 .. x2) with the smaller worst error."""
+    import warnings
+
+    log, truth, res = compliant
+    flex = ArmFlexibleComputedTorque.from_result(res, log)
+    n = int(round(1.5 / log.rig.sample_time_s))
+    r = plant.simulate_closed_loop(log.rig, res.plant_row, flex, trajectory=log.trajectory,
+                                   n_samples=n, plant=res.flexible_plant, substeps=16)
+    assert r.max_abs_error(0.1).max() <= 1
+    assert np.all(np.isfinite(flex.link_estimate()))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ctrl = ArmComputedTorque.from_result(res, log)
+    sel = ctrl.selection
+    assert len(sel["flexible"]) == len(sel["rigid_equivalent"]) == len(sel["scenarios"]) == 5
+    assert sel["flexible"][0] <= 1
+    counted = np.array(sel["counted"])
+    assert counted[0]  # the nominal robot is always simulated
+    worst_f = max(np.array(sel["flexible"])[counted])
+    worst_r = max(np.array(sel["rigid_equivalent"])[counted])
+    assert (sel["worst_flexible"], sel["worst_rigid_equivalent"]) == (worst_f, worst_r)
+    flexible_wins = np.isfinite(worst_f) and worst_f <= worst_r
+    assert isinstance(ctrl, ArmFlexibleComputedTorque) == flexible_wins
+    assert ctrl.envelope is not None  # the watchdog is armed (the check ran without it)
+
+
+def test_flexible_ctc_rejects_bad_joints(compliant):
+    log, _, res = compliant
+    kw = dict(stiffness=[1e4, 1e4], damping=[1.0, 1.0], motor_inertia=[0.5, 0.3])
+    ArmFlexibleComputedTorque(res.plant, res.beta, res.rig, log.trajectory, **kw)
+    for key, bad in (("stiffness", [1e4, -1.0]), ("damping", [1.0]), ("motor_inertia", [0.5, np.nan])):
+        with pytest.raises(ValueError, match=key):
+            ArmFlexibleComputedTorque(res.plant, res.beta, res.rig, log.trajectory,
+                                      **dict(kw, **{key: bad}))
+    with pytest.raises(ValueError, match="flexible result"):
+        ArmFlexibleComputedTorque.from_result(dict(res, model="rigid"), log)
+
+
+def test_generated_two_mass_arm_matches_the_independent_simulator():
+    """The generated flexible right-hand side and the benchmarks' independent one (RTB rne, its
+    own two-mass joints with backlash) give the same state derivative."""
+    pytest.importorskip("roboticstoolbox")
+    import math
+    import sys
+
+    from plant.core import plant_rhs
+    from plant.rig import rig_constants
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import independent_arm as ia
+
+    s = ia.draw("puma123", 4, compliant=True)
+    s.backlash = (1e-3, 2e-3, 0.5e-3)
+    sim = ia.IndependentArm(s)
+    model = ia.library_model(s)
+    flex = arm_plant(model, flexible=True)
+    _, beta = ia.truth_beta(s, model)
+    k = np.asarray(s.gear_ratio)
+    row = np.concatenate([beta, s.stiffness, s.damping, np.asarray(s.motor_inertia) * k ** 2,
+                          s.backlash])
+    p = tuple(flex.lane_parameters(row)[:, 0])
+    c = rig_constants(ia.rig_of(s), q0=np.zeros(3), qd0=np.zeros(3))
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        y = np.concatenate([rng.uniform(-1, 1, 3), rng.uniform(-2, 2, 3),
+                            rng.uniform(-1, 1, 3), rng.uniform(-2, 2, 3)])
+        y[6:9] = y[:3] + rng.uniform(-3e-3, 3e-3, 3)  # deflections across the dead zone
+        i = rng.uniform(-2, 2, 3)
+        q = y[:3]
+        sc = tuple(v for a in q for v in (math.sin(a), math.cos(a)))
+        xd, margin = plant_rhs(flex.kind, p, c, tuple(y), tuple(i), sc)
+        ref = sim.rhs(0.0, y, i)
+        assert margin > 0
+        assert np.allclose(xd, ref, rtol=1e-8, atol=1e-8)
+
+
+def test_cli_prints_the_model_choice(tmp_path, capsys):
+    """``python -m identification`` on the compliant log: the flexible model, its joints in the JSON."""
+    from identification.cli import main
+
+    out = tmp_path / "res.json"
+    assert main([str(DATA / f"{STEM}.csv"), "-o", str(out), "--quiet", "--model", "flexible"]) == 0
+    printed = capsys.readouterr().out
+    assert "model: flexible+backlash" in printed and "log10_K_q1" in printed
+    data = json.loads(out.read_text())
+    assert data["model"] == "flexible" and len(data["joint_stiffness_Nm_per_rad"]) == 2
+
+
+def test_watchdog_hands_a_wrong_model_to_the_p_law(compliant):
+    """A CTC whose model is far off trips its watchdog at the log's P-control envelope: the rig's
+    P law holds the arm from there (never worse than the loop the log was recorded with)."""
+    log, _, res = compliant
+    wrong = res.beta * 3.0  # a model far from the robot: without the watchdog the arm runs away
+    n = int(round(1.5 / log.rig.sample_time_s))
+    blind = ArmComputedTorque(res.plant, wrong, res.rig, log.trajectory)
+    r = plant.simulate_closed_loop(log.rig, res.plant_row, blind, trajectory=log.trajectory,
+                                   n_samples=n, plant=res.flexible_plant, substeps=16)
+    assert not r.success or np.any(r.max_abs_error(0.1) > 10 * np.abs(log.e_pulses).max(axis=0))
+    ctrl = ArmComputedTorque(res.plant, wrong, res.rig, log.trajectory, envelope=[20, 20])
+    with pytest.warns(RuntimeWarning, match="P law holds the arm"):
+        r = plant.simulate_closed_loop(log.rig, res.plant_row, ctrl, trajectory=log.trajectory,
+                                       n_samples=n, plant=res.flexible_plant, substeps=16)
+    assert ctrl.tripped_at is not None and r.success
+    k = ctrl.tripped_at
+    assert np.allclose(r.i_A[k + 1:], np.asarray(log.rig.p_gain_A_per_pulse) * r.e_pulses[k + 1:])
+    # the P law holds the arm about as the logged P loop did
+    assert np.all(r.max_abs_error(0.1) <= 2 * np.abs(log.e_pulses).max(axis=0))
+    with pytest.raises(ValueError, match="envelope"):
+        ArmComputedTorque(res.plant, res.beta, res.rig, log.trajectory, envelope=[1.0])
