@@ -47,11 +47,11 @@ TOLERANCE = 0.01
 WELL_EXCITED_RSE = TOLERANCE / 3.0
 
 
-def run_case(family: str, seed: int) -> dict:
+def run_case(family: str, seed: int, compliant: bool = False) -> dict:
     from ctc.arm import ArmComputedTorque
     from identification.arm import identify_arm
 
-    s = ia.draw(family, seed)
+    s = ia.draw(family, seed, compliant=compliant)
     t0 = time.perf_counter()
     log = ia.make_log(s)
     t_log = time.perf_counter() - t0
@@ -77,6 +77,26 @@ def run_case(family: str, seed: int) -> dict:
             # hardly excites, e.g. a Coulomb level far below the viscous torque, says so)
             oks.append(bool(abs(est - t) <= max(0.15 * abs(t), 3.0 * sd)))
         fr_err, fr_ok = 100.0 * float(max(errs)), bool(all(oks))
+    joints = None
+    if compliant:  # the joints against the drawn ones (K, Ia within 10 %, backlash >= 1 mrad within 30 %)
+        k = np.asarray(s.gear_ratio)
+        true = dict(K=np.asarray(s.stiffness), Ia=np.asarray(s.motor_inertia) * k ** 2,
+                    b=np.asarray(s.backlash))
+        joints = dict(model=res.model_choice.get("model") if res.model_choice else res.model,
+                      K_true=true["K"].round(1).tolist(), b_true_mrad=(1e3 * true["b"]).round(3).tolist())
+        if res.joint_stiffness_Nm_per_rad is not None:
+            K = np.asarray(res.joint_stiffness_Nm_per_rad)
+            Ia = np.asarray(res.motor_inertia_reflected_kgm2)
+            joints.update(K_err_pct=(100 * np.abs(K / true["K"] - 1)).round(2).tolist(),
+                          Ia_err_pct=(100 * np.abs(Ia / true["Ia"] - 1)).round(2).tolist())
+            big = true["b"] >= 1e-3
+            if np.any(big):
+                b = np.zeros_like(true["b"]) if res.joint_backlash_rad is None else \
+                    np.asarray(res.joint_backlash_rad)
+                joints["b_err_pct"] = (100 * np.abs(b[big] / true["b"][big] - 1)).round(2).tolist()
+        joints["K_ok"] = bool(joints.get("K_err_pct") is not None and max(joints["K_err_pct"]) <= 10)
+        joints["b_ok"] = bool(max(joints.get("b_err_pct", [0.0]) or [0.0]) <= 30) if joints.get("K_err_pct") else \
+            not bool(np.any(true["b"] >= 1e-3))
     k0 = int(round(0.1 / s.sample_time_s))
     ctrl = ArmComputedTorque.from_result(res, log)
     out = ia.IndependentArm(s).run(ctrl, log.trajectory, s.n_samples)
@@ -91,6 +111,7 @@ def run_case(family: str, seed: int) -> dict:
                 ctc_ok=bool(e_ctc is not None and np.all(e_ctc <= 1)),
                 p_max=e_p.tolist(), nfev=int(res.nfev), nit=int(res.nit),
                 friction_known=s.friction_known, friction_err_pct=fr_err, friction_ok=fr_ok,
+                compliant=compliant, joints=joints, warnings=list(res.warnings),
                 settings=dict(encoder_ppr=list(s.encoder_ppr),
                               gear_ratio=[round(g, 1) for g in s.gear_ratio],
                               sample_time_s=s.sample_time_s))
@@ -111,22 +132,27 @@ def main(argv=None):
                     help="draws per family")
     ap.add_argument("--seed", type=int, default=20261122, help="first seed (draw i uses seed + i)")
     ap.add_argument("--json", type=Path, help="write the cases to this JSON file")
+    ap.add_argument("--compliant", action="store_true",
+                    help="compliant joints (two-mass, half with backlash; independent_arm.draw)")
     ap.add_argument("--rst", type=Path, help="write the summary as reStructuredText (docs/figures)")
     a = ap.parse_args(argv)
     cases = []
     for family, n in zip(ia.FAMILIES, a.n):
         for i in range(n):
-            c = run_case(family, a.seed + i)
+            c = run_case(family, a.seed + i, compliant=a.compliant)
             cases.append(c)
             print(f"{family:8s} seed {c['seed']}  identify {c['identify_s']:6.1f} s  "
                   f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {c['worst_param']} "
                   f"{c['worst_err_pct']:.3f} %  params {'ok' if c['params_ok'] else 'MISS'}  "
                   f"friction {'known' if c['friction_known'] else 'unknown, %.1f %% %s' % (c['friction_err_pct'], 'ok' if c['friction_ok'] else 'MISS')}  "
-                  f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'}  P max|e| {c['p_max']}",
-                  flush=True)
+                  f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'}  P max|e| {c['p_max']}"
+                  + (f"  joints {c['joints']}" if c["joints"] else ""), flush=True)
     rows = [("family", "draws", "well-excited within 1 %", "unknown friction within 15 %",
              "... or within 3 std",
              "CTC +-1 pulse after 0.1 s", "identify median / max (s)", "worst well-excited error")]
+    if a.compliant:
+        rows[0] = rows[0][:5] + ("flexible chosen", "K and Ia within 10 %",
+                                 "backlash >= 1 mrad within 30 %") + rows[0][5:]
     for family in ia.FAMILIES:
         cs = [c for c in cases if c["family"] == family]
         if not cs:
@@ -134,13 +160,22 @@ def main(argv=None):
         t = np.array([c["identify_s"] for c in cs])
         w = max(cs, key=lambda c: c["worst_err_pct"] or 0.0)
         fu = [c for c in cs if not c["friction_known"]]
+        extra = ()
+        if a.compliant:
+            kia = [c for c in cs if c["joints"].get("K_err_pct") is not None]
+            nb_ = [c for c in cs if any(v >= 1.0 for v in c["joints"]["b_true_mrad"])]
+            extra = (f"{sum(c['joints']['model'] != 'rigid' for c in cs)} / {len(cs)}",
+                     f"{sum(max(c['joints']['K_err_pct'] + c['joints']['Ia_err_pct']) <= 10 for c in kia)}"
+                     f" / {len(cs)}",
+                     f"{sum(c['joints']['b_ok'] for c in nb_)} / {len(nb_)}")
         rows.append((family, str(len(cs)), f"{sum(c['params_ok'] for c in cs)} / {len(cs)}",
                      f"{sum(c['friction_err_pct'] <= 15.0 for c in fu)} / {len(fu)}",
-                     f"{sum(c['friction_ok'] for c in fu)} / {len(fu)}",
+                     f"{sum(c['friction_ok'] for c in fu)} / {len(fu)}", *extra,
                      f"{sum(c['ctc_ok'] for c in cs)} / {len(cs)}",
                      f"{np.median(t):.1f} / {t.max():.1f}",
                      f"{w['worst_err_pct']:.3f} % ({w['worst_param']}, seed {w['seed']})"))
-    misses = [c for c in cases if not (c["params_ok"] and c["ctc_ok"] and c["friction_ok"] is not False)]
+    misses = [c for c in cases if not (c["params_ok"] and c["ctc_ok"] and c["friction_ok"] is not False
+                                       and (not c["joints"] or c["joints"]["K_ok"] and c["joints"]["b_ok"]))]
     text = [_table(rows), ""]
     text.append(f"Seeds {a.seed} + i; a base parameter is well excited when its relative standard "
                 f"error is below {100 * WELL_EXCITED_RSE:.2f} %.  Friction is null in the sidecar "
@@ -155,7 +190,8 @@ def main(argv=None):
               f", unknown friction {c['friction_err_pct']:.1f} % ({'ok' if c['friction_ok'] else 'miss'})")
         text.append(f"Miss: {c['family']} seed {c['seed']}: worst well-excited parameter "
                     f"{c['worst_param']} {c['worst_err_pct']:.3f} %{fr}, CTC max abs(e) {c['ctc_max']} "
-                    f"pulses (P {c['p_max']}), settings {c['settings']}.")
+                    f"pulses (P {c['p_max']}), settings {c['settings']}"
+                    + (f", joints {c['joints']}" if c["joints"] else "") + ".")
     print()
     print("\n".join(text))
     if a.rst:
@@ -165,7 +201,8 @@ def main(argv=None):
         tmp.replace(a.rst)
     if a.json:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps(dict(seed=a.seed, cases=cases), indent=1))
+        a.json.write_text(json.dumps(dict(seed=a.seed, cases=cases), indent=1,
+                                     default=lambda o: o.item() if hasattr(o, "item") else str(o)))
     return 0
 
 

@@ -16,6 +16,13 @@ derivation, code generator and RK4 core):
   torque ``k Kt i``, reflected motor inertia ``Jm k^2`` on the diagonal,
   motor-side viscous and asymmetric Coulomb friction ramping to zero below
   ``v_reg`` (joint side ``k^2 B``, ``|k| Tc``);
+* **compliant joints** (``draw(..., compliant=True)``), written here:
+  Spong's two-mass joint per active joint -- the motor (its reflected
+  inertia ``Jm k^2``, the current's torque and the drive friction) and the
+  link (RTB's rigid dynamics) joined by a spring ``K`` and damper ``D``
+  through a gearbox dead zone of width ``b`` (backlash):
+  ``tau_s = K (d - clip(d, -b/2, b/2)) + D (th' - q')``, ``d = th - q``;
+  the encoders read the motor angle ``th``; springs relaxed at t = 0;
 * **integration**: ``scipy.integrate.solve_ivp(method="DOP853", rtol=1e-9,
   atol=1e-12)`` restarted at every sample (zero-order hold), ``max_step =
   Ts``.
@@ -69,6 +76,13 @@ class ArmSettings:
     duration_s: float = 5.0
     trajectory: dict = field(default_factory=dict)
     friction_known: bool = True
+    stiffness: tuple | None = None     # compliant joints: K (N m/rad), joint side
+    damping: tuple | None = None       # D (N m s/rad)
+    backlash: tuple | None = None      # b (rad), joint side
+
+    @property
+    def compliant(self) -> bool:
+        return self.stiffness is not None
 
     @property
     def n_samples(self) -> int:
@@ -141,6 +155,11 @@ class IndependentArm:
         self.tc_neg = np.abs(self.k) * c[:, 1]
         self.v_reg = s.ramp_speed / np.abs(self.k)
         self.spr = self.k * np.asarray(s.encoder_ppr, float) / (2.0 * math.pi)
+        self.compliant = s.compliant
+        if self.compliant:
+            self.K = np.asarray(s.stiffness, float)
+            self.D = np.asarray(s.damping, float)
+            self.b = np.zeros(self.n) if s.backlash is None else np.asarray(s.backlash, float)
         g = [0.0, -9.81, 0.0] if s.family == "planar2" else [0.0, 0.0, -9.81]
         self.g = np.asarray(g)
         m = self.n + 2
@@ -150,15 +169,17 @@ class IndependentArm:
         for r, j in enumerate(self.act):
             self._QDD[1 + r, j] = 1.0
 
-    def dynamics(self, q, qd):
-        """Inertia matrix (n, n) with the motor inertia, and bias torques (n,), by one rne call."""
+    def dynamics(self, q, qd, motor=True):
+        """Inertia matrix (n, n) (with the motor inertia unless ``motor`` is False) and bias
+        torques (n,), by one rne call."""
         Q, QD = self._Q, self._QD
         Q[:, self.act] = q
         QD[0, self.act] = qd
         tau = np.atleast_2d(self.robot.rne(Q, QD, self._QDD, gravity=self.g))
         g = tau[-1, self.act]
         M = (tau[1:1 + self.n][:, self.act] - g).T
-        M[np.diag_indices(self.n)] += self.jm
+        if motor:
+            M[np.diag_indices(self.n)] += self.jm
         return M, tau[0, self.act]
 
     def friction(self, w):
@@ -167,7 +188,16 @@ class IndependentArm:
         return -(self.visc * w + tc * r)
 
     def rhs(self, t, y, i):
-        q, w = y[:self.n], y[self.n:]
+        n = self.n
+        if self.compliant:  # y = (q, q', th, th'): link, then motor (joint side)
+            q, w, th, v = y[:n], y[n:2 * n], y[2 * n:3 * n], y[3 * n:]
+            d = th - q
+            ts = self.K * (d - np.clip(d, -self.b / 2, self.b / 2)) + self.D * (v - w)
+            M, bias = self.dynamics(q, w, motor=False)
+            qdd = np.linalg.solve(M, ts - bias)
+            vd = (self.k * self.kt * i + self.friction(v) - ts) / self.jm
+            return np.concatenate([w, qdd, v, vd])
+        q, w = y[:n], y[n:]
         M, b = self.dynamics(q, w)
         tau = self.k * self.kt * i + self.friction(w) - b
         return np.concatenate([w, np.linalg.solve(M, tau)])
@@ -180,14 +210,15 @@ class IndependentArm:
         lim = math.inf if self.s.current_full_scale is None else self.s.current_full_scale
         t = np.arange(n_samples) * ts
         ref = np.trunc(trajectory.position(t) * self.spr)
-        y = np.zeros(2 * self.n)
+        y = np.zeros((4 if self.compliant else 2) * self.n)
+        enc = 2 * self.n if self.compliant else 0  # the encoders read the motor
         E = np.zeros((n_samples, self.n), dtype=np.int64)
         I = np.zeros((n_samples, self.n))
         Q = np.zeros((n_samples, self.n))
         controller.reset()
         ok = True
         for k in range(n_samples):
-            act = np.trunc(y[:self.n] * self.spr)
+            act = np.trunc(y[enc:enc + self.n] * self.spr)
             E[k] = (ref[k] - act).astype(np.int64)
             Q[k] = y[:self.n]
             i = np.clip(np.asarray(controller(k, t[k], act / self.spr, E[k].copy()), float), -lim, lim)
@@ -217,8 +248,14 @@ class PCard:
         return self.p * e_pulses
 
 
-def draw(family: str, seed: int) -> ArmSettings:
-    """A random robot, rig and reference of a family (module docstring)."""
+def draw(family: str, seed: int, compliant: bool = False) -> ArmSettings:
+    """A random robot, rig and reference of a family (module docstring).
+
+    With ``compliant``, also (drawn after everything else, so the rigid part
+    of the draw is the same): per joint a link mode ``sqrt(K / D_link,jj)``
+    of 8-40 Hz, a damping ratio of 0.01-0.15 and, on half of the draws, a
+    backlash of 0.3-3 mrad on each joint.
+    """
     rng = np.random.default_rng(seed)
     s = ArmSettings(family=family, seed=int(seed))
     if family == "planar2":
@@ -273,6 +310,16 @@ def draw(family: str, seed: int) -> ArmSettings:
     s.viscous = tuple(float(v) for v in 2 * zeta * w_n * Dm / k ** 2)
     # drawn last, so that the draws before it do not depend on it
     s.friction_known = bool(rng.random() < 0.5)
+    if compliant:
+        jm = np.asarray(s.motor_inertia) * k ** 2
+        link = np.maximum(Dm - jm, 1e-4)           # the link's own diagonal inertia
+        f_link = rng.uniform(8.0, 40.0, n)
+        K = link * (2 * math.pi * f_link) ** 2
+        mu = link * jm / (link + jm)               # the two-mass mode's reduced inertia
+        s.stiffness = tuple(float(v) for v in K)
+        s.damping = tuple(float(v) for v in 2 * rng.uniform(0.01, 0.15, n) * np.sqrt(K * mu))
+        s.backlash = tuple(float(v) for v in (rng.uniform(0.3e-3, 3e-3, n) if rng.random() < 0.5
+                                              else np.zeros(n)))
     return s
 
 
@@ -302,6 +349,27 @@ def make_log(s: ArmSettings, name=None):
         sidecar["current_full_scale_A"] = s.current_full_scale
     return ArmLog(path=None, name=sidecar["dataset"], model=model, rig=rig, trajectory=traj, t=t,
                   q_ref=traj.position(t), e_pulses=sim["e"], i_A=sim["i"], sidecar=sidecar)
+
+
+def write_log(s: ArmSettings, directory, stem):
+    """Write a draw's log (``STEM.csv`` and ``STEM.json``, :class:`plant.arm_log.ArmLog`) and its
+    truth (``STEM.truth.json``: the draw's settings, the true base parameters and joints)."""
+    import json
+    from pathlib import Path
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    log = make_log(s, name=stem)
+    names, beta = truth_beta(s, log.model)
+    log.save(directory / f"{stem}.csv")
+    k = np.asarray(s.gear_ratio, float)
+    truth = dict(dataset=stem, simulator="benchmarks/independent_arm.py (RTB DHRobot rne, own "
+                 "drive and two-mass joints, solve_ivp DOP853 rtol 1e-9)",
+                 base_parameter_names=list(names), beta=[float(v) for v in beta],
+                 motor_inertia_reflected_kgm2=(np.asarray(s.motor_inertia) * k ** 2).tolist(),
+                 settings=s.to_dict())
+    (directory / f"{stem}.truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    return log
 
 
 def rig_of(s: ArmSettings):

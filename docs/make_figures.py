@@ -72,6 +72,10 @@ it in ``optimisers``):
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
     independent simulator (``figures/arms.rst``), and
     ``examples/any_arm.py --robot planar2`` (``figures/any_arm.txt``).
+``arms_compliant``
+    ``benchmarks/bench_arms.py --compliant --n 6 4 0 --seed 20261122``: the
+    same arms with two-mass joints, half with backlash
+    (``figures/arms_compliant.rst``; about an hour on 2 cores).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -103,7 +107,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "arms")
+            "robustness", "changes", "arms", "arms_compliant")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -333,6 +337,14 @@ def arms(ctx):
                        ctx["raw"], "any_arm")
     return {"printed": text.splitlines()[-20:], "wall_s": wall, "example": ex.splitlines(),
             "example_wall_s": wall_ex}
+
+
+def arms_compliant(ctx):
+    q = ["--n", "1", "1", "0"] if ctx["quick"] else ["--n", "6", "4", "0"]
+    text, wall = _run(["benchmarks/bench_arms.py", "--compliant", *q, "--seed", "20261122",
+                       "--rst", ctx["raw"] / "arms_compliant.rst"], ctx["raw"], "bench_arms_compliant",
+                      timeout=3 * 3600)
+    return {"printed": text.splitlines()[-20:], "wall_s": wall}
 
 
 # -------------------------------------------------------------------------------- main

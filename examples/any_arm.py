@@ -19,9 +19,16 @@ acceptance figures come from an independent simulator,
 built from them (:class:`ctc.arm.ArmComputedTorque`) and the rig's P loop
 track the same reference on the robot.
 
+With ``--flexible`` the robot has two-mass joints (link modes of 12-20 Hz,
+light damping, 2 mrad of gearbox backlash on the last joint): the
+identification chooses the model itself (``model_choice``), and the
+controller built from the result is the motor-side flexible-joint CTC
+(:class:`ctc.arm.ArmFlexibleComputedTorque`).
+
 Run from the repository root::
 
     python examples/any_arm.py --robot planar2        # seconds
+    python examples/any_arm.py --flexible             # the planar arm with compliant joints
     python examples/any_arm.py --robot puma6          # about half a minute (compiling included)
     python examples/any_arm.py --quick                # a 2 s log of the planar arm
 
@@ -51,6 +58,8 @@ def parse(argv):
     p.add_argument("--robot", choices=ROBOTS, default="planar2", help="the arm (default planar2)")
     p.add_argument("--duration", type=float, default=5.0, help="log length in s (default 5)")
     p.add_argument("--quick", action="store_true", help="a 2 s log (smoke run)")
+    p.add_argument("--flexible", action="store_true",
+                   help="two-mass joints with backlash on the last joint (model choice, flexible CTC)")
     p.add_argument("--out", type=Path, default=Path("out") / "any_arm",
                    help="output directory (default out/any_arm)")
     a = p.parse_args(argv)
@@ -137,13 +146,27 @@ def main(argv=None):
     n = int(round(args.duration / rig.sample_time_s))
     truth = arm.beta()
     print(f"{model!r}: {len(truth)} base parameters")
+    robot_row = truth
+    if args.flexible:  # two-mass joints: link modes 12-20 Hz, backlash 2 mrad on the last joint
+        arm = arm_plant(model, flexible=True)
+        nj = model.n_joints
+        ia = model.standard_parameters()[-nj:]
+        link = np.diag(model.inertia_matrix(np.zeros(nj))) - ia
+        stiff = link * (2 * math.pi * np.linspace(12.0, 20.0, nj)) ** 2
+        damp = 2 * 0.05 * np.sqrt(stiff * link * ia / (link + ia))
+        backlash = np.zeros(nj)
+        backlash[-1] = 2e-3
+        robot_row = np.concatenate([truth, stiff, damp, ia, backlash])
+        print("flexible joints: K " + ", ".join(f"{v:.0f}" for v in stiff) + " N m/rad, backlash "
+              + ", ".join(f"{1e3 * v:g}" for v in backlash) + " mrad")
     sidecar_robot = (dict(urdf=str(URDF), joints=list(model.joint_names),
                           motor_inertias={j: 1e-4 for j in model.joint_names})
                      if args.robot == "urdf" else None)
-    log = emulate_arm_log(arm, truth, rig, traj, n, name=args.robot, robot=sidecar_robot)
+    name = args.robot + ("_flexible" if args.flexible else "")
+    log = emulate_arm_log(arm, robot_row, rig, traj, n, name=name, robot=sidecar_robot)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        path = log.save(args.out / f"{args.robot}.csv")
+        path = log.save(args.out / f"{name}.csv")
     except OSError as exc:
         print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
         return 1
@@ -153,40 +176,51 @@ def main(argv=None):
     res = identify_arm(log)
     print(f"identified in {res.elapsed_s:.1f} s ({res.nit} iterations, {res.nfev} simulations): "
           f"{res.message}")
+    if res.model_choice:
+        print(f"model: {res.model_choice['model']} ({res.model_choice['reason']})")
     print(f"  {'name':8s} {'truth':>11s} {'identified':>11s} {'error %':>9s} {'rse %':>8s}")
-    for name, t, x, r in zip(res.names, truth, res.x, res.x_rse):
+    for pname, t, x, r in zip(res.names, truth, res.beta, res.x_rse):
         err = 100 * (x / t - 1) if abs(t) > 1e-12 else float("nan")
-        print(f"  {name:8s} {t:11.5f} {x:11.5f} {err:9.3f} {100 * r:8.3f}")
+        print(f"  {pname:8s} {t:11.5f} {x:11.5f} {err:9.3f} {100 * r:8.3f}")
+    if args.flexible and res.joint_stiffness_Nm_per_rad is not None:
+        for what, t, x in (("K (N m/rad)", stiff, res.joint_stiffness_Nm_per_rad),
+                           ("Jm k^2 (kg m^2)", ia, res.motor_inertia_reflected_kgm2),
+                           ("backlash (mrad)", 1e3 * backlash,
+                            1e3 * np.asarray(res.joint_backlash_rad or np.zeros(len(ia))))):
+            print(f"  {what:16s} truth " + ", ".join(f"{v:.4g}" for v in t) + "   identified "
+                  + ", ".join(f"{v:.4g}" for v in x))
 
     out = {}
     fig_rows = []
     for label, ctrl in (("P", PController.from_log(log)),
-                        ("CTC", ArmComputedTorque(res.plant, res.x, log.rig, log.trajectory))):
+                        ("CTC", ArmComputedTorque.from_result(res, log))):
         t0 = time.perf_counter()
-        r = plant.simulate_closed_loop(log.rig, truth, ctrl, trajectory=log.trajectory,
-                                       n_samples=log.n_samples, plant=arm, label=label)
+        r = plant.simulate_closed_loop(log.rig, robot_row, ctrl, trajectory=log.trajectory,
+                                       n_samples=log.n_samples, plant=arm, label=label,
+                                       substeps=16 if args.flexible else 8)
         out[label] = dict(max_abs_error_after_0p1s=r.max_abs_error(0.1).tolist(),
                           rms_error_after_0p1s=r.rms_error(0.1).tolist(),
                           within_1_pulse=r.within(1, after_s=0.1), wall_s=time.perf_counter() - t0)
         fig_rows.append(r)
         print(f"{label:4s} max |e| after 0.1 s {r.max_abs_error(0.1).tolist()} pulses, "
-              f"within +-1: {r.within(1, after_s=0.1)}")
+              f"within +-1: {r.within(1, after_s=0.1)}" + (f" ({type(ctrl).__name__})"
+                                                           if label == "CTC" else ""))
     report = dict(robot=args.robot, model=repr(model), names=list(res.names), truth=truth.tolist(),
                   identified=res.x.tolist(), rse=res.x_rse.tolist(), identify_s=res.elapsed_s,
-                  tracking=out)
+                  tracking=out, flexible=bool(args.flexible), model_choice=res.to_dict()["model_choice"])
     try:
-        (args.out / f"{args.robot}_result.json").write_text(json.dumps(report, indent=1) + "\n")
+        (args.out / f"{name}_result.json").write_text(json.dumps(report, indent=1) + "\n")
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(3.5 * model.n_joints, 5), layout="constrained")
         axes = fig.subplots(2, model.n_joints, squeeze=False)
         for row, r in zip(axes, fig_rows):
-            r.plot(currents=False, ax=row[None, :], title=f"{args.robot}: P (top), CTC (bottom)")
-        fig.savefig(args.out / f"{args.robot}_tracking.png", dpi=90)
+            r.plot(currents=False, ax=row[None, :], title=f"{name}: P (top), CTC (bottom)")
+        fig.savefig(args.out / f"{name}_tracking.png", dpi=90)
     except OSError as exc:
         print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
         return 1
-    print(f"wrote {args.out}/{args.robot}_result.json and {args.robot}_tracking.png")
+    print(f"wrote {args.out}/{name}_result.json and {name}_tracking.png")
     return 0
 
 
