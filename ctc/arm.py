@@ -366,7 +366,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             raise ValueError("the link model's inertia matrix (beta minus the motor inertias) is "
                              "not positive definite at the reference's start")
         if link_substeps is None:
-            from identification.arm_flexible import link_mode_bound
+            from plant.arm import link_mode_bound
 
             qs = np.asarray(trajectory.position(np.linspace(0.0, 10.0, 32)), dtype=float)
             Ds = [self._link_terms(q, np.zeros(n))[0] for q in qs]

@@ -50,13 +50,13 @@ import math
 
 import numpy as np
 
-from plant.arm import arm_plant
+from plant.arm import arm_plant, link_mode_bound
 
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA
 from .refinement import DEFAULT_GAIN, MaskedProblem, refine
 
 __all__ = ["ArmFlexibleSpace", "fit_flexible_arm", "MAX_MODE_HZ", "N_STARTS", "ARM_BACKLASH_GRID",
-           "link_mode_bound", "inertia_matrices", "diagonal_inertias"]
+           "inertia_matrices", "diagonal_inertias"]
 
 #: Highest link mode ``sqrt(K / M_jj) / 2 pi`` (Hz) of the search box: industrial
 #: gearboxes give 10-40 Hz (the paper's PUMA: 27-32 Hz); 60 Hz keeps a margin and
@@ -370,27 +370,6 @@ class ArmFlexibleSpace:
             if np.all(inertia_matrices(self.rigid, link, self.configurations, eig=True) > 0):
                 return frac
         return 0.05
-
-
-def link_mode_bound(log10_k, inertia) -> float:
-    """Fastest link mode (rad/s): the largest ``w`` of ``det(diag(K) - w^2 D_link(q)) = 0``.
-
-    Parameters
-    ----------
-    log10_k : array_like, shape (n,)
-        log10 of the joint stiffnesses (N m/rad).
-    inertia : array_like, shape (p, n, n)
-        Link inertia matrices at p configurations (positive definite).
-
-    Returns
-    -------
-    float
-        The largest over the configurations.
-    """
-    k = np.sqrt(10.0 ** np.asarray(log10_k, dtype=float))
-    D = np.asarray(inertia, dtype=float).reshape(-1, k.size, k.size)
-    return math.sqrt(max(float(np.linalg.eigvalsh(k[:, None] * np.linalg.inv(Dq) * k[None, :])[-1])
-                         for Dq in D))
 
 
 def _configurations(log, n_points=64) -> np.ndarray:

@@ -58,7 +58,7 @@ from .plants import Plant, register_plant
 from .rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
-           "reference_counts", "ARM_SUBSTEPS"]
+           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound"]
 
 #: RK4 substeps per sample of the arm's logged runs by default.
 ARM_SUBSTEPS = 8
@@ -383,6 +383,28 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
                      source=src, lane_friction=lane_friction, flexible=flexible)
     _PLANTS[key] = plant
     return plant
+
+
+def link_mode_bound(log10_k, inertia) -> float:
+    """Fastest link mode (rad/s): the largest ``w`` of ``det(diag(K) - w^2 D_link(q)) = 0``.
+
+    Parameters
+    ----------
+    log10_k : array_like, shape (n,)
+        log10 of the joint stiffnesses (N m/rad).
+    inertia : array_like, shape (p, n, n)
+        Link inertia matrices at p configurations (positive definite).
+
+    Returns
+    -------
+    float
+        The largest over the configurations.
+    """
+    k = np.sqrt(10.0 ** np.asarray(log10_k, dtype=float))
+    D = np.asarray(inertia, dtype=float).reshape(-1, k.size, k.size)
+    return math.sqrt(max(float(np.linalg.eigvalsh(k[:, None] * np.linalg.inv(Dq) * k[None, :])[-1])
+                         for Dq in D))
+
 
 
 # ----------------------------------------------------------------------------
