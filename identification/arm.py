@@ -56,6 +56,7 @@ from plant.rig import rig_constants
 
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, _floor_cutoff_hz, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
+from .result_schema import jsonable
 from .uncertainty import RSE_WARN, sandwich_covariance
 
 __all__ = ["identify_arm", "arm_idim_ls", "ArmIdentificationResult", "ArmPredictionErrorProblem",
@@ -459,9 +460,9 @@ class ArmIdentificationResult(OptimizeResult):
                     cutoff_hz=float(self.cutoff_hz), elapsed_s=float(self.elapsed_s),
                     bounds=np.asarray(self.bounds, dtype=float).tolist(), beta=floats(self.beta),
                     friction=self.friction, friction_identified=bool(self.friction_identified),
-                    model=self.get("model", "rigid"), model_choice=_jsonable(self.get("model_choice")),
+                    model=self.get("model", "rigid"), model_choice=jsonable(self.get("model_choice")),
                     warnings=list(self.get("warnings") or []),
-                    stage_times_s=_jsonable(self.get("stage_times_s")),
+                    stage_times_s=jsonable(self.get("stage_times_s")),
                     **{k: self.get(k) for k in _NO_JOINTS})
 
     def save_json(self, path, *, create_dirs=False):
@@ -728,24 +729,11 @@ _NO_JOINTS = dict(joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=Non
                   motor_inertia_reflected_kgm2=None, joint_backlash_rad=None)
 
 
-def _jsonable(d):
-    """A dict of floats, strings, bools and None (numpy scalars converted; inf -> None)."""
-    if d is None:
-        return None
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, (bool, np.bool_)):
-            out[k] = bool(v)
-        elif isinstance(v, (int, float, np.integer, np.floating)):
-            out[k] = float(v) if np.isfinite(v) else None
-        else:
-            out[k] = v
-    return out
-
-
-def _held_cost(problem, x, held):
+def _held_cost(problem, x, held, residuals=False):
+    """Prediction-error cost of x on the held-back residuals (and the residuals, if asked)."""
     r = problem.residuals(np.asarray(x, dtype=float)[None])[0]
-    return float(r[held] @ r[held])
+    cost = float(r[held] @ r[held])
+    return (cost, r) if residuals else cost
 
 
 def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, ftol):
@@ -792,7 +780,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     at = problem_at(space, box)
     flex = fit_flexible_arm(space, at, box, pool=space.pool(res.beta, res.x[nb:]), mask=fit_mask,
                             max_iter=max_iter, ftol=ftol)
-    c_flex = _held_cost(at(DEFAULT_GAIN), flex["x"], held)
+    c_flex, r_flex = _held_cost(at(DEFAULT_GAIN), flex["x"], held, residuals=True)
     if not np.isfinite(c_flex):
         c_flex = np.inf
     choice = dict(rule=f"flexible if held-back cost ratio < {CHOICE_RATIO}",
@@ -811,9 +799,9 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
         starts = bspace.with_backlash(flex["x"], (0.0,) + ARM_BACKLASH_GRID)
         bl = fit_flexible_arm(bspace, bat, bbox, starts=starts, mask=fit_mask, max_iter=max_iter,
                               ftol=ftol, continuation=CONTINUATION_BACKLASH)
-        c_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held)
+        c_bl, r_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held, residuals=True)
         choice["held_back_cost_backlash_pulses2"] = c_bl
-        t = _paired_t(at(DEFAULT_GAIN), flex["x"], bat(DEFAULT_GAIN), bl["x"], log)
+        t = _paired_t(r_flex, r_bl, log)
         choice["backlash_paired_t"] = t
         if np.isfinite(c_bl) and (c_bl < CHOICE_RATIO * min(c_flex, c_rigid)
                                   or (spring_chosen and t > BACKLASH_T)):
@@ -868,13 +856,13 @@ CONTINUATION_BACKLASH = (0.1,)
 BACKLASH_T = 3.0
 
 
-def _paired_t(problem_a, xa, problem_b, xb, log) -> float:
-    """Paired t statistic of the held-back block costs, model a minus model b (> 0: b better)."""
+def _paired_t(ra, rb, log) -> float:
+    """Paired t statistic of the held-back block costs of residuals ra minus rb (> 0: b better)."""
     from .refinement import HOLD_BLOCK_S, HOLD_EVERY
 
     n = log.n_joints
-    ra = problem_a.residuals(np.asarray(xa, dtype=float)[None])[0].reshape(-1, n)
-    rb = problem_b.residuals(np.asarray(xb, dtype=float)[None])[0].reshape(-1, n)
+    ra = np.asarray(ra, dtype=float).reshape(-1, n)
+    rb = np.asarray(rb, dtype=float).reshape(-1, n)
     block = max(1, int(round(HOLD_BLOCK_S / log.rig.sample_time_s)))
     idx = np.arange(ra.shape[0]) // block
     held = idx % HOLD_EVERY == HOLD_EVERY - 1

@@ -179,19 +179,6 @@ class ArmPlant(Plant):
             P[:nb] -= self.motor_inertia_columns.T @ B[:, nb + 2 * n:nb + 3 * n].T
         return P
 
-    def initial_state(self, c) -> np.ndarray:
-        """Start state from the rig's ``q0``, ``qd0`` (flexible: springs relaxed, motor = link).
-
-        Parameters
-        ----------
-        c : plant.rig.RigConstants
-
-        Returns
-        -------
-        ndarray, shape (2 n,) or (4 n,)
-        """
-        x = super().initial_state(c)
-        return np.concatenate([x, x]) if self.flexible else x
 
     @property
     def dynamics_function(self) -> ca.Function:

@@ -167,6 +167,11 @@ class Plant:
     def initial_state(self, c) -> np.ndarray:
         """Start state (n_states,) from the rig layout's ``q0``, ``qd0``.
 
+        A plant whose state repeats the joints' ``(q, qd)`` -- two-mass
+        joints, the motor's ``(th, thd)`` after the link's -- starts with
+        every copy at the rig's start (springs relaxed, motor where the
+        link is).
+
         Parameters
         ----------
         c : plant.rig.RigConstants
@@ -174,8 +179,18 @@ class Plant:
         Returns
         -------
         ndarray, shape (n_states,)
+
+        Raises
+        ------
+        ValueError
+            If the state is not a whole number of ``(q, qd)`` copies.
         """
-        return np.array(list(c.q0) + list(c.qd0), dtype=float)
+        x = np.array(list(c.q0) + list(c.qd0), dtype=float)
+        copies, rest = divmod(self.n_states, x.size) if x.size else (0, 1)
+        if rest or copies < 1:
+            raise ValueError(f"{self.name}: {self.n_states} states are not copies of (q, qd) "
+                             f"({x.size} values)")
+        return np.tile(x, copies)
 
 
 @_jit
@@ -537,16 +552,3 @@ class FlexibleJoints(Plant):
         P[_FX_B:] = np.broadcast_to(np.atleast_2d(np.asarray(b, dtype=float)), (m, 2)).T
         return P
 
-    def initial_state(self, c) -> np.ndarray:
-        """Start state (8,): link and motor at the rig's start, springs relaxed.
-
-        Parameters
-        ----------
-        c : plant.rig.RigConstants
-
-        Returns
-        -------
-        ndarray, shape (8,)
-        """
-        x = super().initial_state(c)  # the rigid start state, for link and motor alike
-        return np.concatenate([x, x])
