@@ -107,7 +107,7 @@ def test_idim_partly_unknown_friction_keeps_the_known_part(paper_log, truth):
 
 
 def test_known_friction_path_unchanged(paper_log, monkeypatch):
-    """A rig that knows its friction: no friction column, f as before issue 20 (1e-12)."""
+    """A rig that knows its friction: no friction column, f as before issue 20 (LS 1e-12, IV 1e-9)."""
     import identification.idim as idim
 
     def boom(*a, **k):
@@ -117,7 +117,9 @@ def test_known_friction_path_unchanged(paper_log, monkeypatch):
     ls = idim_ls(paper_log)
     iv = idim_ls(paper_log, iv_iterations=idim.IV_ITERATIONS)
     assert np.allclose(ls["f"], PAPER_LS_F, rtol=1e-12, atol=0)
-    assert np.allclose(iv["f"], PAPER_IV_F, rtol=1e-12, atol=0)
+    # the IV iterations amplify the BLAS build's rounding (1e-11 seen between two
+    # installs of the same numpy/scipy versions): the same path, to 1e-9
+    assert np.allclose(iv["f"], PAPER_IV_F, rtol=1e-9, atol=0)
     assert ls["friction_unknown"] == [] and np.array_equal(ls["x"], ls["f"])
     with pytest.warns(PoorExcitationWarning):
         r = identify(paper_log, method="idim-ls")
