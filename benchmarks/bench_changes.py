@@ -100,7 +100,7 @@ def combine_payloads(p1: dict | None, p2: dict) -> dict:
 
 
 def _feasible(s: ir.RobotSettings) -> bool:
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     need = ir.IndependentRobot(s).required_current(Trajectory.from_sidecar(s.trajectory), s.n_samples)
     return bool(np.all(need <= 0.9 * float(s.current_full_scale_A or math.inf)))

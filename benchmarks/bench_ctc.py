@@ -6,7 +6,7 @@ Measures, on the bundled paper log:
   real control PC would do at Ts = 0.7 ms; target <= 20 us), of its compiled
   step alone, and of ``PController.__call__``;
 * one closed-loop run of the paper log (5215 samples) with
-  :func:`plant.closed_loop.simulate_closed_loop` for P and CTC;
+  :func:`plant.simulation.closed_loop.simulate_closed_loop` for P and CTC;
 * the casadi evaluation (:func:`ctc.evaluate.evaluate_ctc`): graph build and
   run over the whole log;
 * :func:`ctc.design.design_gains`.
@@ -26,8 +26,8 @@ import numpy as np
 
 from ctc import ComputedTorqueController, PController, design_gains
 from ctc.computed_torque import _ctc_step
-from plant.closed_loop import simulate_closed_loop
-from plant.log import load_example
+from plant.simulation.closed_loop import simulate_closed_loop
+from plant.logs.log import load_example
 
 
 def per_call(fn, n):

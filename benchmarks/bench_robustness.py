@@ -9,7 +9,7 @@ Robotics Toolbox for Python's Puma560 (C recursive Newton-Euler), the drive
 friction with its Coulomb ramp, Spong two-mass joints, backlash dead zone) is
 written afresh there, and the equations are integrated by scipy's DOP853.
 The library is used only to *evaluate the reference formula*
-(``plant.trajectory.Trajectory``, so the sidecar's formula is exactly the
+(``plant.logs.trajectory.Trajectory``, so the sidecar's formula is exactly the
 reference the robot followed), to define the f1..f9 parameterisation when
 projecting the RTB dynamics onto the paper regressor (the truth), and to
 write the files (``ExperimentLog.save``).  A bug in the library's plant
@@ -90,7 +90,7 @@ FEASIBLE_FRACTION = 0.7
 # ----------------------------------------------------------------------------- draws
 def _multisine(rng):
     """A random multisine reference (sidecar parameters) and its duration."""
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     duration = float(rng.uniform(2.0, 5.0))
     t_ramp = float(rng.uniform(0.3, 0.5))
@@ -114,7 +114,7 @@ def _multisine(rng):
 
 
 def _paper(rng):
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     T = float(rng.uniform(1.5, 5.0))
     return Trajectory.paper(T).to_parameters(), T, dict(kind="paper", T_s=T)
@@ -194,7 +194,7 @@ def draw_settings(seed: int, index: int) -> tuple[ir.RobotSettings, dict]:
     rng_t = np.random.default_rng([int(seed), int(index), 2])
     i_fs = float(s.current_full_scale_A or math.inf)
     while True:
-        from plant.trajectory import Trajectory
+        from plant.logs.trajectory import Trajectory
 
         traj = Trajectory.from_sidecar(s.trajectory)
         need = ir.IndependentRobot(s).required_current(
@@ -598,7 +598,7 @@ TEST_LOG_DIR = HERE.parent / "tests" / "data" / "independent"
 
 def test_log_settings() -> dict:
     """The five short logs committed in ``tests/data/independent`` (made once with :func:`make_test_logs`)."""
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     base = dict(sample_time_s=0.0007, gear_ratio=(107.8, -53.7), encoder_ppr=(1000, 1000),
                 p_gain=(0.15, 0.15), kt=(0.22, 0.22), jm_kgm2=(200e-6, 200e-6),

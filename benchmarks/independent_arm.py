@@ -1,7 +1,7 @@
 """An independent simulator of any serial arm's rig: the robot the library has never seen.
 
 The n-joint sibling of ``benchmarks/independent_robot.py`` (issue 23).  It
-shares no code with the library's plant (:mod:`plant.arm`, its casadi
+shares no code with the library's plant (:mod:`plant.simulation.arm`, its casadi
 derivation, code generator and RK4 core):
 
 * **rigid link dynamics**: Robotics Toolbox for Python (``DHRobot``, its C
@@ -39,7 +39,7 @@ ratios, encoders, torque constants, motor inertias, friction, the P gains
 drawn viscous friction), and a multisine reference with a quintic ramp.
 
 Only the *reference* (``plant.Trajectory``) and the file format
-(``plant.arm_log.ArmLog``) come from the library.  Truth: the base
+(``plant.logs.arm_log.ArmLog``) come from the library.  Truth: the base
 parameters of the library's robot model built from the same published
 table (``RobotModel.base_parameters()`` applied to its standard
 parameters); ``tests/test_robot_model.py`` checks that model against RTB's
@@ -113,7 +113,7 @@ def _rtb_robot(s: ArmSettings):
 
 def library_model(s: ArmSettings):
     """The library's RobotModel of the same robot (for the truth and as the user's model)."""
-    from plant.robot_model import PUMA560_DH, Link, RobotModel
+    from plant.robot.robot_model import PUMA560_DH, Link, RobotModel
 
     if s.family.startswith("puma"):
         rows = [dict(r) for r in PUMA560_DH]
@@ -325,8 +325,8 @@ def draw(family: str, seed: int, compliant: bool = False) -> ArmSettings:
 
 def make_log(s: ArmSettings, name=None):
     """The P-control log of a draw (independent simulator), as a library ``ArmLog``."""
-    from plant.arm_log import ArmLog, column_names, robot_section
-    from plant.trajectory import Trajectory
+    from plant.logs.arm_log import ArmLog, column_names, robot_section
+    from plant.logs.trajectory import Trajectory
 
     model = library_model(s)
     rig = rig_of(s)
@@ -352,7 +352,7 @@ def make_log(s: ArmSettings, name=None):
 
 
 def write_log(s: ArmSettings, directory, stem):
-    """Write a draw's log (``STEM.csv`` and ``STEM.json``, :class:`plant.arm_log.ArmLog`) and its
+    """Write a draw's log (``STEM.csv`` and ``STEM.json``, :class:`plant.logs.arm_log.ArmLog`) and its
     truth (``STEM.truth.json``: the draw's settings, the true base parameters and joints)."""
     import json
     from pathlib import Path
@@ -374,7 +374,7 @@ def write_log(s: ArmSettings, directory, stem):
 
 def rig_of(s: ArmSettings):
     """The library's Rig of a draw (what the sidecar says)."""
-    from plant.rig import Rig
+    from plant.logs.rig import Rig
 
     n = len(s.active)
     return Rig(sample_time_s=s.sample_time_s, gear_ratio=tuple(s.gear_ratio),

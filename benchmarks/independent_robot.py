@@ -48,7 +48,7 @@ plant that fits it cancels out.  This module makes logs with code that shares
   out of the dead zone.  :func:`integration_check` reruns a log with
   ``rtol=1e-11, atol=1e-14, max_step=Ts/16`` and counts changed pulses.
 
-Only the *reference* comes from the library: ``plant.trajectory.Trajectory``
+Only the *reference* comes from the library: ``plant.logs.trajectory.Trajectory``
 evaluates the sidecar's ``trajectory.parameters`` formula, so the logged
 ``q2_ref_rad``/``q3_ref_rad`` and the reference counts are exactly what the
 library will compute from the sidecar.  Writing the log uses the library's
@@ -325,7 +325,7 @@ class IndependentRobot:
         ----------
         controller : object with ``reset()`` and ``__call__(k, t, q_meas, e_pulses) -> (2,)``
             (the library's sampled-controller protocol, ``ctc/protocol.py``).
-        trajectory : plant.trajectory.Trajectory
+        trajectory : plant.logs.trajectory.Trajectory
             The reference (evaluated at t_k = k Ts).
         n_samples : int
         max_abs_e : float
@@ -464,7 +464,7 @@ def rigid_equivalent_truth(settings: RobotSettings, n_states: int = 500, seed: i
     ``condition_number`` and ``physical_consistency`` (f3 - a3 f5,
     f4 - a3 f6, f1 - f2 - Jm3 k3^2).
     """
-    from plant.model import regressor  # the parameterisation only (tau = Y f)
+    from plant.robot.model import regressor  # the parameterisation only (tau = Y f)
 
     robot = build_rtb_puma(settings.payload)
     g = np.array([0.0, 0.0, -settings.gravity])  # RTB: gravity acceleration vector
@@ -564,8 +564,8 @@ def make_log(settings: RobotSettings, stem_path, *, rng=None, name=None, extra_t
     import time
 
     import plant
-    from plant.rig import Rig
-    from plant.trajectory import Trajectory
+    from plant.logs.rig import Rig
+    from plant.logs.trajectory import Trajectory
 
     s = settings
     stem_path = Path(stem_path)
@@ -702,7 +702,7 @@ def max_step_fraction(settings: RobotSettings) -> float:
 
 def integration_check(settings: RobotSettings, n_samples: int | None = None) -> dict:
     """Rerun the P experiment with tighter integration; count pulses that change."""
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     traj = Trajectory.from_sidecar(settings.trajectory)
     n = settings.n_samples if n_samples is None else n_samples

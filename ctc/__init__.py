@@ -9,18 +9,21 @@
   identification);
 * :mod:`ctc.adaptive` -- :class:`AdaptiveComputedTorqueController` (on-line
   payload identification and adaptation);
+* :mod:`ctc.guard` -- :class:`FollowingErrorGuard` (a following-error
+  limit around any controller: the rig's P law takes over when the arm is lost);
 * :mod:`ctc.design` -- gain design and analysis with python-control
   (:func:`design_gains`);
 * :mod:`ctc.evaluate` -- closed-loop evaluation with casadi
   (:func:`evaluate_ctc`).
 
 Run a controller against the model robot with
-:func:`plant.closed_loop.simulate_closed_loop`.
+:func:`plant.simulation.closed_loop.simulate_closed_loop`.
 """
 from .adaptive import AdaptiveComputedTorqueController, UnmodelledChangeWarning
 from .computed_torque import ComputedTorqueController
 from .design import GainDesign, design_gains
 from .flexible import FlexibleJointComputedTorqueController
+from .guard import FollowingErrorGuard, FollowingErrorWarning
 from .protocol import PController, SampledController
 
 __all__ = [
@@ -29,6 +32,7 @@ __all__ = [
     "ComputedTorqueController",
     "AdaptiveComputedTorqueController", "UnmodelledChangeWarning",
     "FlexibleJointComputedTorqueController",
+    "FollowingErrorGuard", "FollowingErrorWarning",
     "GainDesign",
     "design_gains",
     "evaluate_ctc",

@@ -12,7 +12,7 @@ The paper's closing proposal, in three stages, as one sampled controller
    no start state, so the model starts at its first sample from a state
    estimated from the window and refined as nuisance parameters; the
    refinement replays the logged commands, the output error simulates the
-   CTC in the loop through the compiled law of :mod:`plant.controllers`);
+   CTC in the loop through the compiled law of :mod:`plant.simulation.controllers`);
 3. put the identified load into the CTC (D_hat, h_hat, g_hat of ``prior +
    payload``) -- but only once the identification's latency has passed on
    the controller's own sample clock: a fixed ``latency_s`` (default, so a
@@ -99,6 +99,16 @@ change in a linear-Gaussian regression):
    constant payload -- the controller returns to the last good model (the
    last one a window found without change), reports the change
    (``'unexplained'``) and makes no update until a window shows no change.
+
+6. **Following-error limit** (:mod:`ctc.guard`).  Whatever the model, a
+   joint whose pulse error passes its limit -- by default the largest error
+   of the P-controlled log the prior was identified from, i.e. the rig's own
+   controller's following error on that reference -- hands the arm to that
+   P law (``i = P e``, clipped at full scale) at once and for the rest of
+   the run (event ``'fallback'``, :class:`ctc.guard.FollowingErrorWarning`):
+   a computed-torque controller tracking worse than the controller it
+   replaced has lost its model, and a flexible-joint CTC whose model is far
+   off (a heavy tool on a compliant arm) can otherwise go unstable.
 
 So an update reaches the arm only when the window shows it, a payload
 describes it and the arm tracks better with it; otherwise the controller
@@ -239,7 +249,7 @@ def _prior_entries(prior):
         return None
     d = prior
     if isinstance(prior, (str, os.PathLike)):
-        from plant.fileio import read_json_object
+        from plant.logs.fileio import read_json_object
 
         d = read_json_object(prior, "prior result file")
     return d if hasattr(d, "get") else None
@@ -290,7 +300,7 @@ class AdaptiveComputedTorqueController:
         Rig and reference (as :meth:`ctc.ComputedTorqueController.from_log`).
     window_s : float
         Length of the identification window (s), default 0.1 (at least
-        :data:`plant.sanity.MIN_SAMPLES` samples).
+        :data:`plant.logs.sanity.MIN_SAMPLES` samples).
     improvement : float
         An estimate must also bring its windowed output error below
         ``(1 - improvement)`` times the current model's.
@@ -307,8 +317,13 @@ class AdaptiveComputedTorqueController:
         time of each identification (hardware: the worker's real delay).
     identify_options : dict, optional
         Extra keyword arguments of :func:`identification.identify`.
-    trajectory : plant.trajectory.Trajectory, optional
+    trajectory : plant.logs.trajectory.Trajectory, optional
         The reference to follow (default the log's).
+    following_error_limit : 'log', float, array_like (2,) or None
+        The following-error limit (pulses per joint) beyond which the rig's
+        P law takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor
+        step 6).  ``'log'`` (default): the log's largest P-law error per
+        joint, at least :data:`ctc.guard.MIN_LIMIT_PULSES`.  None: no limit.
     **ctc_options
         Keyword arguments of :meth:`ctc.ComputedTorqueController.from_log`
         (gains, estimator, ...).
@@ -329,7 +344,9 @@ class AdaptiveComputedTorqueController:
         ``'unexplained'``, ``'inconsistent'``), its ``reason`` and ``accepted``.
     events : list of dict
         Supervisor events: ``t_s``, ``kind`` (``'update'``,
-        ``'unexplained'``, ``'rollback'``) and ``message``.
+        ``'unexplained'``, ``'rollback'``, ``'fallback'``) and ``message``.
+    fallback_t_s : float or None
+        When the following-error limit handed the arm to the P law (None: never).
     baseline : float or None
         Median residual per value (pulses^2) of the windows without change.
 
@@ -354,7 +371,7 @@ class AdaptiveComputedTorqueController:
 
     def __init__(self, prior_f, log, *, window_s=0.1, improvement=0.2, false_alarm=1e-3,
                  explain_factor=4.0, latency_s=DEFAULT_LATENCY_S, identify_options=None,
-                 trajectory=None, **ctc_options):
+                 trajectory=None, following_error_limit="log", **ctc_options):
         from identification.parameters import prior_f as as_prior_f
 
         d = _prior_entries(prior_f)
@@ -369,7 +386,7 @@ class AdaptiveComputedTorqueController:
             if rig is not log.rig:
                 log = log.replace(rig=rig)
         ts = float(log.rig.sample_time_s)
-        from plant.sanity import MIN_SAMPLES
+        from plant.logs.sanity import MIN_SAMPLES
 
         if not (np.isfinite(window_s) and window_s >= MIN_SAMPLES * ts):
             raise ValueError(f"window_s must be at least {MIN_SAMPLES} samples ({MIN_SAMPLES * ts:.4g} s), "
@@ -386,6 +403,11 @@ class AdaptiveComputedTorqueController:
         if not (latency_s == "measured" or (isinstance(latency_s, (int, float))
                                             and np.isfinite(latency_s) and latency_s >= 0)):
             raise ValueError(f"latency_s must be a number >= 0 (s) or 'measured', got {latency_s!r}")
+        from .guard import FollowingErrorLimit
+
+        #: the following-error limit (:mod:`ctc.guard`), or None
+        self.following_error = (None if following_error_limit is None
+                                else FollowingErrorLimit(log, following_error_limit))
         self.log = log
         self.window_s = float(window_s)
         self.improvement = float(improvement)
@@ -528,6 +550,7 @@ class AdaptiveComputedTorqueController:
         self._busy_until = -1
         self._rows = []
         self._window_start = 0
+        self.fallback_t_s = None
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (2,) A for sample ``k`` (see the module docstring).
@@ -547,6 +570,11 @@ class AdaptiveComputedTorqueController:
         -------
         ndarray, shape (2,)
         """
+        if self.following_error is not None:
+            if self.fallback_t_s is None and self.following_error.exceeded(e_pulses):
+                self._fall_back(k, t, e_pulses)
+            if self.fallback_t_s is not None:
+                return self.following_error.p_current(e_pulses)
         if self._pending is not None and k >= self._pending[0]:
             _, f, payload, kind = self._pending
             self._install(f)
@@ -578,6 +606,19 @@ class AdaptiveComputedTorqueController:
     # ------------------------------------------------------------ supervisor
     def _event(self, k, kind, message, **details):
         self.events.append(dict(t_s=k * self._ts, kind=kind, message=message, **details))
+
+    def _fall_back(self, k, t, e_pulses):
+        """Supervisor step 6: the following error passed its limit; the P law takes over."""
+        import warnings
+
+        from .guard import FollowingErrorWarning
+
+        self.fallback_t_s = float(t)
+        self._pending = None
+        self._rows = []
+        msg = self.following_error.message(t, e_pulses)
+        self._event(k, "fallback", msg, model_mass_kg=self.payload_mass_kg)
+        warnings.warn(msg, FollowingErrorWarning, stacklevel=3)
 
     def _supervise_tracking(self, rows, k_end) -> bool:
         """Supervisor step 4 on a completed window; True when it rolled the model back.
@@ -629,7 +670,7 @@ class AdaptiveComputedTorqueController:
 
     def _plausible(self, res) -> str | None:
         """None when the estimate is a physical payload strictly inside its box, else why not."""
-        from plant.model import is_positive_definite
+        from plant.robot.model import is_positive_definite
 
         x = np.asarray(res.x, dtype=float)
         lo, hi = np.asarray(res.bounds, dtype=float).T

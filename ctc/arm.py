@@ -1,7 +1,7 @@
 """Computed-torque control of any serial arm from its identified base parameters.
 
 The law of :mod:`ctc.computed_torque`, for the n joints of a robot model
-(:class:`plant.robot_model.RobotModel`) whose base parameters beta were
+(:class:`plant.robot.robot_model.RobotModel`) whose base parameters beta were
 identified (:func:`identification.arm.identify_arm`)::
 
     a   = qdd_d(t_k + Ts/2) + Kv (qd_d - qd_hat) + Kp (q_d - q_hat)       (outer loop)
@@ -18,10 +18,10 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
 
 * ``D_hat`` and ``n_hat`` (Coriolis/centrifugal plus gravity) are the
   robot model's, instantiated with beta: the same casadi expressions in the
-  joints' sines and cosines that the plant of :mod:`plant.arm` compiles
+  joints' sines and cosines that the plant of :mod:`plant.simulation.arm` compiles
   (Craig, *Introduction to Robotics*, sec. 10.5; Spong, Hutchinson &
   Vidyasagar, *Robot Modeling and Control*, sec. 8.3);
-* ``tau_f`` the sidecar's drive friction (:func:`plant.model.friction_torque`),
+* ``tau_f`` the sidecar's drive friction (:func:`plant.robot.model.friction_torque`),
   cancelled by feed-forward at the reference velocity;
 * ``q_hat, qd_hat`` the current observer of :mod:`ctc.design` per joint
   (double integrator driven by the commanded acceleration, measurement at
@@ -51,9 +51,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from plant.core import cell_centre
-from plant.model import friction_torque
-from plant.rig import rig_constants
+from plant.simulation.core import cell_centre
+from plant.robot.model import friction_torque
+from plant.logs.rig import rig_constants
 
 from .design import gains_for
 
@@ -73,7 +73,7 @@ def log_envelope(log) -> np.ndarray:
 
     Parameters
     ----------
-    log : plant.arm_log.ArmLog
+    log : plant.logs.arm_log.ArmLog
     """
     e = np.abs(np.asarray(log.e_pulses, dtype=float))
     return np.maximum(0.5 * e.max(axis=0) if e.size else np.zeros(log.n_joints), 2.0)
@@ -84,8 +84,8 @@ class ArmComputedTorque:
 
     Parameters
     ----------
-    plant : plant.arm.ArmPlant
-        The robot (:func:`plant.arm.arm_plant`); its base parameters define beta.
+    plant : plant.simulation.arm.ArmPlant
+        The robot (:func:`plant.simulation.arm.arm_plant`); its base parameters define beta.
     beta : array_like, shape (r,)
         Base parameters of the controller's model (identified).
     rig : plant.Rig
@@ -115,10 +115,10 @@ class ArmComputedTorque:
     """
 
     def __init__(self, plant, beta, rig, trajectory, *, gains=None, envelope=None, **design):
-        from plant.arm import ArmPlant
+        from plant.simulation.arm import ArmPlant
 
         if not isinstance(plant, ArmPlant):
-            raise ValueError(f"plant must be a plant.arm.ArmPlant, got {type(plant).__name__}")
+            raise ValueError(f"plant must be a plant.simulation.arm.ArmPlant, got {type(plant).__name__}")
         self.plant = plant
         self.n = plant.n_joints
         self.beta = plant.lane_parameters(beta)[:, 0].copy()
@@ -157,7 +157,7 @@ class ArmComputedTorque:
         Parameters
         ----------
         result : identification.arm.ArmIdentificationResult
-        log : plant.arm_log.ArmLog
+        log : plant.logs.arm_log.ArmLog
         **design
             As the constructor (``gains=`` or :func:`ctc.design.design_gains` keywords).
 
@@ -313,8 +313,8 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
 
     Parameters
     ----------
-    plant : plant.arm.ArmPlant
-        The robot's rigid arm (:func:`plant.arm.arm_plant`; its base
+    plant : plant.simulation.arm.ArmPlant
+        The robot's rigid arm (:func:`plant.simulation.arm.arm_plant`; its base
         parameters define beta).
     beta : array_like, shape (r,)
         Rigid-equivalent base parameters (link plus ``Ia``), identified.
@@ -366,7 +366,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             raise ValueError("the link model's inertia matrix (beta minus the motor inertias) is "
                              "not positive definite at the reference's start")
         if link_substeps is None:
-            from plant.arm import link_mode_bound
+            from plant.simulation.arm import link_mode_bound
 
             qs = np.asarray(trajectory.position(np.linspace(0.0, 10.0, 32)), dtype=float)
             Ds = [self._link_terms(q, np.zeros(n))[0] for q in qs]
@@ -390,7 +390,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         ----------
         result : identification.arm.ArmIdentificationResult
             With ``model == "flexible"`` and its joints.
-        log : plant.arm_log.ArmLog
+        log : plant.logs.arm_log.ArmLog
         **options
             As the constructor (``envelope`` by default half the log's
             largest P-control errors, :func:`log_envelope`).

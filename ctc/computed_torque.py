@@ -9,12 +9,12 @@ Hutchinson & Vidyasagar, *Robot Modeling and Control*, sec. 8.3), per sample
     i   = tau / (k Kt)                                            (motor current)
 
 * ``D_hat``, ``h_hat`` (Coriolis/centrifugal) and ``g_hat`` are the model of
-  :mod:`plant.model` instantiated with the controller's ``f`` (9,): the
+  :mod:`plant.robot.model` instantiated with the controller's ``f`` (9,): the
   compiled kernels ``mass_terms``, ``coriolis_terms`` and ``gravity_terms``
   are called from this module's compiled step -- there is no second copy of
   the dynamics.
-* ``tau_f`` is the drive friction of the sidecar, :func:`plant.model.friction_torque`
-  with the joint-side constants of :func:`plant.rig.rig_constants`; the
+* ``tau_f`` is the drive friction of the sidecar, :func:`plant.robot.model.friction_torque`
+  with the joint-side constants of :func:`plant.logs.rig.rig_constants`; the
   feed-forward ``-tau_f`` cancels it.
 * ``q_d, qd_d, qdd_d`` come from the log's trajectory (analytic), tabulated at
   ``t_k = k Ts`` when the controller is built.
@@ -64,16 +64,16 @@ import numpy as np
 
 from typing import NamedTuple
 
-from plant.core import cell_centre
-from plant.model import (
+from plant.simulation.core import cell_centre
+from plant.robot.model import (
     checked_f,
     friction_torque,
     inverse_dynamics_terms,
     is_positive_definite,
     mass_terms,
 )
-from plant.controllers import LoggedController, register_control_law, saturated
-from plant.rig import RigConstants, rig_constants
+from plant.simulation.controllers import LoggedController, register_control_law, saturated
+from plant.logs.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, gains_for
 
@@ -86,7 +86,7 @@ class CTCParameters(NamedTuple):
 
     Attributes
     ----------
-    rig : plant.rig.RigConstants
+    rig : plant.logs.rig.RigConstants
         Joint-side drive constants of the rig (the core's rig layout).
     kp, kv : tuple of 2 float
         Outer-loop gains (s^-2, s^-1).
@@ -213,7 +213,7 @@ def _ctc_step(k, q_meas, f, p, ref, s):
 
 
 class CTCLawKind(NamedTuple):
-    """Type tag of the CTC law in the logged-run driver (:mod:`plant.controllers`).
+    """Type tag of the CTC law in the logged-run driver (:mod:`plant.simulation.controllers`).
 
     Attributes
     ----------
@@ -244,13 +244,13 @@ class CTCLaw(NamedTuple):
 
 @numba.njit(nogil=True)
 def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
-    """The CTC as a compiled law of the logged-run driver (:mod:`plant.controllers`).
+    """The CTC as a compiled law of the logged-run driver (:mod:`plant.simulation.controllers`).
 
     Parameters
     ----------
     lp : CTCLaw
         Parameters, model f and reference table.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout of the simulation (unused: the law's own is in ``lp``).
     k : int
         Sample index from the start of the run.
@@ -275,7 +275,7 @@ def as_pair(values):
 
 
 def model_f(f) -> np.ndarray:
-    """A controller's model f (9,) (:func:`plant.model.checked_f`), pointing a result to
+    """A controller's model f (9,) (:func:`plant.robot.model.checked_f`), pointing a result to
     ``from_result``.
 
     Parameters
@@ -300,26 +300,26 @@ def reference_of(log, trajectory=None):
     Parameters
     ----------
     log : plant.ExperimentLog
-    trajectory : plant.trajectory.Trajectory, optional
+    trajectory : plant.logs.trajectory.Trajectory, optional
 
     Returns
     -------
-    plant.trajectory.Trajectory
+    plant.logs.trajectory.Trajectory
 
     Raises
     ------
     ValueError
-        If ``trajectory`` is not a :class:`plant.trajectory.Trajectory`, or
+        If ``trajectory`` is not a :class:`plant.logs.trajectory.Trajectory`, or
         ``log`` is not a log.
     """
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     if trajectory is None:
         if not hasattr(log, "trajectory") or not hasattr(log, "rig"):
             raise ValueError(f"log must be a plant.ExperimentLog, got {type(log).__name__}")
         return log.trajectory
     if not isinstance(trajectory, Trajectory):
-        raise ValueError("trajectory must be a plant.trajectory.Trajectory (e.g. "
+        raise ValueError("trajectory must be a plant.logs.trajectory.Trajectory (e.g. "
                          f"Trajectory.from_terms(...)), got {type(trajectory).__name__}")
     return trajectory
 
@@ -347,9 +347,9 @@ class ComputedTorqueController:
     ----------
     f : array_like, shape (9,)
         Model base parameters f1..f9 (e.g. the identified ones).
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
         Rig constants: Ts, gear ratios, encoders, Kt, friction, gravity.
-    trajectory : plant.trajectory.Trajectory
+    trajectory : plant.logs.trajectory.Trajectory
         Reference (analytic q, qd, qdd).
     gains : ctc.design.GainDesign
         Outer-loop gains and velocity estimator (:func:`ctc.design.design_gains`).
@@ -450,7 +450,7 @@ class ComputedTorqueController:
         n_samples : int, optional
             Samples to tabulate (default ``log.n_total``; later samples are
             evaluated on the fly).
-        trajectory : plant.trajectory.Trajectory, optional
+        trajectory : plant.logs.trajectory.Trajectory, optional
             The reference to follow (default the log's): any reference, e.g.
             ``Trajectory.from_terms(...)`` or ``Trajectory.paper(T)``.
         **design
@@ -559,7 +559,7 @@ class ComputedTorqueController:
 
         Returns
         -------
-        plant.controllers.LoggedController
+        plant.simulation.controllers.LoggedController
         """
         import dataclasses
 
@@ -601,7 +601,7 @@ class ComputedTorqueController:
 
         :func:`plant.simulate_batch` then simulates a log (a window of a run
         under this CTC) with the CTC in the loop of every lane
-        (:mod:`plant.controllers`).
+        (:mod:`plant.simulation.controllers`).
 
         Parameters
         ----------
@@ -614,7 +614,7 @@ class ComputedTorqueController:
 
         Returns
         -------
-        plant.controllers.LoggedController
+        plant.simulation.controllers.LoggedController
         """
         n = int(log.n_total)
         if log.trajectory == self.trajectory and self.reference_table.shape[0] >= n:
@@ -637,7 +637,7 @@ class ComputedTorqueController:
     def torque(self, q, qd, qdd) -> np.ndarray:
         """Model torque ``D_hat(q) qdd + h_hat(q, qd) + g_hat(q)`` (N m), friction excluded.
 
-        Convenience for checks; calls :func:`plant.model.inverse_dynamics`.
+        Convenience for checks; calls :func:`plant.robot.model.inverse_dynamics`.
 
         Parameters
         ----------
@@ -648,7 +648,7 @@ class ComputedTorqueController:
         -------
         ndarray, shape (2,) or (n, 2)
         """
-        from plant.model import inverse_dynamics
+        from plant.robot.model import inverse_dynamics
 
         return inverse_dynamics(self.f, q, qd, qdd, self.rig.gravity_m_s2)
 

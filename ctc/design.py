@@ -10,7 +10,7 @@ discrete model of that double integrator:
 * **ZOH at Ts.**  The acceleration command is held over each sample:
   ``x[k+1] = A x[k] + B a[k]`` with ``A = [[1, Ts], [0, 1]]``,
   ``B = [Ts^2/2, Ts]`` (``control.c2d`` of ``1/s^2`` with ``"zoh"``).
-* **Computation delay.**  In :func:`plant.closed_loop.simulate_closed_loop`
+* **Computation delay.**  In :func:`plant.simulation.closed_loop.simulate_closed_loop`
   (and in the rig's control card as the logs describe it) the current
   computed from the sample at ``t_k`` is applied over ``[t_k, t_k + Ts)``:
   there is **no** one-sample delay, so the default is ``delay_samples=0``.
@@ -378,7 +378,7 @@ def default_bandwidth_hz(rig_or_ts) -> np.ndarray:
 
     Parameters
     ----------
-    rig_or_ts : plant.rig.Rig, plant.ExperimentLog or float
+    rig_or_ts : plant.logs.rig.Rig, plant.ExperimentLog or float
         A rig (or log) with ``sample_time_s`` and ``encoder_ppr``; a bare
         sample time (s) gives ``fs / 50`` for both joints.
 
@@ -428,7 +428,7 @@ def design_gains(
 
     Parameters
     ----------
-    rig_or_ts : plant.rig.Rig, plant.ExperimentLog or float
+    rig_or_ts : plant.logs.rig.Rig, plant.ExperimentLog or float
         The rig (its sample time, and its encoders for the default
         bandwidth: after feedback linearisation the error dynamics do not
         depend on the robot) or Ts in s.
@@ -530,7 +530,7 @@ def gains_for(rig, gains=None, **design):
 
     Parameters
     ----------
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
         The rig the gains are designed for.
     gains : GainDesign, optional
         Ready-made gains, returned as they are.

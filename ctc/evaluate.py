@@ -11,7 +11,7 @@ casadi graph and evaluates it over a run:
   the pulse cell, current observer or filtered difference, outer loop,
   ``D_hat a + h_hat + g_hat - tau_f``, division by ``k Kt``), the clip at
   the current full scale, and the robot advanced over the sample by the
-  casadi twin of the core's sample step (:func:`plant.twin.sample_step_function`,
+  casadi twin of the core's sample step (:func:`plant.simulation.twin.sample_step_function`,
   ``substeps`` RK4 steps);
 * the run is ``step.mapaccum(n)``, evaluated once on the tabulated
   reference.
@@ -22,10 +22,10 @@ State ``x`` (13,): robot ``q2, q3, qd2, qd3``; controller ``init``,
 unquantised reference counts (2).  Output ``y`` (6,): pulse errors (2),
 currents (2), robot angles (2) at ``t_k``.
 
-The rigid-body model is the casadi model of :mod:`plant.symbolic`
+The rigid-body model is the casadi model of :mod:`plant.robot.symbolic`
 (``derive_base_model``), which the plant's tests prove equal to the numeric
-model of :mod:`plant.model` to 1e-12; the drive friction is the casadi form of
-:func:`plant.model.friction_torque` (:func:`plant.twin.friction_sx`, tested
+model of :mod:`plant.robot.model` to 1e-12; the drive friction is the casadi form of
+:func:`plant.robot.model.friction_torque` (:func:`plant.simulation.twin.friction_sx`, tested
 against it).
 
 Agreement with the numba simulator.  Both evaluate the same arithmetic up to
@@ -42,8 +42,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from plant.twin import cell_centre_sx, friction_sx, sample_step_function, trunc_sx
-from plant.symbolic import derive_base_model
+from plant.simulation.twin import cell_centre_sx, friction_sx, sample_step_function, trunc_sx
+from plant.robot.symbolic import derive_base_model
 
 from .computed_torque import ComputedTorqueController
 
@@ -137,7 +137,7 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
             ij = ca.fmin(ca.fmax(ij, -float(i_fs)), float(i_fs))
         cur.append(ij)
     cur = ca.vertcat(*cur)
-    # the robot: the casadi twin of the core's sample step (plant.twin)
+    # the robot: the casadi twin of the core's sample step (plant.simulation.twin)
     x_robot = sample_step_function(c, substeps)(ca.vertcat(q, w), cur, fr)
     qq, ww = x_robot[0:2], x_robot[2:4]
     x_next = ca.vertcat(qq, ww, 1.0, qh, ca.vertcat(*wh_list), a, ca.vertcat(*y_list))

@@ -1,6 +1,6 @@
 """Computed torque for flexible joints: motor-side CTC with the spring torque of a link model.
 
-The robot is Spong's two-mass joint (:class:`plant.plants.FlexibleJoints`),
+The robot is Spong's two-mass joint (:class:`plant.simulation.plants.FlexibleJoints`),
 joint side, per joint::
 
     Jm k^2 th'' = k Kt i + tau_f(th') - tau_s          (motor, read by the encoder)
@@ -91,9 +91,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from plant.controllers import LoggedController, register_control_law, saturated
-from plant.model import friction_torque, is_positive_definite, joint_acceleration
-from plant.plants import dead_zone, link_f as link_model_f
+from plant.simulation.controllers import LoggedController, register_control_law, saturated
+from plant.robot.model import friction_torque, is_positive_definite, joint_acceleration
+from plant.simulation.plants import dead_zone, link_f as link_model_f
 
 from .computed_torque import (
     S_A,
@@ -152,7 +152,7 @@ class FlexibleCTCParameters(NamedTuple):
         observer's position residual (:func:`link_observer_gains`).
     backlash : tuple of 2 float
         Gearbox backlash width b (rad, joint side) of the link model's
-        spring (:func:`plant.plants.dead_zone`).
+        spring (:func:`plant.simulation.plants.dead_zone`).
     """
 
     ctc: CTCParameters
@@ -307,7 +307,7 @@ def flexible_ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
     ----------
     lp : FlexibleCTCLaw
         Parameters, link model f and reference table.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout of the simulation (unused: the law's own is in ``lp``).
     k : int
         Sample index from the start of the run.
@@ -353,7 +353,7 @@ def link_observer_gains(link_f, stiffness, damping, motor_inertia, gains, link_d
     -------
     ndarray, shape (2, 4)
     """
-    from plant.model import inertia_matrix
+    from plant.robot.model import inertia_matrix
 
     dl = np.diag(inertia_matrix(link_f, np.zeros(2)))
     return two_mass_observer_gains(dl, stiffness, damping, motor_inertia, gains, link_damping)
@@ -432,10 +432,10 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
     ----------
     f : array_like, shape (9,)
         Rigid-equivalent base parameters f1..f9 (link plus ``Jm k^2`` in f7
-        and f1, as :mod:`plant.model` defines them).
-    rig : plant.rig.Rig
+        and f1, as :mod:`plant.robot.model` defines them).
+    rig : plant.logs.rig.Rig
         Rig constants: Ts, gear ratios, encoders, Kt, friction, gravity.
-    trajectory : plant.trajectory.Trajectory
+    trajectory : plant.logs.trajectory.Trajectory
         Reference (analytic q, qd, qdd) of the motor.
     gains : ctc.design.GainDesign
         Outer-loop gains and velocity estimator of the motor loop.
@@ -462,7 +462,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         :data:`DEFAULT_LINK_OBSERVER_DAMPING`; :func:`link_observer_gains`).
     backlash_rad : array_like, shape (2,), optional
         Gearbox backlash widths b (rad, joint side): the link model's spring
-        acts through a dead zone of width b (:func:`plant.plants.dead_zone`,
+        acts through a dead zone of width b (:func:`plant.simulation.plants.dead_zone`,
         as the plant); default none.
 
     Attributes
@@ -551,7 +551,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
 
         Returns
         -------
-        plant.controllers.LoggedController
+        plant.simulation.controllers.LoggedController
         """
         import dataclasses
 
@@ -583,7 +583,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         backlash_rad : array_like, shape (2,), optional
             Gearbox backlash widths b (rad, joint side) of the link model
             (``joint_backlash_rad`` of a result; default none).
-        trajectory : plant.trajectory.Trajectory, optional
+        trajectory : plant.logs.trajectory.Trajectory, optional
             The reference to follow (default the log's).
         n_samples : int, optional
             Samples to tabulate (default ``log.n_total``).
@@ -683,7 +683,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
 
         Returns
         -------
-        plant.controllers.LoggedController
+        plant.simulation.controllers.LoggedController
         """
         n = int(log.n_total)
         if log.trajectory == self.trajectory and self.reference_table.shape[0] >= n:
@@ -932,7 +932,7 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
                      duration_s=1.0):
     """Stability of a flexible-joint CTC over a set of model errors (scenario check).
 
-    The controller runs, on the library's two-mass plant (:class:`plant.plants.FlexibleJoints`)
+    The controller runs, on the library's two-mass plant (:class:`plant.simulation.plants.FlexibleJoints`)
     with the result's joints changed as each scenario says, along the
     reference for ``duration_s``; it is *robust* when every run stays within
     the tracking-error bound ``max(20, 2 x the largest logged P error)`` pulses

@@ -15,7 +15,7 @@ A *sampled controller* is any object with
 
     It is called once per sample, in order (k = 0, 1, 2, ...).
 
-:func:`plant.closed_loop.simulate_closed_loop` runs any such object against
+:func:`plant.simulation.closed_loop.simulate_closed_loop` runs any such object against
 the model robot; :class:`PController` (the paper's controller, ``i = P e``)
 and :class:`ctc.ComputedTorqueController` follow it.
 """
@@ -47,11 +47,16 @@ class PController:
     p_gain_A_per_pulse : array_like, shape (n_joints,)
         P gains (A per pulse of error), > 0: joints 2 and 3 of the PUMA
         links 2-3, or one per joint of a robot model's rig.
+    current_full_scale_A : float, optional
+        The drive's full scale (A, > 0): the currents are clipped at
+        ``+-current_full_scale_A`` (issue 21: every controller saturates).
+        None: no clip.
 
     Raises
     ------
     ValueError
-        If the gains are not finite positive numbers (at least one).
+        If the gains are not finite positive numbers (at least one), or the
+        full scale is not a number > 0.
 
     Notes
     -----
@@ -60,12 +65,18 @@ class PController:
     computed at ``t_k`` and held over the sample.  It is stateless.
     """
 
-    def __init__(self, p_gain_A_per_pulse):
+    def __init__(self, p_gain_A_per_pulse, current_full_scale_A=None):
         p = np.asarray(p_gain_A_per_pulse, dtype=np.float64)
         if p.ndim != 1 or p.size < 1 or not np.all(np.isfinite(p)) or np.any(p <= 0):
             raise ValueError("p_gain_A_per_pulse must be finite numbers > 0, one per joint, "
                              f"got {p_gain_A_per_pulse!r}")
+        if current_full_scale_A is not None and not (
+                isinstance(current_full_scale_A, (int, float)) and current_full_scale_A > 0):
+            raise ValueError(f"current_full_scale_A must be a number > 0 (A) or None, "
+                             f"got {current_full_scale_A!r}")
         self.p_gain = p
+        self.current_full_scale_A = (None if current_full_scale_A is None
+                                     else float(current_full_scale_A))
 
     @classmethod
     def from_log(cls, log) -> "PController":
@@ -73,21 +84,25 @@ class PController:
 
         Parameters
         ----------
-        log : plant.ExperimentLog, plant.arm_log.ArmLog or plant.rig.Rig
+        log : plant.ExperimentLog, plant.logs.arm_log.ArmLog or plant.logs.rig.Rig
 
         Returns
         -------
         PController
         """
         rig = getattr(log, "rig", log)
-        return cls(rig.p_gain_A_per_pulse)
+        return cls(rig.p_gain_A_per_pulse, rig.current_full_scale_A)
 
     def reset(self) -> None:
         """Nothing to reset (stateless)."""
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
-        """Currents ``P e`` (n_joints,) A from the pulse errors ``e_pulses`` (n_joints,)."""
-        return self.p_gain * e_pulses
+        """Currents ``P e`` (n_joints,) A from the pulse errors ``e_pulses`` (n_joints,), clipped at full scale."""
+        i = self.p_gain * e_pulses
+        if self.current_full_scale_A is not None:
+            i = np.clip(i, -self.current_full_scale_A, self.current_full_scale_A)
+        return i
 
     def __repr__(self) -> str:
-        return f"PController(p_gain_A_per_pulse={self.p_gain.tolist()})"
+        return (f"PController(p_gain_A_per_pulse={self.p_gain.tolist()}, "
+                f"current_full_scale_A={self.current_full_scale_A})")

@@ -92,7 +92,7 @@ def _resolve_short_names(app, env, node, contnode):
     Docstrings name objects of their own package by short names
     (``:func:`integrate_sample```, ``:data:`STATUS_OK```), and the packages
     re-export their members (``plant.simulate_batch`` is
-    ``plant.simulate.simulate_batch``), so a docstring rendered in the
+    ``plant.simulation.simulate.simulate_batch``), so a docstring rendered in the
     package's context (``automodule:: plant``) looks the name up in the
     wrong module.  This retries the lookup like a reference written with a
     leading dot (Sphinx's "search in all modules" mode) and accepts the

@@ -357,7 +357,7 @@ def _commit():
 
 
 def _write_json_atomic(path, data):
-    from plant.fileio import write_text_atomic
+    from plant.logs.fileio import write_text_atomic
 
     write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
 

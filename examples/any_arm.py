@@ -10,7 +10,7 @@ The paper's pipeline for a robot given by a DH table or a URDF file
   (needs the ``urdf`` extra, Robotics Toolbox's reader).
 
 Steps: the rig's P-control experiment is emulated with the library's own
-plant (:func:`plant.arm_log.emulate_arm_log`; a tutorial's log -- the
+plant (:func:`plant.simulation.synthetic.emulate_arm_log`; a tutorial's log -- the
 acceptance figures come from an independent simulator,
 ``benchmarks/bench_arms.py``), written as ``STEM.csv`` + ``STEM.json``
 (columns per named joint, the robot in the sidecar) and read back;
@@ -129,8 +129,9 @@ def main(argv=None):
     from ctc import PController
     from ctc.arm import ArmComputedTorque
     from identification.arm import identify_arm
-    from plant.arm import arm_plant
-    from plant.arm_log import emulate_arm_log, load_arm_log
+    from plant.simulation.arm import arm_plant
+    from plant.logs.arm_log import load_arm_log
+    from plant.simulation.synthetic import emulate_arm_log
 
     if args.robot == "urdf":
         try:

@@ -24,7 +24,7 @@ the repository) the robot is the true one instead, and the table gains the
 row "CTC, true f"; the robustness sweep is centred on the robot's f.
 
 **Flexible robot.**  It also runs P and CTC on a two-mass flexible robot
-(:class:`plant.closed_loop.FlexibleJoints`) along the bundled drill/flex
+(:class:`plant.simulation.closed_loop.FlexibleJoints`) along the bundled drill/flex
 example (``plant.load_example("drill_flex")``: 1.5 kg drill, compliant
 gearboxes).  The spring constants are not in a log's sidecar: the defaults
 of ``--flex-ks``, ``--flex-ds``, ``--flex-jm`` are the constants the
@@ -62,9 +62,9 @@ matplotlib.use("Agg")
 from matplotlib.figure import Figure  # noqa: E402
 
 from plant import LogError  # noqa: E402
-from plant.closed_loop import FlexibleJoints, simulate_closed_loop  # noqa: E402
-from plant.log import example_log_path, load_log  # noqa: E402
-from plant.model import is_positive_definite  # noqa: E402
+from plant.simulation.closed_loop import FlexibleJoints, simulate_closed_loop  # noqa: E402
+from plant.logs.log import example_log_path, load_log  # noqa: E402
+from plant.robot.model import is_positive_definite  # noqa: E402
 from ctc import ComputedTorqueController, PController  # noqa: E402
 
 DELTAS = (-0.20, -0.10, -0.05, -0.005, 0.005, 0.05, 0.10, 0.20)

@@ -90,7 +90,7 @@ def describe(model, basis=None):
 def main(argv=None):
     args = parse(argv)
     from plant import RobotModel
-    from plant.robot_model import PUMA560_LINKS23_BASIS
+    from plant.robot.robot_model import PUMA560_LINKS23_BASIS
 
     report = {}
     report["planar"] = describe(planar_arm())

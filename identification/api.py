@@ -8,7 +8,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 import plant
-from plant.sanity import check_experiment
+from plant.logs.sanity import check_experiment
 
 from .ga import run_ga
 from .objective import IDENTIFICATION_SUBSTEPS, OutputError
@@ -211,9 +211,9 @@ def identify(
     controller : object, optional
         The controller that ran the log, if not the rig's P law (e.g. a
         :class:`ctc.ComputedTorqueController`, or its
-        :class:`plant.controllers.LoggedController` with the estimator state
+        :class:`plant.simulation.controllers.LoggedController` with the estimator state
         at the window's start): the output error simulates it in the loop,
-        the refinement replays its logged currents (:mod:`plant.controllers`).
+        the refinement replays its logged currents (:mod:`plant.simulation.controllers`).
 
     model : {'auto', 'rigid', 'flexible'}
         The robot model (:mod:`identification.flexible`): ``'auto'``
@@ -226,7 +226,11 @@ def identify(
         :data:`~identification.flexible.INADEQUATE_FACTOR` floors and the
         backlash halves the cost again (``model_choice`` says which and why).
         A chosen model still far above the floor raises a
-        :class:`ModelInadequacyWarning`.  Only with the default search (no
+        :class:`ModelInadequacyWarning`; one that leaves more than
+        :data:`~identification.flexible.RESTART_FRACTION` of the held-back
+        error energy unexplained (a failed search) is searched again, up to
+        :data:`~identification.flexible.MAX_RESTARTS` times
+        (``model_choice['restarts']``).  Only with the default search (no
         low-pass, base parameters, ``'ga+pem'``, default budgets), otherwise
         rigid.
 
@@ -247,7 +251,7 @@ def identify(
         a valid ``prior``.
     plant.LogError
         If ``log`` is a path to a malformed log, or its signals cannot carry
-        an identification (:func:`plant.sanity.check_experiment`: too few
+        an identification (:func:`plant.logs.sanity.check_experiment`: too few
         samples for the parameters, all zero, impossible encoder counts or
         currents, currents that disagree with the rig's ``i = P e``).
     """
@@ -300,11 +304,19 @@ def identify(
         stop = lambda: bool(callback(OptimizeResult(  # noqa: E731
             x=res.get("x"), fun=res.get("fun"), stage="model", nfev=res.get("nfev"))))
     res = apply_model(res, log, model, workers=workers, eligible=eligible, space=space, stop=stop)
+    search_s = float(res["wall_time_s"])
+    t_model = time.perf_counter()
+    if eligible and model == "auto":
+        res = _restart_failed_search(res, log, space, model, dict(
+            method=method, rng=rng, seed=seed, ga_settings=ga_settings, ropts=ropts,
+            callback=callback, workers=workers, progress=progress, lowpass_hz=lowpass_hz,
+            substeps=substeps), stop)
     t_end = time.perf_counter()
     # the whole call: compilation, search, model choice and every fit (issue 20)
     res["stage_times_s"] = dict(compile=float(res.get("compile_time_s") or 0.0),
-                                search=float(res["wall_time_s"]),
-                                model_choice_and_flexible_fit=t_end - t_search)
+                                search=search_s,
+                                model_choice_and_flexible_fit=t_model - t_search,
+                                restarts=t_end - t_model)
     res["wall_time_s"] = t_end - t_start
     res["at_bounds"] = at_bounds(res)
     if res["at_bounds"]:
@@ -314,6 +326,45 @@ def identify(
     if res.get("poorly_excited"):
         warnings.warn(excitation_text(res), PoorExcitationWarning, stacklevel=2)
     return res
+
+
+def _restart_failed_search(res, log, space, model, search_options, stop):
+    """Restart a search whose chosen model predicts the held-back samples worse than 90 %.
+
+    See step 6 of :mod:`identification.flexible`: up to
+    :data:`~identification.flexible.MAX_RESTARTS` further searches and model
+    choices (the random stream continued), the attempt with the smallest
+    unexplained fraction kept; every attempt is listed in
+    ``model_choice['restarts']``.
+    """
+    from .flexible import MAX_RESTARTS, RESTART_FRACTION, unexplained_fraction
+
+    frac = unexplained_fraction(res, log)
+    if frac is None or frac <= RESTART_FRACTION:
+        return res
+    attempts = [dict(attempt=0, model=res["model_choice"].get("model"), unexplained_fraction=frac,
+                     nfev=int(res.get("nfev") or 0))]
+    best, best_frac = res, frac
+    for i in range(1, MAX_RESTARTS + 1):
+        nxt = _search(log, space, **search_options)
+        if nxt.interrupted:
+            break
+        nxt = apply_model(nxt, log, model, workers=search_options["workers"], eligible=True,
+                          space=space, stop=stop)
+        f_i = unexplained_fraction(nxt, log)
+        attempts.append(dict(attempt=i, model=(nxt.get("model_choice") or {}).get("model"),
+                             unexplained_fraction=f_i, nfev=int(nxt.get("nfev") or 0)))
+        if f_i is not None and f_i < best_frac:
+            best, best_frac = nxt, f_i
+        if best_frac <= RESTART_FRACTION:
+            break
+    best["model_choice"] = dict(best["model_choice"], restarts=attempts)
+    best["nfev"] = int(sum(a["nfev"] for a in attempts))
+    kept = next(a["attempt"] for a in attempts if a["unexplained_fraction"] == best_frac)
+    best["message"] = (f"search restarted {len(attempts) - 1} time(s): attempt 0 left "
+                       f"{frac:.3g} of the held-back error energy unexplained (> {RESTART_FRACTION}); "
+                       f"attempt {kept} kept ({best_frac:.3g}); " + str(best.get("message", "")))
+    return best
 
 
 class SearchBoundWarning(UserWarning):

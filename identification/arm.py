@@ -1,7 +1,7 @@
 """Identification of any serial arm's base parameters from a P-control log.
 
 The paper's method -- the simulated closed loop must reproduce the logged
-encoder pulses -- for a robot model (:class:`plant.robot_model.RobotModel`)
+encoder pulses -- for a robot model (:class:`plant.robot.robot_model.RobotModel`)
 of n joints with r base parameters beta (numerical QR, Gautier 1990), in two
 steps:
 
@@ -18,7 +18,7 @@ steps:
    (:mod:`identification.refinement`'s bounded Levenberg--Marquardt, all
    Jacobian columns of an iteration as one batch of SIMD lanes): the arm,
    driven by the logged current plus a weak output injection
-   (:func:`plant.arm.replay_arm`), must keep its continuous encoder count in
+   (:func:`plant.simulation.arm.replay_arm`), must keep its continuous encoder count in
    the count cells the log allows.  The residuals are smooth in beta (the
    quantised feedback is replaced by the logged current), so a local method
    converges; their sum of squares is in pulses^2.
@@ -48,11 +48,11 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import OptimizeResult
 
-from plant.arm import ARM_SUBSTEPS as ARM_SUBSTEPS_SIM
-from plant.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
-from plant.core import cell_centre
-from plant.model import friction_torque
-from plant.rig import rig_constants
+from plant.simulation.arm import ARM_SUBSTEPS as ARM_SUBSTEPS_SIM
+from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
+from plant.simulation.core import cell_centre
+from plant.robot.model import friction_torque
+from plant.logs.rig import rig_constants
 
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, _floor_cutoff_hz, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
@@ -77,7 +77,7 @@ ARM_FTOL = 1e-6
 ARM_REFINE_SUBSTEPS = 2
 
 
-#: :func:`plant.core.cell_centre` element by element (the one definition of a cell's centre).
+#: :func:`plant.simulation.core.cell_centre` element by element (the one definition of a cell's centre).
 _cell_centres = np.vectorize(cell_centre, otypes=[float])
 
 
@@ -85,7 +85,7 @@ def _plant_of(log, plant):
     if plant is None:
         return arm_plant(log.model)
     if not isinstance(plant, ArmPlant):
-        raise ValueError(f"plant must be a plant.arm.ArmPlant, got {type(plant).__name__}")
+        raise ValueError(f"plant must be a plant.simulation.arm.ArmPlant, got {type(plant).__name__}")
     return plant
 
 
@@ -95,10 +95,10 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
 
     Parameters
     ----------
-    log : plant.arm_log.ArmLog
+    log : plant.logs.arm_log.ArmLog
         The logged experiment (rig friction known).
-    plant : plant.arm.ArmPlant, optional
-        The arm (default :func:`plant.arm.arm_plant` of the log's robot).
+    plant : plant.simulation.arm.ArmPlant, optional
+        The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     cutoff_hz : float, optional
         Low-pass cut-off (Hz); default: where the encoder counts meet the
         quantisation floor (:func:`identification.idim.idim_cutoff_hz`'s rule).
@@ -202,7 +202,7 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
 
 
 #: Joint-side friction components of a joint, in the lane order of
-#: :func:`plant.arm.arm_plant` (``lane_friction``).
+#: :func:`plant.simulation.arm.arm_plant` (``lane_friction``).
 FRICTION_COMPONENTS = ("viscous", "coulomb_pos", "coulomb_neg")
 
 
@@ -266,8 +266,8 @@ class ArmPredictionErrorProblem:
 
     Parameters
     ----------
-    log : plant.arm_log.ArmLog
-    plant : plant.arm.ArmPlant
+    log : plant.logs.arm_log.ArmLog
+    plant : plant.simulation.arm.ArmPlant
     gain : float
         Output-injection gain (fraction of the P gain).
     substeps : int
@@ -382,7 +382,7 @@ class ArmIdentificationResult(OptimizeResult):
     success : bool
     message : str
     names : tuple of str
-        Base-parameter names (:meth:`plant.robot_model.RobotModel.base_parameters`),
+        Base-parameter names (:meth:`plant.robot.robot_model.RobotModel.base_parameters`),
         then ``viscous_<joint>``, ``coulomb_pos_<joint>``, ``coulomb_neg_<joint>``
         of the unknown friction.
     expressions : tuple of str
@@ -397,11 +397,11 @@ class ArmIdentificationResult(OptimizeResult):
         The IDIM-LS start.
     cutoff_hz : float
         IDIM low-pass cut-off.
-    plant : plant.arm.ArmPlant
+    plant : plant.simulation.arm.ArmPlant
         The arm (for the controller: :class:`ctc.arm.ArmComputedTorque`);
         not in results sent between processes
         (:func:`identification.distributed.identify_many`: rebuild it with
-        ``plant.arm.arm_plant(log.model)``).
+        ``plant.simulation.arm.arm_plant(log.model)``).
     robot : str
         The robot's name.
     joint_names : tuple of str
@@ -425,9 +425,9 @@ class ArmIdentificationResult(OptimizeResult):
         rigid-equivalent (link plus ``Ia``).
     joint_backlash_rad : list or None
         Its backlash widths (n), None without backlash.
-    flexible_plant : plant.arm.ArmPlant or None
+    flexible_plant : plant.simulation.arm.ArmPlant or None
         A flexible result's two-mass arm, ``plant_row`` its lane
-        parameters (:meth:`plant.arm.ArmPlant.lane_parameters`) and
+        parameters (:meth:`plant.simulation.arm.ArmPlant.lane_parameters`) and
         ``flexible_substeps`` the RK4 steps per sample of its fit.
     """
 
@@ -466,7 +466,7 @@ class ArmIdentificationResult(OptimizeResult):
                     **{k: self.get(k) for k in _NO_JOINTS})
 
     def save_json(self, path, *, create_dirs=False):
-        """Write :meth:`to_dict` as JSON, atomically (:func:`plant.fileio.write_text_atomic`).
+        """Write :meth:`to_dict` as JSON, atomically (:func:`plant.logs.fileio.write_text_atomic`).
 
         Parameters
         ----------
@@ -476,11 +476,11 @@ class ArmIdentificationResult(OptimizeResult):
 
         Returns
         -------
-        plant.fileio.OutputTarget
+        plant.logs.fileio.OutputTarget
         """
         import json
 
-        from plant.fileio import write_text_atomic
+        from plant.logs.fileio import write_text_atomic
 
         return write_text_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n",
                                  create_dirs=create_dirs)
@@ -501,7 +501,7 @@ class ArmIdentificationResult(OptimizeResult):
 
         Parameters
         ----------
-        log : plant.arm_log.ArmLog
+        log : plant.logs.arm_log.ArmLog
             The log identified.
         ax : array of matplotlib Axes, optional
             One per joint (default: a new figure).
@@ -545,8 +545,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
 
     Parameters
     ----------
-    log : plant.arm_log.ArmLog
-        The logged experiment of a robot model (:func:`plant.arm_log.load_arm_log`).
+    log : plant.logs.arm_log.ArmLog
+        The logged experiment of a robot model (:func:`plant.logs.arm_log.load_arm_log`).
     method : {"idim+pem", "ga+pem", "paper"}
         ``"idim+pem"`` (default): IDIM-LS start, output-error refinement.
         ``"paper"``: the paper's GA (:func:`identification.ga.run_ga` with
@@ -555,8 +555,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         logged ones -- in the search box, and nothing else.  ``"ga+pem"``:
         the same GA (Gray-coded), then the refinement from its best
         individual and from the IDIM start (the better end wins).
-    plant : plant.arm.ArmPlant, optional
-        The arm (default :func:`plant.arm.arm_plant` of the log's robot).
+    plant : plant.simulation.arm.ArmPlant, optional
+        The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     gain : float
         Output-injection gain of the predictor (fraction of the P gain).
     substeps : int
@@ -574,7 +574,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     ranges : dict, optional
         Physical ranges of the links (masses, centres of mass, inertias,
         motor inertias) -> the box of beta by interval arithmetic, the
-        paper's section 3.6 (:meth:`plant.robot_model.RobotModel.parameter_ranges`).
+        paper's section 3.6 (:meth:`plant.robot.robot_model.RobotModel.parameter_ranges`).
     rng : numpy.random.Generator or int, optional
         The GA's random numbers (methods with a GA); the same seed gives
         the same result.

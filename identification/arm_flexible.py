@@ -2,7 +2,7 @@
 
 The n-joint form of :mod:`identification.flexible` (issue 23: the compliant
 rigs' features carried to any arm).  The plant is the robot model's two-mass
-arm (:func:`plant.arm.arm_plant` with ``flexible=True``: per joint a motor of
+arm (:func:`plant.simulation.arm.arm_plant` with ``flexible=True``: per joint a motor of
 reflected inertia ``Ia = Jm k^2`` and the link joined by a spring K and a
 damper D through a gearbox dead zone of width b; the encoders read the
 motors).  The searched vector is, with r base parameters and n joints::
@@ -13,7 +13,7 @@ motors).  The searched vector is, with r base parameters and n joints::
 reflected motor inertias, exactly as the rigid model defines them, so every
 consumer of beta -- the computed-torque controller first -- keeps working);
 the link's own beta is ``beta - Ia @ columns``
-(:attr:`plant.arm.ArmPlant.motor_inertia_columns`).  The stiffnesses are
+(:attr:`plant.simulation.arm.ArmPlant.motor_inertia_columns`).  The stiffnesses are
 searched on a log scale (they span decades); the drive friction the sidecar
 does not know acts on the motor.
 
@@ -50,7 +50,7 @@ import math
 
 import numpy as np
 
-from plant.arm import arm_plant, link_mode_bound
+from plant.simulation.arm import arm_plant, link_mode_bound
 
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA
 from .refinement import DEFAULT_GAIN, MaskedProblem, refine
@@ -82,8 +82,8 @@ class ArmFlexibleSpace:
 
     Parameters
     ----------
-    log : plant.arm_log.ArmLog
-    rigid_plant : plant.arm.ArmPlant
+    log : plant.logs.arm_log.ArmLog
+    rigid_plant : plant.simulation.arm.ArmPlant
         The log's rigid arm (its model and base parameters).
     beta : array_like, shape (r,)
         The rigid fit's base parameters (the diagonal inertias of the box).
@@ -384,7 +384,7 @@ def inertia_matrices(plant, beta, q, eig=False) -> np.ndarray:
 
     Parameters
     ----------
-    plant : plant.arm.ArmPlant
+    plant : plant.simulation.arm.ArmPlant
     beta : array_like, shape (r,)
     q : array_like, shape (p, n)
     eig : bool
@@ -409,7 +409,7 @@ def diagonal_inertias(plant, beta, q) -> np.ndarray:
 
     Parameters
     ----------
-    plant : plant.arm.ArmPlant
+    plant : plant.simulation.arm.ArmPlant
     beta : array_like, shape (r,)
     q : array_like, shape (p, n)
     """

@@ -15,7 +15,7 @@ low-pass filter if any); the table and the titles say which setting.
 
 Output files
 ------------
-All files are written atomically with the policy of :mod:`plant.fileio`, and
+All files are written atomically with the policy of :mod:`plant.logs.fileio`, and
 every target is checked before the identification starts (a bad one fails at
 once, exit status 1, nothing written):
 
@@ -43,7 +43,7 @@ Exit status
 1
     A bad log or a bad option value: one line ``error: ...`` on stderr, no
     traceback, and no output file.  A log whose signals cannot carry an
-    identification (:func:`plant.sanity.check_experiment`) is refused the
+    identification (:func:`plant.logs.sanity.check_experiment`) is refused the
     same way, before any work.  A write that fails after an earlier output
     was completed (the JSON, then a plot on a full disk) names the files
     already written in that line.
@@ -211,12 +211,12 @@ def _result_setting(result) -> str:
 
 
 def _check_output_targets(out, plot_dir, inputs):
-    """Check every output file before the run (plant.fileio policy); write nothing.
+    """Check every output file before the run (plant.logs.fileio policy); write nothing.
 
-    Returns the list of :class:`plant.fileio.OutputTarget` (JSON first, then
+    Returns the list of :class:`plant.logs.fileio.OutputTarget` (JSON first, then
     the PNGs).  Raises CLIError / OutputFileError with one line.
     """
-    from plant.fileio import check_output_path
+    from plant.logs.fileio import check_output_path
 
     targets = []
     if out is not None:
@@ -437,11 +437,11 @@ def _wrote(status, info, what="wrote"):
 
 
 def _save_plots(result, directory: Path, status, written=None) -> list:
-    """Write PLOT_FILES into ``directory`` atomically (plant.fileio policy).
+    """Write PLOT_FILES into ``directory`` atomically (plant.logs.fileio policy).
 
     ``written`` (a list) receives each path once it is complete.
     """
-    from plant.fileio import atomic_output, check_output_path
+    from plant.logs.fileio import atomic_output, check_output_path
 
     paths = []
     for name, make in zip(PLOT_FILES, (result.plot, result.plot_tracking_errors)):
@@ -476,7 +476,7 @@ def _run(args, stdout, stderr) -> int:
         args.method = api.DEFAULT_METHOD
     prior = _load_prior(args.prior) if args.prior else None
     log = plant.load_log(log_path)
-    from plant.sanity import check_experiment  # identify() checks too; here before any output
+    from plant.logs.sanity import check_experiment  # identify() checks too; here before any output
 
     check_experiment(log, n_parameters=4 if args.payload else 9 + len(log.rig.unknown_friction))
     if args.lowpass == "auto":
@@ -543,9 +543,9 @@ def _run(args, stdout, stderr) -> int:
 
 
 def _is_robot_model_log(log_path) -> bool:
-    """Whether the log's sidecar names a robot model (a ``robot`` object; :mod:`plant.arm_log`)."""
-    from plant.arm_log import is_arm_sidecar
-    from plant.sidecar import read_sidecar
+    """Whether the log's sidecar names a robot model (a ``robot`` object; :mod:`plant.logs.arm_log`)."""
+    from plant.logs.arm_log import is_arm_sidecar
+    from plant.logs.sidecar import read_sidecar
 
     side = Path(log_path).with_suffix(".json")
     if not side.is_file():
@@ -555,8 +555,8 @@ def _is_robot_model_log(log_path) -> bool:
 
 def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
     """The CLI on a robot model's log: :func:`identification.arm.identify_arm`."""
-    from plant.arm_log import load_arm_log
-    from plant.fileio import atomic_output, check_output_path
+    from plant.logs.arm_log import load_arm_log
+    from plant.logs.fileio import atomic_output, check_output_path
 
     from .api import METHODS
     from .arm import ARM_DEFAULT_METHOD, ARM_METHODS, identify_arm
@@ -616,7 +616,7 @@ def _main(argv, stdout, stderr) -> int:
     args = build_parser().parse_args(argv)
     args.written = []  # output files completed so far (said if a later one fails)
     import plant
-    from plant.fileio import OutputFileError
+    from plant.logs.fileio import OutputFileError
 
     try:
         return _run(args, stdout, stderr)

@@ -220,8 +220,8 @@ def _as_job(j) -> Job:
 
 def _is_arm_log(log) -> bool:
     """A robot model's log (an ArmLog, or a path whose sidecar names a robot)."""
-    from plant.arm_log import ArmLog, is_arm_sidecar
-    from plant.sidecar import read_sidecar
+    from plant.logs.arm_log import ArmLog, is_arm_sidecar
+    from plant.logs.sidecar import read_sidecar
 
     if isinstance(log, ArmLog):
         return True
@@ -239,7 +239,7 @@ def _run_job(index: int, log, seed, options: dict) -> JobResult:
         if isinstance(log, os.PathLike):
             log = os.fspath(log)
         if _is_arm_log(log):  # a robot model's log: identification.arm
-            from plant.arm_log import load_arm_log
+            from plant.logs.arm_log import load_arm_log
 
             options = {k: v for k, v in options.items() if k != "progress"}  # identify_many's default
             extra = set(options) - _IDENTIFY_ARM_KWARGS
@@ -248,7 +248,7 @@ def _run_job(index: int, log, seed, options: dict) -> JobResult:
                                  "logs, not a robot model's")
             arm_log = load_arm_log(log) if isinstance(log, str) else log
             result = identify_arm(arm_log, rng=seed, **options)
-            # its generated plant is rebuilt from the log's robot (plant.arm.arm_plant), not sent
+            # its generated plant is rebuilt from the log's robot (plant.simulation.arm.arm_plant), not sent
             result.pop("plant", None)
         else:
             result = identify(log, rng=seed, **options)

@@ -18,7 +18,7 @@ identification", IEEE Trans. Robot. Autom. 13, 1997), band-limited far below
 the P loop's ~10 Hz mode.  The start at rest:
 
 * start state q0 = 0 (the PUMA rigs): the quintic ramp ``w`` of
-  :mod:`plant.trajectory` (``t_ramp_s``, default ``min(0.3 s, duration / 5)``)
+  :mod:`plant.logs.trajectory` (``t_ramp_s``, default ``min(0.3 s, duration / 5)``)
   gives q(0) = 0, qd(0) = 0, qdd(0) = 0 with free offsets and phases;
 * any other q0: no ramp, phases 0 or pi (signed amplitudes: qd(0) = 0) and
   ``c_j = q0_j - sum_l A_jl`` (q(0) = q0).
@@ -39,7 +39,7 @@ logged-input prediction errors (:mod:`identification.refinement`), ``J`` their
 sensitivity to f, ``sigma^2 = 1/12`` pulse^2 (encoder quantisation).  That
 needs an emulated log and 10 replays per candidate (~0.5 s); the search
 instead minimises the same criterion computed from the information matrix of
-the *regressor* along the reference, ``Y^T Y`` (:func:`plant.model.regressor`;
+the *regressor* along the reference, ``Y^T Y`` (:func:`plant.robot.model.regressor`;
 equation error of constant variance), ~0.3 ms per candidate, and the
 ``RERANK`` best distinct candidates of the GA's final population are then
 ranked by the prediction-error criterion (:func:`predicted_f_std`), which
@@ -64,8 +64,8 @@ from pathlib import Path
 import numpy as np
 
 import plant
-from plant.model import regressor
-from plant.rig import rig_constants
+from plant.robot.model import regressor
+from plant.logs.rig import rig_constants
 
 __all__ = ["design_excitation", "predicted_f_std", "trajectory_limits", "regressor_rse",
            "DEFAULT_HARMONICS", "CURRENT_MARGIN"]
@@ -92,7 +92,7 @@ def _paper_range():
 
 
 def _friction(qd, c):
-    """Joint-side drive friction (:func:`plant.model.friction_torque`) on arrays (n, 2)."""
+    """Joint-side drive friction (:func:`plant.robot.model.friction_torque`) on arrays (n, 2)."""
     out = np.empty_like(qd)
     for j in range(2):
         r = np.clip(qd[:, j] / c.ramp_speed[j], -1.0, 1.0)
@@ -157,7 +157,7 @@ def trajectory_limits(trajectory, duration_s, rig, f, *, joint_limits_rad=None,
         The reference.
     duration_s : float
         Length of the run (s).
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
         Gear, torque constants, friction and gravity of the current check.
     f : array_like, shape (9,)
         Base parameters of the rigid model's inverse dynamics.
@@ -249,7 +249,7 @@ def _rse_from_states(q, qd, qdd, scale, g):
 
 def _template(rig, name="excitation", path="excitation.csv"):
     """A two-sample log carrying the rig (template of :func:`plant.emulate_log`)."""
-    from plant.log import ExperimentLog
+    from plant.logs.log import ExperimentLog
 
     z = np.zeros((2, 2))
     traj = plant.Trajectory.paper()
@@ -271,7 +271,7 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
 
     Parameters
     ----------
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
         The rig.
     trajectory : plant.Trajectory
         The reference.
@@ -323,7 +323,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
 
     Parameters
     ----------
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
         The rig (start state, gears, encoders, P gains, friction, search box,
         current full scale), e.g. ``plant.load_log(path).rig``.
     duration_s : float
@@ -517,8 +517,8 @@ def main(argv=None):
     import json
     import sys
 
-    from plant.fileio import write_text_atomic
-    from plant.sidecar import read_sidecar, rig_from_sidecar
+    from plant.logs.fileio import write_text_atomic
+    from plant.logs.sidecar import read_sidecar, rig_from_sidecar
 
     args = _parser().parse_args(argv)
     try:

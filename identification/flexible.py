@@ -1,6 +1,6 @@
 """Flexible joints identified from position-only logs, and the model choice.
 
-The two-mass plant (:class:`plant.plants.FlexibleJoints`, Spong's model: motor
+The two-mass plant (:class:`plant.simulation.plants.FlexibleJoints`, Spong's model: motor
 ``Jm k^2 th'' = k Kt i + tau_f(th') - tau_s``, link ``D_link(q) q'' + h + g =
 tau_s``, ``tau_s = K dz(th - q, b) + D (th' - q')`` with ``dz`` the gearbox
 backlash dead zone of width b, the encoder reads th) is identified through
@@ -40,7 +40,15 @@ Procedure (:func:`apply_model`, called by ``identify(model=...)``):
    held-back cost below :data:`CHOICE_RATIO` times the spring's; a width
    reported in ``joint_backlash_rad`` exceeds :data:`BACKLASH_SIGNIFICANCE`
    standard errors;
-5. the full fit starts from the held-back fit's point.
+5. the full fit starts from the held-back fit's point;
+6. a failed search is restarted: when the chosen model's held-back cost
+   exceeds :data:`RESTART_FRACTION` of the held-back samples' own error
+   energy (:func:`unexplained_fraction`) -- the GA's rigid f landed in a
+   basin from which no model predicts the log -- :func:`identification.identify`
+   runs the search and the model choice again, up to :data:`MAX_RESTARTS`
+   times with the same random stream continued (so the same seed gives the
+   same result), and keeps the attempt whose chosen model predicts the
+   held-back samples best (``model_choice['restarts']``).
 
 Safety (issue 20): a flexible fit whose simulated closed loop (the P
 experiment, quantised feedback, drive current limit) diverges, or whose
@@ -80,9 +88,9 @@ import math
 
 import numpy as np
 
-from plant.plants import FlexibleJoints
+from plant.simulation.plants import FlexibleJoints
 
-from plant.friction import FRICTION_NAMES, friction_fields
+from plant.simulation.friction import FRICTION_NAMES, friction_fields
 
 from .friction import default_friction_bounds, full_friction, unknown_friction_indices
 from .parameters import BaseParameters, Parameterisation, PayloadParameters, check_bounds
@@ -93,7 +101,7 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "apply_model", "held_back_cost", "quantisation_floor", "INADEQUATE_FACTOR",
            "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "CONTINUATION_GAINS", "CONTINUATION_FTOL",
            "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS",
-           "FlexiblePayloadParameters"]
+           "FlexiblePayloadParameters", "RESTART_FRACTION", "MAX_RESTARTS", "unexplained_fraction"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
 MODELS = ("rigid", "flexible", "auto")
@@ -158,7 +166,7 @@ class FlexibleParameters(Parameterisation):
     ``x = [f1..f9, log10 K2, log10 K3, D2, D3, r2, r3, b2, b3, friction...]``:
     the rigid-equivalent f, the joints, the backlash widths (with
     ``backlash=True``) and the drive friction components the sidecar does
-    not know (motor side, :data:`plant.friction.FRICTION_NAMES`; the box of
+    not know (motor side, :data:`plant.simulation.friction.FRICTION_NAMES`; the box of
     :func:`identification.friction.default_friction_bounds`; the paper: "if
     unknown, they have to be included as unknown parameters").
 
@@ -277,7 +285,7 @@ class FlexibleParameters(Parameterisation):
         return full_friction(np.asarray(x, dtype=float)[..., self._n_fixed():], log)
 
     def plant(self, log):
-        """A :class:`plant.plants.FlexibleJoints` (its lanes carry each candidate's joints).
+        """A :class:`plant.simulation.plants.FlexibleJoints` (its lanes carry each candidate's joints).
 
         Parameters
         ----------
@@ -491,7 +499,7 @@ def _consistent_start(f, xb):
     ``f2 = f1 / 2``; r2 is the largest of 1/2, 0.4, ..., 0.1 whose link model
     is positive definite.
     """
-    from plant.model import is_positive_definite
+    from plant.robot.model import is_positive_definite
 
     f = np.array(f, dtype=float)
     r3 = (f[0] - f[1]) / f[0] if f[0] > 0 else 0.5
@@ -836,6 +844,50 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None):
 #: describe the log: the result says so (:func:`apply_model`).
 INADEQUATE_FACTOR = 4.0
 
+#: A chosen model whose held-back prediction-error cost exceeds this fraction of
+#: the held-back samples' own error energy (``sum e^2`` of the log there)
+#: explains less than 90 % of what it was not fitted to: not a model-form limit
+#: (backlash or friction detail leaves a fraction of a percent) but a search
+#: that ended in the wrong basin; ``identify`` restarts it
+#: (:func:`unexplained_fraction`, :data:`MAX_RESTARTS`).
+RESTART_FRACTION = 0.1
+
+#: Restarts of the search (with the same random stream, continued) at most.
+MAX_RESTARTS = 2
+
+
+def unexplained_fraction(res, log):
+    """Held-back cost of the chosen model over the held-back samples' error energy.
+
+    ``c_held / sum_held e^2``: 0 for a model that predicts every held-back
+    pulse, about 1 for one that predicts nothing, above 1 for one that
+    predicts worse than nothing (the statistic of :data:`RESTART_FRACTION`;
+    ``1 - R^2`` of the held-back prediction).
+
+    Parameters
+    ----------
+    res : IdentificationResult
+        A result of the model choice (``model_choice`` with its held-back costs).
+    log : plant.ExperimentLog
+
+    Returns
+    -------
+    float or None
+        None when the model choice did not fit held-back blocks (a rigid
+        result at the quantisation floor, options outside the default).
+    """
+    choice = res.get("model_choice") or {}
+    key = ("held_back_cost_rigid_pulses2" if choice.get("model") == "rigid"
+           else "held_back_cost_flexible_pulses2")
+    cost = choice.get(key)
+    if cost is None:
+        return None
+    held = _hold_mask(log)[1]
+    energy = float(np.sum(np.asarray(log.e_pulses, dtype=float).reshape(-1)[held] ** 2))
+    if energy <= 0.0:
+        return None
+    return float(cost) / energy
+
 
 def _judge(res, log, choice, alternative):
     """Flag a chosen model whose held-back cost stays far above the quantisation floor.
@@ -873,7 +925,7 @@ class FlexiblePayloadParameters(PayloadParameters):
 
     The payload search of :class:`identification.parameters.PayloadParameters`
     (``x = [m, xp, yp, Jc]``, ``f = f_prior + M(a3) p``, rigid-equivalent),
-    simulated through the flexible plant (:class:`plant.plants.FlexibleJoints`)
+    simulated through the flexible plant (:class:`plant.simulation.plants.FlexibleJoints`)
     with the prior's stiffness, damping, reflected motor inertia and backlash
     fixed in every lane.  The window's start state has eight components:
     the motor's (what the encoder reads) is estimated from the window as for

@@ -3,12 +3,12 @@
 The paper (section 3): the drive constants "... if the last ones are unknown,
 then they have to be included as unknown parameters".  A sidecar with
 ``"viscous_friction_Nms_per_rad": null`` and/or ``"coulomb_friction_Nm": null``
-(:attr:`plant.rig.Rig.unknown_friction`) makes :func:`identification.identify`
+(:attr:`plant.logs.rig.Rig.unknown_friction`) makes :func:`identification.identify`
 wrap its parameterisation in :class:`FrictionParameters`: the searched vector
 is the wrapped one's followed by the unknown friction components (motor side,
 the sidecar's units: viscous B per joint, Coulomb Tc per joint and sign of
 the joint velocity), and the simulation runs the rigid plant with per-lane
-friction (:data:`plant.friction.RIGID_FRICTION`).  Both the GA and the
+friction (:data:`plant.simulation.friction.RIGID_FRICTION`).  Both the GA and the
 refinement search them with f: the output error and the prediction errors
 depend on the friction through the same simulation.
 
@@ -18,13 +18,13 @@ log applied, ``T = max |Kt i|`` (per joint), so ``0 <= Tc <= T`` and
 ``0 <= B <= T / w`` with ``w`` the largest motor speed of the reference
 (``|k| max |qd_ref|``).  The Coulomb ramp speed is the rig's (from
 ``coulomb_ramp_speed_rad_per_s``, the ``coulomb_friction_note`` or a
-documented default, :func:`plant.sidecar.rig_from_sidecar`).
+documented default, :func:`plant.logs.sidecar.rig_from_sidecar`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from plant.friction import FRICTION_NAMES, RIGID_FRICTION, friction_fields, friction_vector
+from plant.simulation.friction import FRICTION_NAMES, RIGID_FRICTION, friction_fields, friction_vector
 
 from .parameters import BaseParameters, Parameterisation, check_bounds
 
@@ -33,11 +33,11 @@ __all__ = ["FrictionParameters", "unknown_friction_indices", "default_friction_b
 
 
 def unknown_friction_indices(rig) -> list:
-    """Indices (into :data:`plant.friction.FRICTION_NAMES`) of the rig's unknown friction.
+    """Indices (into :data:`plant.simulation.friction.FRICTION_NAMES`) of the rig's unknown friction.
 
     Parameters
     ----------
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
 
     Returns
     -------
@@ -99,7 +99,7 @@ def full_friction(unknown_values, log) -> np.ndarray:
     Returns
     -------
     ndarray, shape (6,) or (m, 6)
-        In :data:`plant.friction.FRICTION_NAMES` order.
+        In :data:`plant.simulation.friction.FRICTION_NAMES` order.
     """
     v = np.asarray(unknown_values, dtype=float)
     V = np.tile(friction_vector(log.rig), v.shape[:-1] + (1,))
@@ -131,7 +131,7 @@ class FrictionParameters(Parameterisation):
     ``x = [x_base, friction]``: the wrapped parameterisation's vector, then
     the unknown components of ``(B2, B3, Tc2+, Tc2-, Tc3+, Tc3-)`` (those the
     sidecar gives as null; the known ones stay the sidecar's).  The
-    simulation is :data:`plant.friction.RIGID_FRICTION` with each
+    simulation is :data:`plant.simulation.friction.RIGID_FRICTION` with each
     candidate's friction.
 
     Parameters
@@ -205,7 +205,7 @@ class FrictionParameters(Parameterisation):
         return full_friction(np.asarray(x, dtype=float)[..., self._k(log):], log)
 
     def plant(self, log):
-        """:data:`plant.friction.RIGID_FRICTION`.
+        """:data:`plant.simulation.friction.RIGID_FRICTION`.
 
         Parameters
         ----------

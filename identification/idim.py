@@ -13,13 +13,13 @@ the paper's closed-loop output-error GA:
 3. the joint torque ``k Kt i`` from the logged currents (the current held
    over sample k acts around ``t_k + Ts/2``: averaged over samples k-1, k),
    plus the known joint-side drive friction at the filtered rates (it opposes
-   the motion, :func:`plant.model.friction_torque`), filtered by the *same*
+   the motion, :func:`plant.robot.model.friction_torque`), filtered by the *same*
    low-pass (parallel filtering: both sides of ``Y f = tau`` see the same
    filter);
 4. the equations of a joint near its velocity reversals are dropped
    (below);
 5. optional decimation, then ordinary least squares ``Y(q, qd, qdd) f = tau``
-   with :func:`plant.model.regressor`, the ends (filter transients) dropped.
+   with :func:`plant.robot.model.regressor`, the ends (filter transients) dropped.
 
 Cut-off rule
 ------------
@@ -76,7 +76,7 @@ sandwich ``(Z^T W)^-1 S (W^T Z)^-1`` with the Newey-West S of the scores
 Unknown friction
 ----------------
 A sidecar with ``"viscous_friction_Nms_per_rad": null`` and/or
-``"coulomb_friction_Nm": null`` (:attr:`plant.rig.Rig.unknown_friction`)
+``"coulomb_friction_Nm": null`` (:attr:`plant.logs.rig.Rig.unknown_friction`)
 does not know the drive friction, and ``k Kt i`` alone is not the joint
 torque.  As in the classical IDIM (M. Gautier and W. Khalil, "Exciting
 trajectories for the identification of base inertial parameters of robots",
@@ -85,7 +85,7 @@ excitation and identification", IEEE Trans. Robot. Autom. 13, 1997) the unknown 
 are identified with f as columns of the regressor
 (:func:`friction_columns`): the joint equation is
 ``Y f + k^2 B qd + abs(k) Tc r(qd) = k Kt i`` with the library's friction
-parameterisation (:data:`plant.friction.FRICTION_NAMES`: motor-side ``B2,
+parameterisation (:data:`plant.simulation.friction.FRICTION_NAMES`: motor-side ``B2,
 B3, Tc2+, Tc2-, Tc3+, Tc3-``; ``Tc+`` acts for a positive joint rate,
 ``Tc-`` otherwise) and the rig's linear Coulomb ramp ``r`` below its
 ``coulomb_ramp_speed`` (motor side), evaluated at the filtered rate and
@@ -123,8 +123,8 @@ import numpy as np
 from scipy import signal
 
 import plant
-from plant.model import friction_torque, regressor
-from plant.rig import rig_constants
+from plant.robot.model import friction_torque, regressor
+from plant.logs.rig import rig_constants
 
 from .uncertainty import RSE_WARN, poorly_excited, sandwich_covariance, structure_scale
 
@@ -216,11 +216,11 @@ def friction_columns(qd, c, k, unknown):
     """Regressor columns of the unknown motor-side friction, shape (n_samples, 2, n_unknown).
 
     The joint equation is ``Y f + k^2 B qd + abs(k) Tc r(qd) = k Kt i`` (the
-    friction opposes the motion, :func:`plant.model.friction_torque`), with
+    friction opposes the motion, :func:`plant.robot.model.friction_torque`), with
     ``r(qd) = clip(qd / v_ramp_joint, -1, 1)`` the rig's linear Coulomb ramp
     and ``Tc`` the level for the sign of ``qd`` (positive rate: ``Tc+``,
     otherwise ``Tc-``).  The unknowns are motor side, the sidecar's units and
-    :data:`plant.friction.FRICTION_NAMES` order (``B2, B3, Tc2+, Tc2-, Tc3+,
+    :data:`plant.simulation.friction.FRICTION_NAMES` order (``B2, B3, Tc2+, Tc2-, Tc3+,
     Tc3-``), so the columns are ``k_j^2 qd_j`` and ``abs(k_j) r(qd_j) [qd_j > 0]``,
     ``abs(k_j) r(qd_j) [qd_j <= 0]`` in the equations of joint j, zero in the
     other joint's.
@@ -229,7 +229,7 @@ def friction_columns(qd, c, k, unknown):
     ----------
     qd : ndarray, shape (n_samples, 2)
         Filtered joint rates (rad/s).
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         For the joint-side ramp speed ``v_ramp / abs(k)`` (rad/s).
     k : array_like, shape (2,)
         Gear ratios (motor angle = k joint angle).
@@ -259,7 +259,7 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
             reversal_guard=REVERSAL_GUARD):
     """Identify f1..f9 by IDIM-LS (inverse dynamic model, ordinary least squares).
 
-    When the rig does not know its drive friction (:attr:`plant.rig.Rig.unknown_friction`),
+    When the rig does not know its drive friction (:attr:`plant.logs.rig.Rig.unknown_friction`),
     the unknown motor-side components are identified with f: the regressor
     gets their columns (:func:`friction_columns`, evaluated at the filtered
     rates and filtered like the torque), the known ones stay subtracted
@@ -296,7 +296,7 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
         and ``wald`` (:func:`identification.uncertainty.structure_scale`,
         already applied to ``f_cov`` and ``x_cov``); the estimated vector
         ``x`` (9 + u,) = f then the u unknown friction components (motor
-        side, :data:`plant.friction.FRICTION_NAMES` order; u = 0 when the
+        side, :data:`plant.simulation.friction.FRICTION_NAMES` order; u = 0 when the
         rig knows its friction), ``x_names``, ``x_std`` (9 + u,), ``x_cov``
         (9 + u, 9 + u), ``friction_unknown`` (their indices into
         ``FRICTION_NAMES``) and ``friction`` (6,), the full motor-side
@@ -310,8 +310,8 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
         filter, or unknown friction the log cannot identify (a joint that
         never moves in one direction among the equations kept).
     """
-    from plant.friction import FRICTION_NAMES, friction_vector
-    from plant.rig import F_NAMES
+    from plant.simulation.friction import FRICTION_NAMES, friction_vector
+    from plant.logs.rig import F_NAMES
 
     from .friction import unknown_friction_indices
 
@@ -428,10 +428,10 @@ def _instruments(log, x, sos, sl, c, unknown=()):
         The IDIM low-pass (second-order sections).
     sl : slice
         The equations' samples.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         The log's rig constants (unknown friction zero).
     unknown : sequence of int
-        Indices into :data:`plant.friction.FRICTION_NAMES` of the unknown friction.
+        Indices into :data:`plant.simulation.friction.FRICTION_NAMES` of the unknown friction.
 
     Returns
     -------
@@ -442,7 +442,7 @@ def _instruments(log, x, sos, sl, c, unknown=()):
         current estimate of it (the rig's known friction, the unknown
         components from x, clipped at 0: a negative friction is no robot).
     """
-    from plant.synthetic import EMULATION_SUBSTEPS, CardPLaw
+    from plant.simulation.synthetic import EMULATION_SUBSTEPS, CardPLaw
 
     rig = log.rig
     ts = rig.sample_time_s
@@ -451,11 +451,11 @@ def _instruments(log, x, sos, sl, c, unknown=()):
     if len(unknown):
         from dataclasses import replace
 
-        from plant.friction import friction_vector
+        from plant.simulation.friction import friction_vector
 
         v = friction_vector(rig)
         v[list(unknown)] = np.maximum(np.asarray(x[9:], dtype=float), 0.0)
-        # the rigid plant reads the friction from the rig (plant.rig.rig_constants)
+        # the rigid plant reads the friction from the rig (plant.logs.rig.rig_constants)
         source = replace(rig, viscous_friction_Nms_per_rad=(float(v[0]), float(v[1])),
                          coulomb_friction_Nm=((float(v[2]), float(v[3])),
                                               (float(v[4]), float(v[5]))))
@@ -506,7 +506,7 @@ def identify_idim(log, *, substeps, workers=None, lowpass_hz=None, seed=None,
         error of eq. 4 at f, simulated with the identified friction when the
         rig's is unknown) and the model keys of
         :data:`identification.models.MODEL_KEYS`.  A rig with unknown
-        friction (:attr:`plant.rig.Rig.unknown_friction`) gives, as
+        friction (:attr:`plant.logs.rig.Rig.unknown_friction`) gives, as
         :func:`identification.identify`'s output-error methods do, ``x`` =
         f then the identified friction components (``x_names``, motor side),
         their standard errors ``x_std`` and correlations ``x_correlation``,

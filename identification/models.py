@@ -6,7 +6,8 @@ Every :class:`~identification.result.IdentificationResult` carries these keys
 and ``motor_inertia_reflected_kgm2`` (2 values each, ``None`` for a rigid
 result), ``joint_backlash_rad`` (2 gearbox backlash widths, rad, ``None`` when
 none is significant or the model is rigid), ``stage_times_s`` (seconds spent
-in compilation, the search, and the model choice with the flexible fits), ``viscous_friction_Nms_per_rad`` (2) and ``coulomb_friction_Nm``
+in compilation, the search, the model choice with the flexible fits, and
+the restarts of a failed search), ``viscous_friction_Nms_per_rad`` (2) and ``coulomb_friction_Nm``
 (2 x 2) -- identified, or echoed from the sidecar -- with
 ``friction_identified``, and ``model_choice`` (how ``model`` was chosen, see
 :mod:`identification.flexible`; None when it was not a choice).

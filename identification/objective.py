@@ -49,16 +49,16 @@ class OutputError:
     controller : object, optional
         The controller that ran, simulated in the loop (see
         :func:`plant.simulate_batch`; default the rig's P law).
-    plant : plant.plants.Plant, optional
+    plant : plant.simulation.plants.Plant, optional
         The simulated plant (default rigid); per-candidate parameters beyond
         f go to a call's ``plant_parameters``.
 
     Notes
     -----
     Candidates that fail (D(q) not positive definite, divergence) receive the
-    finite penalty documented in :mod:`plant.simulate`, so a rank-based
+    finite penalty documented in :mod:`plant.simulation.simulate`, so a rank-based
     optimiser can still order them; ``last_status`` holds the status codes
-    (:data:`plant.core.STATUS_OK`, ...) of the last call's candidates.  ``nfev``
+    (:data:`plant.simulation.core.STATUS_OK`, ...) of the last call's candidates.  ``nfev``
     counts simulated candidates.
     """
 

@@ -24,9 +24,9 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from plant.fileio import read_json_object
-from plant.payload import payload_delta_matrix, payload_from_vector
-from plant.rig import F_NAMES
+from plant.logs.fileio import read_json_object
+from plant.robot.payload import payload_delta_matrix, payload_from_vector
+from plant.logs.rig import F_NAMES
 
 __all__ = [
     "Parameterisation",
@@ -177,7 +177,7 @@ class Parameterisation(ABC):
         return None
 
     def plant(self, log):
-        """The simulated plant (default None: :data:`plant.plants.RIGID`).
+        """The simulated plant (default None: :data:`plant.simulation.plants.RIGID`).
 
         Parameters
         ----------
@@ -185,7 +185,7 @@ class Parameterisation(ABC):
 
         Returns
         -------
-        plant.plants.Plant or None
+        plant.simulation.plants.Plant or None
         """
         return None
 
@@ -367,7 +367,7 @@ class PayloadParameters(Parameterisation):
     inertia about the payload's own centre of mass), mapped to the linear
     payload vector ``p = [m, m xp, m yp, Jc + m (xp^2 + yp^2)]``
     (parallel-axis theorem) and to ``f = f_prior + M(a3) p``
-    (:func:`plant.payload.payload_delta_matrix`).  Every candidate is thus a
+    (:func:`plant.robot.payload.payload_delta_matrix`).  Every candidate is thus a
     rigid body with ``Jc >= 0`` (physical consistency; Wensing, Kim and
     Slotine, IEEE RA-L 3(1), 2018).  The refinement starts from four spread
     payloads without a GA, and the state at the log's first sample is

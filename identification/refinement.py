@@ -136,7 +136,7 @@ class PredictionErrorProblem:
     controller : object, optional
         The controller that ran (:func:`plant.prediction_errors`: a non-P
         controller is replayed by its logged currents).
-    plant : plant.plants.Plant, optional
+    plant : plant.simulation.plants.Plant, optional
         The simulated plant (default rigid).
     to_plant_parameters : callable, optional
         Maps x (m, k) to the plant parameters beyond f (a dict of arrays,

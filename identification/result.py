@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from plant.rig import F_NAMES
+from plant.logs.rig import F_NAMES
 
 from . import result_plots
 from .result_schema import (  # noqa: F401 (ResultFileError, write_json_atomic re-exported)
@@ -249,7 +249,7 @@ class IdentificationResult(OptimizeResult):
         Parameters
         ----------
         path : str or os.PathLike
-            Output file; written with the policy of :mod:`plant.fileio`
+            Output file; written with the policy of :mod:`plant.logs.fileio`
             (a symlink is written through, a special file is refused, an
             existing file keeps its permission bits; no partial file on
             error).
@@ -259,13 +259,13 @@ class IdentificationResult(OptimizeResult):
 
         Returns
         -------
-        plant.fileio.OutputTarget
+        plant.logs.fileio.OutputTarget
             The file written (``target``, a symlink's target) and the
             directories created (``created_dirs``).
 
         Raises
         ------
-        plant.fileio.OutputFileError
+        plant.logs.fileio.OutputFileError
             If the target is refused.
         OSError
             If writing fails.

@@ -3,7 +3,7 @@
 :class:`identification.IdentificationResult` is the container; this module
 holds what its JSON file is (:data:`REQUIRED_KEYS`, :func:`result_dict`,
 :func:`read_result_file`), how it is written (:func:`write_json_atomic`,
-the policy of :mod:`plant.fileio`) and the texts the file and the plots
+the policy of :mod:`plant.logs.fileio`) and the texts the file and the plots
 share (:func:`describe_setting`, :func:`format_output_error`).
 """
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plant.fileio import read_json_object, write_text_atomic
-from plant.rig import F_NAMES, F_UNITS
+from plant.logs.fileio import read_json_object, write_text_atomic
+from plant.logs.rig import F_NAMES, F_UNITS
 
 __all__ = ["REQUIRED_KEYS", "ResultFileError", "write_json_atomic", "jsonable",
            "describe_setting", "format_output_error", "result_dict", "read_result_file"]
@@ -32,7 +32,7 @@ class ResultFileError(ValueError):
 
 
 def write_json_atomic(path, data, *, create_dirs=True):
-    """Write ``data`` as JSON to ``path`` atomically (policy of :mod:`plant.fileio`).
+    """Write ``data`` as JSON to ``path`` atomically (policy of :mod:`plant.logs.fileio`).
 
     The text is produced first (``allow_nan=False``), so a value JSON cannot
     hold raises before anything is written; no partial file is ever left.
@@ -51,7 +51,7 @@ def write_json_atomic(path, data, *, create_dirs=True):
 
     Returns
     -------
-    plant.fileio.OutputTarget
+    plant.logs.fileio.OutputTarget
         The file written (``target``) and the directories created
         (``created_dirs``).
 
@@ -59,7 +59,7 @@ def write_json_atomic(path, data, *, create_dirs=True):
     ------
     TypeError, ValueError
         If ``data`` is not JSON-serialisable (nothing is written).
-    plant.fileio.OutputFileError
+    plant.logs.fileio.OutputFileError
         If the target is refused by the output-file policy.
     OSError
         If writing fails.

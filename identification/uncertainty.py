@@ -57,7 +57,7 @@ import warnings
 
 import numpy as np
 
-from plant.rig import F_NAMES
+from plant.logs.rig import F_NAMES
 
 __all__ = ["hac_lag", "sandwich_covariance", "parameter_uncertainty", "poorly_excited",
            "PoorExcitationWarning", "RSE_WARN", "RESULT_KEYS", "structure_scale",

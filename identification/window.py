@@ -2,7 +2,7 @@
 
 A robot that has worked for hours has no t = 0: a window log of its
 controller (sidecar ``window_s``) may come without a start state
-(:attr:`plant.rig.Rig.q0_rad` is None).  Its model then starts at the
+(:attr:`plant.logs.rig.Rig.q0_rad` is None).  Its model then starts at the
 window's first sample, from a state estimated from the window and refined
 with the searched parameters as nuisance parameters
 (``Parameterisation.initial_state``,

@@ -71,7 +71,7 @@ def drill_flex_path(dev_log_paths) -> Path:
 @pytest.fixture(scope="session")
 def paper_log(paper_rigid_path):
     """Loaded ``puma560_paper_rigid`` (an ``ExperimentLog``; immutable, shared)."""
-    from plant.log import load_log
+    from plant.logs.log import load_log
 
     return load_log(paper_rigid_path)
 
@@ -79,7 +79,7 @@ def paper_log(paper_rigid_path):
 @pytest.fixture(scope="session")
 def validation_log(validation_rigid_path):
     """Loaded ``puma560_validation_rigid``."""
-    from plant.log import load_log
+    from plant.logs.log import load_log
 
     return load_log(validation_rigid_path)
 
@@ -87,7 +87,7 @@ def validation_log(validation_rigid_path):
 @pytest.fixture(scope="session")
 def drill_log(drill_flex_path):
     """Loaded ``puma560_paper_drill_flex``."""
-    from plant.log import load_log
+    from plant.logs.log import load_log
 
     return load_log(drill_flex_path)
 

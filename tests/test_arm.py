@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 import plant
-from plant.arm import arm_plant, replay_arm, simulate_arm
-from plant.arm_log import ArmLog, emulate_arm_log, load_arm_log
-from plant.codegen import function_source
-from plant.core import plant_rhs
-from plant.rig import Rig, rig_constants
-from plant.robot_model import Link, RobotModel
-from plant.trajectory import Trajectory
+from plant.simulation.arm import arm_plant, replay_arm, simulate_arm
+from plant.logs.arm_log import ArmLog, load_arm_log
+from plant.simulation.synthetic import emulate_arm_log
+from plant.robot.codegen import function_source
+from plant.simulation.core import plant_rhs
+from plant.logs.rig import Rig, rig_constants
+from plant.robot.robot_model import Link, RobotModel
+from plant.logs.trajectory import Trajectory
 
 
 def planar_arm(**kw):
@@ -69,7 +70,7 @@ def test_arm_plant_is_the_models_forward_dynamics(arm):
         sc = tuple(v for a in q for v in (math.sin(a), math.cos(a)))
         xd, margin = plant_rhs(arm.kind, tuple(beta), c, tuple(q) + tuple(qd), tuple(u), sc)
         tau = np.asarray(c.torque_per_amp) * u + np.array(
-            [plant.model.friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
+            [plant.robot.model.friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
                                          c.ramp_speed[j]) for j in range(2)])
         D = model.inertia_matrix(q)
         qdd = np.linalg.solve(D, tau - model.coriolis_centrifugal(q, qd) - model.gravity_vector(q))
@@ -319,7 +320,7 @@ def test_generated_anchor_code_matches_its_reference():
     """The compiled per-angle anchor update and stage sin/cos equal their Python references."""
     import numba
 
-    from plant.anchors import lane_sincos, update_anchors, update_anchors_impl
+    from plant.simulation.anchors import lane_sincos, update_anchors, update_anchors_impl
 
     rng = np.random.default_rng(1)
     for m in (1, 3, 6):

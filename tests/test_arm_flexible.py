@@ -10,11 +10,11 @@ import pytest
 import plant
 from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
 from identification.arm import identify_arm
-from plant.arm import arm_plant, simulate_arm
-from plant.arm_log import load_arm_log
-from plant.rig import Rig
-from plant.robot_model import Link, RobotModel
-from plant.trajectory import Trajectory
+from plant.simulation.arm import arm_plant, simulate_arm
+from plant.logs.arm_log import load_arm_log
+from plant.logs.rig import Rig
+from plant.robot.robot_model import Link, RobotModel
+from plant.logs.trajectory import Trajectory
 
 DATA = Path(__file__).parent / "data" / "independent_arm"
 STEM = "indep_arm_planar2_compliant_backlash"
@@ -168,8 +168,8 @@ def test_generated_two_mass_arm_matches_the_independent_simulator():
     import math
     import sys
 
-    from plant.core import plant_rhs
-    from plant.rig import rig_constants
+    from plant.simulation.core import plant_rhs
+    from plant.logs.rig import rig_constants
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     import independent_arm as ia

@@ -15,7 +15,7 @@ import identification
 import plant
 from identification.cli import main
 from identification.uncertainty import PoorExcitationWarning
-from plant.sanity import check_experiment
+from plant.logs.sanity import check_experiment
 
 
 def _cli(argv, capsys):
@@ -114,7 +114,7 @@ def test_deeply_nested_json_is_one_line(paper_log, tmp_path, capsys):
     with pytest.raises(ValueError, match="nested too deeply"):
         identification.IdentificationResult.load_json(nested)
     with pytest.raises(ValueError, match="nested too deeply"):
-        plant.fileio.read_json_object(nested, "prior result file")
+        plant.logs.fileio.read_json_object(nested, "prior result file")
     stem = paper_log.save(tmp_path / "deep").with_suffix("")
     stem.with_suffix(".json").write_text(deep)
     with pytest.raises(plant.LogError, match="nested too deeply"):
@@ -141,9 +141,9 @@ def test_a_full_disk_names_the_file_and_what_was_written(paper_log, tmp_path, ca
     line = _one_error_line(status, err)
     assert "No space left on device" in line and f"written before the failure: {out}" in line
     # the atomic writer names the target itself
-    from plant.fileio import OutputFileError, write_text_atomic
+    from plant.logs.fileio import OutputFileError, write_text_atomic
 
-    monkeypatch.setattr(plant.fileio.os, "replace", full)
+    monkeypatch.setattr(plant.logs.fileio.os, "replace", full)
     with pytest.raises(OutputFileError, match=f"cannot write {tmp_path / 'x.txt'}: No space left"):
         write_text_atomic(tmp_path / "x.txt", "data")
     assert not (tmp_path / "x.txt").exists()

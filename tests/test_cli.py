@@ -609,12 +609,12 @@ def test_ctrl_c_wrapped_by_the_kernels(monkeypatch, tmp_path, capsys):
 
 
 def test_ctrl_c_while_writing_leaves_no_file(small_log_path, monkeypatch, tmp_path, capsys):
-    import plant.fileio
+    import plant.logs.fileio
 
     def replace(src, dst):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(plant.fileio.os, "replace", replace)
+    monkeypatch.setattr(plant.logs.fileio.os, "replace", replace)
     out = tmp_path / "out" / "o.json"
     status, stdout, err = run_main([small_log_path, "-o", out, "--quiet", *QUICK], capsys)
     assert status == 130

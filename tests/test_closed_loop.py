@@ -1,4 +1,4 @@
-"""Tests of plant.closed_loop: the protocol-driven closed-loop simulator."""
+"""Tests of plant.simulation.closed_loop: the protocol-driven closed-loop simulator."""
 from __future__ import annotations
 
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import DRILL_FLEX, PAPER_RIGID
-from plant.closed_loop import ClosedLoopResponse, FlexibleJoints, simulate_closed_loop
-from plant.simulate import simulate_experiment
+from plant.simulation.closed_loop import ClosedLoopResponse, FlexibleJoints, simulate_closed_loop
+from plant.simulation.simulate import simulate_experiment
 from ctc import PController
 
 SUBSTEPS = 24

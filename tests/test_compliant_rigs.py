@@ -9,7 +9,7 @@ import pytest
 import plant
 from ctc import PController
 from identification.flexible import INADEQUATE_FACTOR, FlexibleParameters, _judge
-from plant.plants import dead_zone
+from plant.simulation.plants import dead_zone
 
 
 def test_dead_zone_of_zero_width_is_the_identity_bit_for_bit():

@@ -2,7 +2,7 @@
 
 Issue 12: the P experiment in SIMD lanes, one candidate alone, the loop with
 a Python controller, and the logged-input replay all run
-``plant.core.advance_sample`` with the same rig layout, so they give the same
+``plant.simulation.core.advance_sample`` with the same rig layout, so they give the same
 pulses bit for bit on every development log.
 """
 import dataclasses
@@ -15,8 +15,8 @@ import pytest
 
 import plant
 from ctc import PController
-from plant.core import STATUS_OK
-from plant.rig import RigConstants, rig_constants
+from plant.simulation.core import STATUS_OK
+from plant.logs.rig import RigConstants, rig_constants
 
 SUBSTEPS = 8
 
@@ -31,7 +31,7 @@ def log_and_f(request, data_dir):
 
 def test_lane_single_and_controller_drivers_give_identical_pulses(log_and_f, monkeypatch):
     log, f = log_and_f
-    monkeypatch.setattr(plant.parallel, "MIN_LANES_PER_CHUNK", 1)  # 2 threads even for 16
+    monkeypatch.setattr(plant.simulation.parallel, "MIN_LANES_PER_CHUNK", 1)  # 2 threads even for 16
     rng = np.random.default_rng(0)
     F = np.vstack([f, f * (1 + 0.01 * rng.standard_normal((15, 9)))])
     lanes = plant.simulate_batch(log, F, substeps=SUBSTEPS, workers=2)  # 2 chunks of 8 lanes
@@ -73,7 +73,7 @@ def test_rig_layout_is_named_and_joint_side(paper_log):
 
 
 def test_chunks_have_enough_lanes():
-    from plant.parallel import MIN_LANES_PER_CHUNK, chunk_ranges
+    from plant.simulation.parallel import MIN_LANES_PER_CHUNK, chunk_ranges
 
     small = 2 * MIN_LANES_PER_CHUNK - 1
     assert chunk_ranges(small, 2) == [(0, small)]  # one thread: splitting would cost more
@@ -108,10 +108,10 @@ def test_a_new_plant_kind_must_be_registered(paper_log):
 
 def test_core_helpers_python_reference_matches_compiled(paper_log):
     """The helpers' Python bodies (the overloads' reference) give the compiled RK4 step bit for bit."""
-    from plant.core import (_all_finite, lane_parameters, lane_state, plant_rhs, rk4_lane,
+    from plant.simulation.core import (_all_finite, lane_parameters, lane_state, plant_rhs, rk4_lane,
                             store_lane_state)
-    from plant.friction import RIGID_FRICTION
-    from plant.plants import RIGID, FlexibleJoints
+    from plant.simulation.friction import RIGID_FRICTION
+    from plant.simulation.plants import RIGID, FlexibleJoints
 
     c = rig_constants(paper_log.rig)
     f = np.array([0.94, 0.36, 0.011, -0.39, 0.025, -0.89, 4.43, -0.10, 3.80])

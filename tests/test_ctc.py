@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from conftest import PAPER_RIGID
-from plant.closed_loop import simulate_closed_loop
-from plant.model import coriolis_centrifugal, friction_torque, gravity_vector, inertia_matrix, inverse_dynamics
+from plant.simulation.closed_loop import simulate_closed_loop
+from plant.robot.model import coriolis_centrifugal, friction_torque, gravity_vector, inertia_matrix, inverse_dynamics
 from ctc import ComputedTorqueController, GainDesign, PController, SampledController, design_gains
 from ctc import computed_torque as ctm
 
@@ -64,7 +64,7 @@ def test_friction_feedforward_and_current(ctc_true, f_true):
     fr = [friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
                           c.ramp_speed[j]) for j in range(2)]
     np.testing.assert_allclose(tau, inverse_dynamics(f_true, q, qd, qdd, r.gravity_m_s2) - fr, rtol=1e-12)
-    # joint-side constants of plant.rig.rig_constants
+    # joint-side constants of plant.logs.rig.rig_constants
     k = np.array(r.gear_ratio)
     assert c.viscous[0] == pytest.approx(k[0] ** 2 * r.viscous_friction_Nms_per_rad[0])
     assert c.coulomb_neg[1] == pytest.approx(abs(k[1]) * r.coulomb_friction_Nm[1][1])
@@ -252,7 +252,7 @@ def test_ctc_bad_options(paper_log, f_true, ctc_true):
 def test_friction_sx_matches_model():
     import casadi as ca
 
-    from plant.twin import friction_sx
+    from plant.simulation.twin import friction_sx
 
     x = ca.SX.sym("x")
     fn = ca.Function("fr", [x], [friction_sx(x, 0.8, 0.3, 0.5, 0.01)])
@@ -291,7 +291,7 @@ def test_casadi_evaluation_true_f(paper_log, ctc_true, f_true):
 
 def test_every_controller_follows_any_reference(paper_log):
     """trajectory= on from_log / from_result / the adaptive CTC (issue 21, item 6)."""
-    from plant.trajectory import Trajectory
+    from plant.logs.trajectory import Trajectory
 
     import ctc
 
@@ -306,5 +306,5 @@ def test_every_controller_follows_any_reference(paper_log):
     assert r.trajectory == other
     a = ctc.AdaptiveComputedTorqueController.from_log(f, paper_log, trajectory=other)
     assert a.trajectory == other and a._ctc.trajectory == other
-    with pytest.raises(ValueError, match="trajectory must be a plant.trajectory.Trajectory"):
+    with pytest.raises(ValueError, match="trajectory must be a plant.logs.trajectory.Trajectory"):
         ctc.ComputedTorqueController.from_log(f, paper_log, trajectory="paper")

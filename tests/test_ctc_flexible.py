@@ -9,7 +9,7 @@ import pytest
 import plant
 from ctc import ComputedTorqueController, FlexibleJointComputedTorqueController
 from identification.result import IdentificationResult
-from plant.plants import FlexibleJoints
+from plant.simulation.plants import FlexibleJoints
 
 JM = 200e-6
 AFTER_S = 0.1
@@ -129,7 +129,7 @@ def test_link_observer_places_the_error_poles(held_out):
     from scipy.linalg import expm
 
     from ctc.flexible import link_observer_gains
-    from plant.model import inertia_matrix
+    from plant.robot.model import inertia_matrix
 
     log, f, flex = held_out
     c = ComputedTorqueController.from_result(

@@ -24,10 +24,10 @@ def _modules():
     for name in PACKAGES:
         pkg = importlib.import_module(name)
         yield pkg
-        for info in pkgutil.iter_modules(pkg.__path__):
-            if info.name.startswith("_"):
+        for info in pkgutil.walk_packages(pkg.__path__, prefix=f"{name}."):
+            if info.name.rsplit(".", 1)[-1].startswith("_"):
                 continue
-            yield importlib.import_module(f"{name}.{info.name}")
+            yield importlib.import_module(info.name)
 
 
 def _public_objects():

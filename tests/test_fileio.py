@@ -1,4 +1,4 @@
-"""Tests of :mod:`plant.fileio`: the output-file policy (issue 11, part 4).
+"""Tests of :mod:`plant.logs.fileio`: the output-file policy (issue 11, part 4).
 
 Special files are refused and untouched, symlinks are written through (the
 link is kept, its target replaced), permission bits are kept, a missing
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant.fileio import (
+from plant.logs.fileio import (
     OutputFileError,
     atomic_output,
     check_output_path,

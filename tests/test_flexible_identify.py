@@ -109,3 +109,28 @@ def test_drill_log_with_no_options(drill_log, truth):
     K = np.asarray(t["emulator"]["variant"]["flex_stiffness"])
     assert np.all(np.abs(np.asarray(r.joint_stiffness_Nm_per_rad) - K) < 0.1 * K)
     assert r.model_choice["ratio"] < 0.5
+
+
+def test_failed_search_is_restarted(short_flexible_log, monkeypatch):
+    """A chosen model above RESTART_FRACTION of the held-back error energy is searched again
+    (forced here with a negative fraction): the attempts are listed, the best one is kept,
+    the nfev counts them all, and the same seed repeats the whole call."""
+    import identification.flexible as flexible_module
+
+    log, f, flex = short_flexible_log
+    base = identify(log, rng=0, progress=False)
+    frac0 = flexible_module.unexplained_fraction(base, log)
+    assert frac0 is not None and 0.0 <= frac0 < flexible_module.RESTART_FRACTION
+    assert "restarts" not in base.model_choice
+    monkeypatch.setattr(flexible_module, "RESTART_FRACTION", -1.0)
+    monkeypatch.setattr(flexible_module, "MAX_RESTARTS", 1)
+    r = identify(log, rng=0, progress=False)
+    attempts = r.model_choice["restarts"]
+    assert [a["attempt"] for a in attempts] == [0, 1]
+    assert attempts[0]["unexplained_fraction"] == pytest.approx(frac0, rel=1e-12)
+    kept = min(a["unexplained_fraction"] for a in attempts)
+    assert flexible_module.unexplained_fraction(r, log) == pytest.approx(kept, rel=1e-12)
+    assert r.nfev == sum(a["nfev"] for a in attempts) and "restarted 1 time" in r.message
+    assert r.stage_times_s["restarts"] > 0.0
+    r2 = identify(log, rng=0, progress=False)
+    np.testing.assert_array_equal(r2.f, r.f)

@@ -18,8 +18,8 @@ import plant
 from identification import identify
 from identification.idim import friction_columns, idim_ls
 from identification.uncertainty import PoorExcitationWarning
-from plant.friction import FRICTION_NAMES, friction_vector
-from plant.model import friction_torque
+from plant.simulation.friction import FRICTION_NAMES, friction_vector
+from plant.robot.model import friction_torque
 
 WELL_EXCITED = np.array([1, 2, 4, 6, 7, 9]) - 1
 
@@ -50,7 +50,7 @@ def _friction_of(r):
 
 
 def test_friction_columns_are_the_friction_model(paper_log):
-    """Columns times the motor-side friction = minus plant.model.friction_torque (ramp too)."""
+    """Columns times the motor-side friction = minus plant.robot.model.friction_torque (ramp too)."""
     c = plant.rig_constants(paper_log.rig)
     rng = np.random.default_rng(0)
     ramp = np.asarray(c.ramp_speed)

@@ -1,4 +1,4 @@
-"""Tests of plant.log: loading the development logs, windows, saving, and every bad input."""
+"""Tests of plant.logs.log: loading the development logs, windows, saving, and every bad input."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from plant._errors import LogError
-from plant.log import COLUMNS, ExperimentLog, example_log_path, load_example, load_log, rig_from_sidecar
-from plant.rig import Rig
-from plant.trajectory import Trajectory
+from plant.logs.log import COLUMNS, ExperimentLog, example_log_path, load_example, load_log, rig_from_sidecar
+from plant.logs.rig import Rig
+from plant.logs.trajectory import Trajectory
 
 PAPER_RIGID = "puma560_paper_rigid"
 VALIDATION_RIGID = "puma560_validation_rigid"

@@ -1,4 +1,4 @@
-"""The numeric (numba) model plant.model against the casadi derivation plant.symbolic.
+"""The numeric (numba) model plant.robot.model against the casadi derivation plant.robot.symbolic.
 
 Random base parameters are drawn from the paper's search ranges; every check
 runs at >= 200 random states.  Tolerance: 1e-12 relative to the size of the
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plant import model, symbolic
+from plant.robot import model, symbolic
 
 #: Search ranges of f1..f9 (the paper's, as in the development logs' sidecars).
 F_RANGES = np.array(
@@ -167,7 +167,7 @@ def test_inertia_symmetric_positive_definite_for_true_f(base, f_true):
 
 
 def test_christoffel_h_matches_numba(samples):
-    """h == C(q, qd) qd with C from the Christoffel symbols of D (plant.symbolic)."""
+    """h == C(q, qd) qd with C from the Christoffel symbols of D (plant.robot.symbolic)."""
     Cf = symbolic.derive_coriolis_matrix()
     for f, grav, q, qd, qdd, _ in samples[:16]:
         h = model.coriolis_centrifugal(f, q, qd)

@@ -1,4 +1,4 @@
-"""Tests of plant.payload: casadi derivation from eq. 3, closed form, inverse."""
+"""Tests of plant.robot.payload: casadi derivation from eq. 3, closed form, inverse."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,7 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from plant.payload import (
+from plant.robot.payload import (
     LINK_PARAMETER_NAMES,
     Payload,
     add_payload,

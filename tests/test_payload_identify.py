@@ -14,7 +14,7 @@ import pytest
 
 import identification
 import plant
-from plant.payload import payload_delta_matrix
+from plant.robot.payload import payload_delta_matrix
 
 PAPER_RIGID = "puma560_paper_rigid"
 DRILL = "puma560_paper_drill_flex"

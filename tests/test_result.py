@@ -274,7 +274,7 @@ def test_identify_fun_equals_plot_title(small_log):
 
 
 def test_save_json_missing_directory_created_and_reported(small_log, f_true, tmp_path):
-    from plant.fileio import OutputFileError
+    from plant.logs.fileio import OutputFileError
 
     res = make_result(small_log, f_true)
     path = tmp_path / "a" / "b" / "r.json"

@@ -1,4 +1,4 @@
-"""The robot model (plant.robot_model): DH table -> dynamics -> regressor -> base parameters."""
+"""The robot model (plant.robot.robot_model): DH table -> dynamics -> regressor -> base parameters."""
 import dataclasses
 import math
 from pathlib import Path
@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant import model as paper
-from plant.robot_model import (
+from plant.robot import model as paper
+from plant.robot.robot_model import (
     PUMA560_DH,
     PUMA560_LINKS23_BASIS,
     Link,
@@ -172,9 +172,9 @@ def test_bad_input_is_one_line(make, match):
 def test_docstring_examples():
     import doctest
 
-    import plant.robot_model
+    import plant.robot.robot_model
 
-    assert doctest.testmod(plant.robot_model, raise_on_error=False).failed == 0
+    assert doctest.testmod(plant.robot.robot_model, raise_on_error=False).failed == 0
 
 
 URDF_DIR = Path(__file__).parent / "data" / "urdf"

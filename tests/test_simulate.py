@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 import plant
-from plant.core import STATUS_DIVERGED, STATUS_NOT_PD, STATUS_OK, STATUS_STOPPED
-from plant.replay import prediction_errors
-from plant.simulate import DEFAULT_SUBSTEPS, default_bound, simulate_batch
+from plant.simulation.core import STATUS_DIVERGED, STATUS_NOT_PD, STATUS_OK, STATUS_STOPPED
+from plant.simulation.replay import prediction_errors
+from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound, simulate_batch
 
 
 def _true_f(truth, log):
@@ -132,7 +132,7 @@ def test_bad_substeps_raise(paper_log):
 
 def test_pure_replay_of_true_f_stays_in_count_intervals(paper_log, truth):
     """Driven by the logged current, the true model's count lies in every logged interval."""
-    from plant.simulate import reference_counts
+    from plant.simulation.simulate import reference_counts
 
     eps, status = prediction_errors(paper_log, _true_f(truth, paper_log), gain=0.0,
                                     substeps=DEFAULT_SUBSTEPS)
@@ -174,8 +174,8 @@ def test_lanes_and_single_lane_drivers_give_the_same_pulses(paper_log, validatio
 
 
 def test_casadi_twin_gives_the_same_pulses(paper_log, validation_log, truth):
-    """The casadi twin of the core (plant.twin) reproduces the numba pulses sample for sample."""
-    from plant.twin import simulate_experiment_twin
+    """The casadi twin of the core (plant.simulation.twin) reproduces the numba pulses sample for sample."""
+    from plant.simulation.twin import simulate_experiment_twin
 
     for log in (paper_log, validation_log):
         f = _true_f(truth, log)

@@ -1,4 +1,4 @@
-"""The casadi Lagrange derivation (plant.symbolic) against the base-parameter model.
+"""The casadi Lagrange derivation (plant.robot.symbolic) against the base-parameter model.
 
 Shows that the dynamics derived from the physical parameters depend on them
 only through the nine base parameters of eq. 3, that the model is linear in
@@ -11,7 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from plant import symbolic
+from plant.robot import symbolic
 
 N = 256  # random states / parameter sets per check
 RTOL = 1e-12

@@ -1,4 +1,4 @@
-"""Tests of plant.trajectory: the reference against the logs, analytic derivatives, parsing."""
+"""Tests of plant.logs.trajectory: the reference against the logs, analytic derivatives, parsing."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from plant._errors import LogError
-from plant.trajectory import Trajectory
+from plant.logs.trajectory import Trajectory
 
 PAPER_RIGID = "puma560_paper_rigid"
 VALIDATION_RIGID = "puma560_validation_rigid"
@@ -17,7 +17,7 @@ DEV_STEMS = (PAPER_RIGID, VALIDATION_RIGID, DRILL_FLEX)
 
 
 def _csv_columns(path):
-    """t and (q2_ref, q3_ref) read straight from the CSV, independent of plant.log."""
+    """t and (q2_ref, q3_ref) read straight from the CSV, independent of plant.logs.log."""
     data = np.loadtxt(path, delimiter=",", skiprows=1)
     return data[:, 0], data[:, 1:3]
 

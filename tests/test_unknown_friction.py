@@ -12,7 +12,7 @@ from identification import identify
 from identification.friction import (FrictionParameters, default_friction_bounds,
                                      unknown_friction_indices)
 from identification.result import IdentificationResult
-from plant.friction import RIGID_FRICTION, friction_vector, joint_side_friction
+from plant.simulation.friction import RIGID_FRICTION, friction_vector, joint_side_friction
 
 WELL_EXCITED = np.array([1, 2, 4, 6, 7, 9]) - 1
 
@@ -54,7 +54,7 @@ def test_unknown_coulomb_without_ramp_speed_uses_the_default(tmp_log):
         d["coulomb_friction_Nm"] = None
         d.pop("coulomb_friction_note", None)
         d.pop("coulomb_ramp_speed_rad_per_s", None)
-    from plant.sidecar import DEFAULT_UNKNOWN_RAMP_SPEED
+    from plant.logs.sidecar import DEFAULT_UNKNOWN_RAMP_SPEED
 
     log = plant.load_log(tmp_log(json_edit=edit))
     assert log.rig.coulomb_ramp_speed_rad_per_s == DEFAULT_UNKNOWN_RAMP_SPEED

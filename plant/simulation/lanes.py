@@ -14,9 +14,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .anchors import anchor_rows
-from .core import STATUS_OK, STATUS_STOPPED, new_workspace, padded_lanes
-from .parallel import as_float_array
+from plant.simulation.anchors import anchor_rows
+from plant.simulation.core import STATUS_OK, STATUS_STOPPED, new_workspace, padded_lanes
+from plant.simulation.parallel import as_float_array
 
 __all__ = ["Lanes", "new_lanes", "start_states", "lanes_from", "retire_lane", "final_objective"]
 
@@ -37,7 +37,7 @@ class Lanes(NamedTuple):
     U : ndarray, shape (n_u, lanes)
         Held motor currents (A).
     A : ndarray, shape (3 m, lanes)
-        Trigonometric anchors (:mod:`plant.anchors`).
+        Trigonometric anchors (:mod:`plant.simulation.anchors`).
     S : ndarray, shape (lanes,), int64
         Status per lane.
     E : ndarray, shape (lanes,)
@@ -45,7 +45,7 @@ class Lanes(NamedTuple):
     idx : ndarray, shape (lanes,), int64
         Candidate index of each lane.
     W : tuple of ndarray
-        Scratch of :func:`plant.core.advance_sample`: K1..K4 (n_x + 1,
+        Scratch of :func:`plant.simulation.core.advance_sample`: K1..K4 (n_x + 1,
         lanes), XS (n_x, lanes).
     """
 
@@ -62,7 +62,7 @@ class Lanes(NamedTuple):
 def new_lanes(Pall, lo, hi, x0, n_inputs=2, n_angles=2) -> Lanes:
     """Lane arrays of candidates ``lo:hi`` of ``Pall`` (n_par, m).
 
-    Columns beyond ``hi - lo`` (SIMD padding, :func:`plant.core.padded_lanes`)
+    Columns beyond ``hi - lo`` (SIMD padding, :func:`plant.simulation.core.padded_lanes`)
     are copies of the first candidate.
 
     Parameters
@@ -75,7 +75,7 @@ def new_lanes(Pall, lo, hi, x0, n_inputs=2, n_angles=2) -> Lanes:
         Start state.
     n_inputs, n_angles : int
         The plant's motor currents and angles (its registration,
-        :class:`plant.plants.RightHandSide`; 2 and 2 for the PUMA links 2-3).
+        :class:`plant.simulation.plants.RightHandSide`; 2 and 2 for the PUMA links 2-3).
 
     Returns
     -------
@@ -176,7 +176,7 @@ def retire_lane(P, X, U, A, S, E, idx, CS, j, act):
     P, X, U, A, S, E, idx : ndarray
         The lane arrays of :class:`Lanes`.
     CS : ndarray, shape (n_cs, lanes)
-        The lanes' controller states (:mod:`plant.controllers`).
+        The lanes' controller states (:mod:`plant.simulation.controllers`).
     j : int
         Lane to retire.
     act : int
@@ -197,14 +197,14 @@ def retire_lane(P, X, U, A, S, E, idx, CS, j, act):
 
 @_jit
 def final_objective(sse, status, compared, n, bound):
-    """Output error (pulses^2) of a finished candidate, with the penalties of :mod:`plant.simulate`.
+    """Output error (pulses^2) of a finished candidate, with the penalties of :mod:`plant.simulation.simulate`.
 
     Parameters
     ----------
     sse : float
         Running sum of squares when the candidate finished.
     status : int
-        Its status code (:mod:`plant.core`).
+        Its status code (:mod:`plant.simulation.core`).
     compared : int
         Log samples compared.
     n : int

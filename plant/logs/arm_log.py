@@ -1,6 +1,6 @@
 """Logs of any serial arm: CSV columns per named joint, the robot in the sidecar.
 
-A robot model's log is the PUMA log's format (:mod:`plant.log`) for n named
+A robot model's log is the PUMA log's format (:mod:`plant.logs.log`) for n named
 joints:
 
 * CSV header ``t_s, q<j>_ref_rad..., e<j>_pulses..., i<j>_A...`` with ``<j>``
@@ -41,14 +41,26 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import LogError
-from .fileio import write_text_atomic
-from .rig import Rig
-from .sidecar import read_sidecar, read_text, rig_from_sidecar, rig_into_sidecar, sidecar_error
-from .trajectory import Trajectory
+from plant._errors import LogError
+from plant.logs.fileio import write_text_atomic
+from plant.logs.rig import Rig
+from plant.logs.sidecar import read_sidecar, read_text, rig_from_sidecar, rig_into_sidecar, sidecar_error
+from plant.logs.trajectory import Trajectory
 
-__all__ = ["ArmLog", "load_arm_log", "robot_from_sidecar", "robot_section", "emulate_arm_log",
+__all__ = ["ArmLog", "load_arm_log", "robot_from_sidecar", "robot_section",
            "column_names", "is_arm_sidecar"]
+
+
+def __getattr__(name):
+    """``plant.logs.arm_log.emulate_arm_log`` (the name issue 23 gives it) is
+    :func:`plant.simulation.synthetic.emulate_arm_log`: the emulator is the
+    simulator's, so it is imported on first use (logs never import the
+    simulator at import time)."""
+    if name == "emulate_arm_log":
+        from plant.simulation.synthetic import emulate_arm_log
+
+        return emulate_arm_log
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def column_names(joint_names) -> list:
@@ -87,7 +99,7 @@ def robot_section(model) -> dict:
 
     Parameters
     ----------
-    model : plant.robot_model.RobotModel
+    model : plant.robot.robot_model.RobotModel
         A DH model (``convention`` standard or modified).
 
     Returns
@@ -115,7 +127,7 @@ def robot_section(model) -> dict:
 
 
 def robot_from_sidecar(section, gear_ratios, base_dir=".", source="sidecar"):
-    """The :class:`~plant.robot_model.RobotModel` of a sidecar's ``robot`` object.
+    """The :class:`~plant.robot.robot_model.RobotModel` of a sidecar's ``robot`` object.
 
     Parameters
     ----------
@@ -130,14 +142,14 @@ def robot_from_sidecar(section, gear_ratios, base_dir=".", source="sidecar"):
 
     Returns
     -------
-    plant.robot_model.RobotModel
+    plant.robot.robot_model.RobotModel
 
     Raises
     ------
     LogError
         A malformed section (one line naming the key).
     """
-    from .robot_model import Link, RobotModel
+    from plant.robot.robot_model import Link, RobotModel
 
     def err(msg):
         return sidecar_error(source, f"key 'robot' {msg}")
@@ -194,7 +206,7 @@ class ArmLog:
     path : Path or None
         The CSV file (None in memory).
     name : str
-    model : plant.robot_model.RobotModel
+    model : plant.robot.robot_model.RobotModel
         The robot (from the sidecar's ``robot`` object).
     rig : plant.Rig
         Rig constants (per-joint tuples of n).
@@ -239,8 +251,8 @@ class ArmLog:
 
     def reference_counts(self) -> np.ndarray:
         """Unquantised reference counts ``q_ref(t_k) k N / 2 pi`` at ``t_k = k Ts``, (n_samples, n)
-        (:func:`plant.arm.reference_counts`)."""
-        from .arm import reference_counts
+        (:func:`plant.simulation.arm.reference_counts`)."""
+        from plant.simulation.arm import reference_counts
 
         return reference_counts(self.trajectory, self.rig, self.n_samples)
 
@@ -274,57 +286,6 @@ class ArmLog:
         write_text_atomic(path, buf.getvalue())
         write_text_atomic(path.with_suffix(".json"), json.dumps(self.sidecar, indent=2) + "\n")
         return path
-
-
-def emulate_arm_log(plant, beta, rig, trajectory, n_samples, *, name="emulated", substeps=32,
-                    robot=None) -> ArmLog:
-    """A log of the rig's P-control experiment, made by the library's plant (:mod:`plant.arm`).
-
-    For tutorials and tests of the file format.  Acceptance evidence comes
-    from logs of an independent simulator (``benchmarks/independent_arm.py``).
-
-    Parameters
-    ----------
-    plant : plant.arm.ArmPlant
-        The robot.
-    beta : array_like, shape (r,)
-        Its true base parameters.
-    rig : plant.Rig
-    trajectory : plant.Trajectory
-    n_samples : int
-    name : str
-    substeps : int
-        RK4 steps per sample.
-    robot : dict, optional
-        The sidecar's ``robot`` object (default :func:`robot_section` of the
-        plant's model).
-
-    Returns
-    -------
-    ArmLog
-
-    Raises
-    ------
-    ValueError
-        If the simulation fails (D not positive definite, non-finite state).
-    """
-    from .arm import simulate_arm
-
-    sim = simulate_arm(plant, np.asarray(beta, dtype=float)[None], rig, trajectory, n_samples,
-                       substeps=substeps)
-    if sim.status[0] != 0:
-        raise ValueError(f"the emulated run failed: {sim.message[0]}")
-    e = sim.errors[0].astype(np.int64)
-    t = np.arange(int(n_samples)) * rig.sample_time_s
-    lim = math.inf if rig.current_full_scale_A is None else rig.current_full_scale_A
-    i = np.clip(e * np.asarray(rig.p_gain_A_per_pulse), -lim, lim)
-    sidecar = dict(dataset=name, robot=robot if robot is not None else robot_section(plant.model),
-                   n_samples=int(n_samples))
-    rig_into_sidecar(rig, sidecar)
-    sidecar.update(trajectory=dict(parameters=trajectory.to_parameters()),
-                   csv_columns={c: "" for c in column_names(plant.model.joint_names)})
-    return ArmLog(path=None, name=name, model=plant.model, rig=rig, trajectory=trajectory, t=t,
-                  q_ref=trajectory.position(t), e_pulses=e, i_A=i, sidecar=sidecar)
 
 
 def load_arm_log(path) -> ArmLog:

@@ -26,7 +26,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._errors import LogError
+from plant._errors import LogError
 
 __all__ = ["Trajectory"]
 

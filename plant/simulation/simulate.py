@@ -2,17 +2,17 @@
 
 The simulator reproduces what the rig's control card did, sample by sample
 (paper section 3), as a driver of the one closed-loop core
-(:mod:`plant.core`):
+(:mod:`plant.simulation.core`):
 
-* at ``t_k = k Ts`` the motor encoders are read (:func:`plant.core.encoder_read`,
+* at ``t_k = k Ts`` the motor encoders are read (:func:`plant.simulation.core.encoder_read`,
   ``act = trunc(q k N / 2 pi)``, trunc rounds toward zero) and the integer
   error ``e = ref - act`` is formed with ``ref = trunc(q_ref(t_k) k N / 2 pi)``;
 * the motor current ``i = P e`` is held over ``[t_k, t_k + Ts)`` (ZOH) and the
-  plant (rigid by default, :data:`plant.plants.RIGID`) is advanced by
-  :func:`plant.core.advance_sample` (``substeps`` RK4 steps).
+  plant (rigid by default, :data:`plant.simulation.plants.RIGID`) is advanced by
+  :func:`plant.simulation.core.advance_sample` (``substeps`` RK4 steps).
 
-All rig constants come from the log's sidecar (:func:`plant.rig.rig_constants`),
-the reference from its :class:`~plant.trajectory.Trajectory`, the start state
+All rig constants come from the log's sidecar (:func:`plant.logs.rig.rig_constants`),
+the reference from its :class:`~plant.logs.trajectory.Trajectory`, the start state
 from ``start_state``.  A log that is a window of a longer run is simulated
 from ``t = 0`` and compared on its own samples only -- unless the state at
 the window's first sample is given (``initial_state=``): then the simulation
@@ -26,8 +26,8 @@ positive definite (``det D <= 0`` or ``f1 <= 0`` at any Runge-Kutta stage),
 when the state becomes non-finite, or when a simulated error leaves
 ``bound`` pulses (by default 100 times the largest logged error, at least 100
 pulses).  Its simulation stops there and its status is set
-(:data:`~plant.core.STATUS_NOT_PD`, :data:`~plant.core.STATUS_NONFINITE`,
-:data:`~plant.core.STATUS_DIVERGED`).  Its output error (paper eq. 4) is then
+(:data:`~plant.simulation.core.STATUS_NOT_PD`, :data:`~plant.simulation.core.STATUS_NONFINITE`,
+:data:`~plant.simulation.core.STATUS_DIVERGED`).  Its output error (paper eq. 4) is then
 the **penalty**
 
     Y = sum over the samples compared so far of (e_log - e_model)^2
@@ -40,7 +40,7 @@ fails, so that a rank-based optimiser can still order failed candidates.
 Early termination
 -----------------
 With a ``cap`` (:func:`simulate_batch`) a candidate whose running sum passes
-the cap is stopped (:data:`~plant.core.STATUS_STOPPED`); its output error is
+the cap is stopped (:data:`~plant.simulation.core.STATUS_STOPPED`); its output error is
 the running sum extrapolated to the whole log, ``Y n_samples / n_compared``
 (> cap).
 """
@@ -55,9 +55,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from ._errors import SimulationError
-from .anchors import REANCHOR
-from .core import (
+from plant._errors import SimulationError
+from plant.simulation.anchors import REANCHOR
+from plant.simulation.core import (
     STATUS_DIVERGED,
     STATUS_MESSAGES,
     STATUS_OK,
@@ -67,8 +67,8 @@ from .core import (
     encoder_read,
     padded_lanes,
 )
-from .controllers import P_LAW, as_logged_controller, control_law
-from .lanes import (  # noqa: F401 (Lanes, new_lanes re-exported for the other drivers)
+from plant.simulation.controllers import P_LAW, as_logged_controller, control_law
+from plant.simulation.lanes import (  # noqa: F401 (Lanes, new_lanes re-exported for the other drivers)
     Lanes,
     final_objective,
     lanes_from,
@@ -76,9 +76,9 @@ from .lanes import (  # noqa: F401 (Lanes, new_lanes re-exported for the other d
     retire_lane,
     start_states,
 )
-from .parallel import as_float_array, check_workers, run_chunks
-from .plants import RIGID
-from .rig import RigConstants, rig_constants
+from plant.simulation.parallel import as_float_array, check_workers, run_chunks
+from plant.simulation.plants import RIGID
+from plant.logs.rig import RigConstants, rig_constants
 
 __all__ = [
     "DEFAULT_SUBSTEPS",
@@ -108,7 +108,7 @@ class SimulationInputs(NamedTuple):
 
     Attributes
     ----------
-    constants : plant.rig.RigConstants
+    constants : plant.logs.rig.RigConstants
         The rig layout of the log's sidecar.
     ref_counts : ndarray, shape (n_total, 2)
         Unquantised reference counts ``q_ref(t_k) k N / 2 pi`` from t = 0.
@@ -232,8 +232,8 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
     The driver of the logged run, in two modes (one compiled kernel):
 
     * experiment (``replay`` False): the closed loop of the control law
-      ``law`` (:func:`plant.controllers.control_law`; the rig's P loop ``i =
-      P e`` for :data:`plant.controllers.P_LAW`) with the integer error ``e
+      ``law`` (:func:`plant.simulation.controllers.control_law`; the rig's P loop ``i =
+      P e`` for :data:`plant.simulation.controllers.P_LAW`) with the integer error ``e
       = trunc(ref) - trunc(c)`` and the measured angles ``trunc(c) / (kN /
       2 pi)`` (``quantize``; otherwise the smooth surrogate ``ref - c`` and
       ``c / (kN / 2 pi)``), per-lane controller state ``CS``, the current
@@ -367,8 +367,8 @@ class ExperimentSimulation:
         Output error (paper eq. 4) against the log, pulses^2, with the penalty
         of the module docstring for failed candidates.
     status : ndarray, shape (n_candidates,)
-        :data:`~plant.core.STATUS_OK` or the failure code
-        (:data:`~plant.core.STATUS_MESSAGES`).
+        :data:`~plant.simulation.core.STATUS_OK` or the failure code
+        (:data:`~plant.simulation.core.STATUS_MESSAGES`).
     n_compared : ndarray, shape (n_candidates,)
         Log samples compared before the end of the run or the failure.
     """
@@ -454,13 +454,13 @@ def simulate_batch(
         Early termination: a candidate whose running sum of squares passes
         ``cap`` (pulses^2) stops there with status ``STATUS_STOPPED`` and
         objective ``Y n_samples / n_compared`` (> ``cap``).  Default: no cap.
-    plant : plant.plants.Plant, optional
-        The simulated plant (default :data:`plant.plants.RIGID`; e.g. a
-        :class:`plant.plants.FlexibleJoints`).
+    plant : plant.simulation.plants.Plant, optional
+        The simulated plant (default :data:`plant.simulation.plants.RIGID`; e.g. a
+        :class:`plant.simulation.plants.FlexibleJoints`).
     plant_parameters : dict, optional
         Per-candidate plant parameters beyond f, as keyword arguments of the
         plant's ``lane_parameters`` (e.g. ``friction`` (m, 6) of
-        :data:`plant.friction.RIGID_FRICTION`, or ``joints`` (m, 6) of a
+        :data:`plant.simulation.friction.RIGID_FRICTION`, or ``joints`` (m, 6) of a
         flexible plant).
     initial_state : array_like, shape (n_candidates, n_x) or (n_x,), optional
         State (q2, q3, qd2, qd3 for the rigid plant; rad, rad/s) at the log's
@@ -468,7 +468,7 @@ def simulate_batch(
         of at t = 0 (required for a window log without a start state).
     controller : object, optional
         The controller that ran (default: the rig's P law ``i = P e``): a
-        :class:`plant.controllers.LoggedController` or an object with a
+        :class:`plant.simulation.controllers.LoggedController` or an object with a
         ``logged_controller(log)`` method returning one (e.g. a
         :class:`ctc.ComputedTorqueController`); its compiled law runs in
         the loop of every lane.
@@ -570,8 +570,8 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
         the smooth surrogate.
     bound : float, optional
         Divergence bound on abs(e) in pulses (default :func:`default_bound`).
-    plant : plant.plants.Plant, optional
-        Default :data:`plant.plants.RIGID`.
+    plant : plant.simulation.plants.Plant, optional
+        Default :data:`plant.simulation.plants.RIGID`.
     plant_parameters : dict, optional
         Plant parameters beyond f (see :func:`simulate_batch`), for this one
         candidate.

@@ -2,13 +2,13 @@
 
 :func:`emulate_log` runs the rig's card -- encoder read, ``i = P e`` held over
 the sample -- against the rigid or the two-mass flexible plant of
-:mod:`plant.plants` through the one closed-loop core
+:mod:`plant.simulation.plants` through the one closed-loop core
 (:func:`plant.simulate_closed_loop`, converged RK4 substeps), and returns an
-:class:`~plant.log.ExperimentLog` with the same CSV columns and a sidecar
-synced to its rig and trajectory, ready to :meth:`~plant.log.ExperimentLog.save`.
+:class:`~plant.logs.log.ExperimentLog` with the same CSV columns and a sidecar
+synced to its rig and trajectory, ready to :meth:`~plant.logs.log.ExperimentLog.save`.
 Change the rig (encoders, gear, gains, friction) with
-:func:`dataclasses.replace` on a :class:`~plant.rig.Rig`, the reference with a
-:class:`~plant.trajectory.Trajectory`, the robot with f (a payload:
+:func:`dataclasses.replace` on a :class:`~plant.logs.rig.Rig`, the reference with a
+:class:`~plant.logs.trajectory.Trajectory`, the robot with f (a payload:
 :func:`plant.add_payload`) and the plant (flexible joints).
 
 It is how the project makes *held-out* logs at settings other than the
@@ -18,14 +18,18 @@ uncertainty estimates), and how the tests make logs with a known answer.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
-from .closed_loop import simulate_closed_loop
+from plant.logs.arm_log import ArmLog, column_names, robot_section
+from plant.logs.sidecar import rig_into_sidecar
+from plant.simulation.arm import simulate_arm
+from plant.simulation.closed_loop import simulate_closed_loop
 
-__all__ = ["emulate_log"]
+__all__ = ["emulate_log", "emulate_arm_log"]
 
-#: RK4 substeps of an emulated log (the pulses converge from 48; see plant.simulate).
+#: RK4 substeps of an emulated log (the pulses converge from 48; see plant.simulation.simulate).
 EMULATION_SUBSTEPS = 64
 
 
@@ -53,14 +57,14 @@ def emulate_log(base, f, *, rig=None, trajectory=None, duration_s=None, flexible
         it, and its rig and trajectory are the defaults.
     f : array_like, shape (9,)
         The robot's base parameters (rigid-equivalent for a flexible plant).
-    rig : plant.rig.Rig, optional
+    rig : plant.logs.rig.Rig, optional
         Rig constants (default ``base.rig``); its start state starts the run.
-    trajectory : plant.trajectory.Trajectory, optional
+    trajectory : plant.logs.trajectory.Trajectory, optional
         Reference (default ``base.trajectory``).
     duration_s : float, optional
         Length of the run (default: ``base``'s), ``n = round(duration / Ts) + 1``
         samples from t = 0.
-    flexible : plant.plants.FlexibleJoints, optional
+    flexible : plant.simulation.plants.FlexibleJoints, optional
         Emulate two-mass flexible joints instead of the rigid robot.
     current_noise_A : float
         Standard deviation of white noise added to the *logged* currents (A);
@@ -109,3 +113,52 @@ def emulate_log(base, f, *, rig=None, trajectory=None, duration_s=None, flexible
         path=base.path.with_name(name + ".csv"), name=name, t=resp.t, q_ref=resp.q_ref,
         e_pulses=resp.e_pulses, i_A=i_log, rig=dataclasses.replace(rig), trajectory=trajectory,
         start_index=0, window_s=None)
+
+
+def emulate_arm_log(plant, beta, rig, trajectory, n_samples, *, name="emulated", substeps=32,
+                    robot=None) -> ArmLog:
+    """A log of the rig's P-control experiment, made by the library's plant (:mod:`plant.simulation.arm`).
+
+    For tutorials and tests of the file format.  Acceptance evidence comes
+    from logs of an independent simulator (``benchmarks/independent_arm.py``).
+
+    Parameters
+    ----------
+    plant : plant.simulation.arm.ArmPlant
+        The robot.
+    beta : array_like, shape (r,)
+        Its true base parameters.
+    rig : plant.Rig
+    trajectory : plant.Trajectory
+    n_samples : int
+    name : str
+    substeps : int
+        RK4 steps per sample.
+    robot : dict, optional
+        The sidecar's ``robot`` object (default :func:`robot_section` of the
+        plant's model).
+
+    Returns
+    -------
+    ArmLog
+
+    Raises
+    ------
+    ValueError
+        If the simulation fails (D not positive definite, non-finite state).
+    """
+    sim = simulate_arm(plant, np.asarray(beta, dtype=float)[None], rig, trajectory, n_samples,
+                       substeps=substeps)
+    if sim.status[0] != 0:
+        raise ValueError(f"the emulated run failed: {sim.message[0]}")
+    e = sim.errors[0].astype(np.int64)
+    t = np.arange(int(n_samples)) * rig.sample_time_s
+    lim = math.inf if rig.current_full_scale_A is None else rig.current_full_scale_A
+    i = np.clip(e * np.asarray(rig.p_gain_A_per_pulse), -lim, lim)
+    sidecar = dict(dataset=name, robot=robot if robot is not None else robot_section(plant.model),
+                   n_samples=int(n_samples))
+    rig_into_sidecar(rig, sidecar)
+    sidecar.update(trajectory=dict(parameters=trajectory.to_parameters()),
+                   csv_columns={c: "" for c in column_names(plant.model.joint_names)})
+    return ArmLog(path=None, name=name, model=plant.model, rig=rig, trajectory=trajectory, t=t,
+                  q_ref=trajectory.position(t), e_pulses=e, i_A=i, sidecar=sidecar)

@@ -42,7 +42,7 @@ and the PUMA 560 links 2--3 base parameters against the paper's eq. 3.
 
 Scope today: the model, its dynamics and its base parameters.  The closed
 loop, the identification and the controllers still run on the PUMA 560
-links 2--3 model of :mod:`plant.model` (issue 23 carries them to n joints).
+links 2--3 model of :mod:`plant.robot.model` (issue 23 carries them to n joints).
 """
 from __future__ import annotations
 
@@ -377,7 +377,7 @@ class RobotModel:
 
     Examples
     --------
-    >>> from plant.robot_model import Link, RobotModel
+    >>> from plant.robot.robot_model import Link, RobotModel
     >>> arm = RobotModel([Link(a=1.0, mass=1.0, com=(-0.5, 0, 0)),
     ...                   Link(a=1.0, mass=1.0, com=(-0.5, 0, 0))],
     ...                  gravity=(0, -9.81, 0), name="planar 2-link")
@@ -389,7 +389,7 @@ class RobotModel:
                  gravity=(0.0, 0.0, -9.81), name="robot", joint_names=None):
         links = tuple(links)
         if not links or not all(isinstance(l, Link) for l in links):
-            raise ValueError("links must be a non-empty sequence of plant.robot_model.Link")
+            raise ValueError("links must be a non-empty sequence of plant.robot.robot_model.Link")
         if convention not in CONVENTIONS:
             raise ValueError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
         n_all = len(links)
@@ -475,7 +475,7 @@ class RobotModel:
         The joint angles enter only through their sine and cosine, so the
         kinematics are written in them and time derivatives take the chain
         rule ``ds/dt = c qd``, ``dc/dt = -s qd``.  This form is the one the
-        compiled plant evaluates (:mod:`plant.arm`: sine and cosine come from
+        compiled plant evaluates (:mod:`plant.simulation.arm`: sine and cosine come from
         the core's anchors); :attr:`_tau_sx` substitutes ``sin q, cos q``.
         """
         _, qd, qdd, p = self._symbols
@@ -1079,12 +1079,12 @@ PUMA560_DH = (
 
 def _paper_regressor(q, qd, qdd, g=9.81):
     """The paper's f1..f9 regressor in Robotics Toolbox's joint convention (q_paper = -q)."""
-    from .model import regressor
+    from plant.robot.model import regressor
 
     return -regressor(-np.asarray(q, float), -np.asarray(qd, float), -np.asarray(qdd, float), g)
 
 
-#: The paper's base parameters f1..f9 (eq. 3; :mod:`plant.model`) as a named
+#: The paper's base parameters f1..f9 (eq. 3; :mod:`plant.robot.model`) as a named
 #: basis of ``RobotModel.puma560()`` (joints 2 and 3 in Robotics Toolbox's
 #: convention).  Not minimal: the geometry ties ``f3 = a3 f5`` and ``f4 = a3 f6``
 #: (a3 = 0.4318 m), which the paper leaves free.

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from ._errors import LogError
+from plant._errors import LogError
 
 __all__ = ["check_experiment", "MIN_SAMPLES", "SAMPLES_PER_PARAMETER", "MAX_JOINT_SPEED",
            "CURRENT_FACTOR", "MAX_CURRENT_A", "P_LAW_RELATIVE", "P_LAW_NOISE_A"]

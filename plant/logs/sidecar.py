@@ -1,9 +1,9 @@
 """The JSON sidecar of a rig log: rig constants, trajectory, start state, window.
 
 :func:`rig_from_sidecar` reads a sidecar's rig constants into a
-:class:`plant.rig.Rig` (raising :class:`plant.LogError` with a one-line
+:class:`plant.logs.rig.Rig` (raising :class:`plant.LogError` with a one-line
 message naming the key at fault); the inverse writes a rig back into a
-sidecar dict (:meth:`plant.log.ExperimentLog.save`).
+sidecar dict (:meth:`plant.logs.log.ExperimentLog.save`).
 """
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import re
 from pathlib import Path
 from typing import Any, Mapping
 
-from ._errors import LogError
-from .rig import F_NAMES, Rig
+from plant._errors import LogError
+from plant.logs.rig import F_NAMES, Rig
 
 __all__ = ["rig_from_sidecar"]
 
@@ -125,7 +125,7 @@ def _ramp_speed_from_note(note: Any) -> float | None:
 
 def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar", n_joints: int = 2,
                      robot_model: bool = False) -> Rig:
-    """Build the :class:`~plant.rig.Rig` described by a log sidecar.
+    """Build the :class:`~plant.logs.rig.Rig` described by a log sidecar.
 
     Parameters
     ----------
@@ -155,7 +155,7 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar", n_join
         Length of the per-joint lists (2 for the PUMA links 2-3).
     robot_model : bool, optional
         The log of a robot model's arm (a ``robot`` object in the sidecar,
-        :mod:`plant.arm_log`): ``a3_m`` and ``f_search_ranges`` (PUMA links
+        :mod:`plant.logs.arm_log`): ``a3_m`` and ``f_search_ranges`` (PUMA links
         2-3 only) are not read.
 
     Returns
@@ -178,7 +178,7 @@ def rig_from_sidecar(sidecar: Mapping[str, Any], source: Any = "sidecar", n_join
     ppr = k.vector("encoder_ppr", nj, integer=True, positive=True)
     p_gain = k.vector("p_gain_A_per_pulse", nj, positive=True)
     kt = k.vector("torque_constant_Nm_per_A", nj, positive=True)
-    # null or absent friction: unknown (None), identified with f (plant.friction)
+    # null or absent friction: unknown (None), identified with f (plant.simulation.friction)
     visc = None
     if sidecar.get("viscous_friction_Nms_per_rad") is not None:
         visc = k.vector("viscous_friction_Nms_per_rad", nj, nonneg=True)
@@ -273,7 +273,7 @@ def rig_into_sidecar(rig: Rig, d: dict) -> None:
 
     ``a3_m`` and ``f_search_ranges`` describe the PUMA 560 links 2-3: they
     are written for a rig with search ranges (``rig.f_bounds``), not for a
-    robot model's rig (:mod:`plant.arm_log`).
+    robot model's rig (:mod:`plant.logs.arm_log`).
     """
     d["sample_time_s"] = float(rig.sample_time_s)
     d["gear_ratio"] = [float(x) for x in rig.gear_ratio]

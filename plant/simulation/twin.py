@@ -1,11 +1,11 @@
 """casadi twin of the closed-loop core: the same sample step as a symbolic graph.
 
-The twin mirrors :mod:`plant.core` with the casadi model of
-:mod:`plant.symbolic` (derived by Lagrange's equations): encoder read,
+The twin mirrors :mod:`plant.simulation.core` with the casadi model of
+:mod:`plant.robot.symbolic` (derived by Lagrange's equations): encoder read,
 cell centre, and the one-sample step -- the motor current held over the
 sample, joint torque ``k Kt i`` plus the drive friction, ``substeps``
 classical RK4 steps of the rigid right-hand side with the same stage
-arithmetic as :func:`plant.core.advance_sample`.  It serves two purposes:
+arithmetic as :func:`plant.simulation.core.advance_sample`.  It serves two purposes:
 
 * an independent check of the compiled core: :func:`simulate_experiment_twin`
   runs the logged P experiment through it, and the tests compare its pulses
@@ -18,8 +18,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .rig import RigConstants, rig_constants
-from .symbolic import derive_base_model
+from plant.logs.rig import RigConstants, rig_constants
+from plant.robot.symbolic import derive_base_model
 
 __all__ = [
     "friction_sx",
@@ -32,7 +32,7 @@ __all__ = [
 
 
 def friction_sx(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
-    """casadi form of :func:`plant.model.friction_torque` (joint side, N m).
+    """casadi form of :func:`plant.robot.model.friction_torque` (joint side, N m).
 
     ``-(viscous qd + Tc clip(qd / ramp_speed, -1, 1))`` with ``Tc =
     coulomb_pos`` for qd > 0 and ``coulomb_neg`` otherwise.
@@ -42,7 +42,7 @@ def friction_sx(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
     qd : casadi.SX
         Joint rate (rad/s).
     viscous, coulomb_pos, coulomb_neg, ramp_speed : float
-        Joint-side constants (:class:`plant.rig.RigConstants`).
+        Joint-side constants (:class:`plant.logs.rig.RigConstants`).
 
     Returns
     -------
@@ -68,7 +68,7 @@ def trunc_sx(x):
 
 
 def cell_centre_sx(count):
-    """casadi form of :func:`plant.core.cell_centre`: ``count + 0.5 sign(count)``.
+    """casadi form of :func:`plant.simulation.core.cell_centre`: ``count + 0.5 sign(count)``.
 
     Parameters
     ----------
@@ -83,13 +83,13 @@ def cell_centre_sx(count):
 
 
 def rigid_rhs_sx(f, c: RigConstants, x, i):
-    """Right-hand side of the rigid robot (twin of :func:`plant.plants.rigid_rhs`).
+    """Right-hand side of the rigid robot (twin of :func:`plant.simulation.plants.rigid_rhs`).
 
     Parameters
     ----------
     f : casadi.SX or DM, shape (9,)
         Base parameters.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout.
     x : casadi.SX, shape (4,)
         State (q2, q3, qd2, qd3).
@@ -113,13 +113,13 @@ def rigid_rhs_sx(f, c: RigConstants, x, i):
 def sample_step_function(c: RigConstants, substeps: int) -> ca.Function:
     """One sample of the rigid plant under held currents, as a casadi Function.
 
-    The twin of :func:`plant.core.advance_sample` for the rigid plant: RK4
+    The twin of :func:`plant.simulation.core.advance_sample` for the rigid plant: RK4
     with ``substeps`` steps of ``Ts / substeps``, stages ``X + c K`` as in
     the core.
 
     Parameters
     ----------
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout (Ts, drive constants, gravity).
     substeps : int
         RK4 steps per sample (>= 1).

@@ -1,7 +1,7 @@
 """Compiling the simulation kernels before a timed run (numba's on-disk cache).
 
-The kernels of the logged run (:mod:`plant.simulate`) and of the
-any-controller loop (:mod:`plant.closed_loop`) are compiled on their first
+The kernels of the logged run (:mod:`plant.simulation.simulate`) and of the
+any-controller loop (:mod:`plant.simulation.closed_loop`) are compiled on their first
 call and cached on disk by numba; :func:`warm_up` makes that call on a
 three-sample problem, so that a timed run afterwards excludes compilation.
 """
@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import time
 
-from . import closed_loop as loop_module
-from . import simulate
-from .simulate import log_chunk, warm_arguments
+from plant.simulation import closed_loop as loop_module
+from plant.simulation import simulate
+from plant.simulation.simulate import log_chunk, warm_arguments
 
 __all__ = ["warm_up", "kernels_cached"]
 

@@ -1,20 +1,20 @@
 """A robot model's rigid arm in the closed-loop core: generated right-hand side and logged runs.
 
-:func:`arm_plant` turns a :class:`plant.robot_model.RobotModel` (any serial
+:func:`arm_plant` turns a :class:`plant.robot.robot_model.RobotModel` (any serial
 arm of revolute joints, from a DH table or a URDF) into a plant of the one
-closed-loop core (:mod:`plant.core`): the rigid multibody dynamics of its
+closed-loop core (:mod:`plant.simulation.core`): the rigid multibody dynamics of its
 active joints in its **base parameters** beta (numerical QR, Gautier 1990;
-:meth:`~plant.robot_model.RobotModel.base_parameters`),
+:meth:`~plant.robot.robot_model.RobotModel.base_parameters`),
 
 .. math::
 
     D(q; \\beta)\\,\\ddot q + n(q, \\dot q; \\beta) = k K_t\\, i + \\tau_f(\\dot q),
 
-with the drive's joint-side friction ``tau_f`` (:func:`plant.model.friction_torque`,
+with the drive's joint-side friction ``tau_f`` (:func:`plant.robot.model.friction_torque`,
 the rig's, per joint) and the torque ``k Kt i`` of the held motor current.
 casadi writes D and n in the sines and cosines of the joint angles
-(:attr:`~plant.robot_model.RobotModel`'s Newton--Euler derivation), the
-code generator :mod:`plant.codegen` turns them into straight-line code, and
+(:attr:`~plant.robot.robot_model.RobotModel`'s Newton--Euler derivation), the
+code generator :mod:`plant.robot.codegen` turns them into straight-line code, and
 the generated right-hand side solves ``D qdd = tau - n`` by an unrolled
 Cholesky factorisation whose smallest pivot is the core's
 positive-definiteness margin.  The code is generated once per robot (the
@@ -23,7 +23,7 @@ one robot's kernels are specialised at its joint count; two robots live
 side by side in one process (each its own kind).
 
 Drivers of the core for the arm, both in lanes (one candidate beta per
-column, :mod:`plant.lanes`):
+column, :mod:`plant.simulation.lanes`):
 
 * :func:`simulate_arm` -- the logged experiment: the rig's P loop ``i = P e``
   with the integer error ``e = trunc(q_ref k N / 2 pi) - trunc(q k N / 2
@@ -48,14 +48,14 @@ import casadi as ca
 import numba
 import numpy as np
 
-from .anchors import REANCHOR
-from .codegen import function_source
-from .core import STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, advance_sample, cell_centre, encoder_read, padded_lanes
-from .lanes import new_lanes
-from .parallel import run_chunks
-from .model import friction_torque
-from .plants import Plant, register_plant
-from .rig import rig_constants
+from plant.simulation.anchors import REANCHOR
+from plant.robot.codegen import function_source
+from plant.simulation.core import STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, advance_sample, cell_centre, encoder_read, padded_lanes
+from plant.simulation.lanes import new_lanes
+from plant.simulation.parallel import run_chunks
+from plant.robot.model import friction_torque
+from plant.simulation.plants import Plant, register_plant
+from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
            "reference_counts", "ARM_SUBSTEPS", "link_mode_bound"]
@@ -85,9 +85,9 @@ class ArmPlant(Plant):
     encoder_row : int
         First state row the encoders read: 0 (the joint angles) for a rigid
         arm, 2 n (the motor angles) for a flexible one.
-    model : plant.robot_model.RobotModel
+    model : plant.robot.robot_model.RobotModel
         The robot.
-    base : plant.robot_model.BaseParameterSet
+    base : plant.robot.robot_model.BaseParameterSet
         Its base parameters (names, regrouping ``beta = K p``).
     source : str
         The generated right-hand side (Python source compiled by numba).
@@ -133,7 +133,7 @@ class ArmPlant(Plant):
         """How each reflected motor inertia ``Ia_j = Jm_j k_j^2`` enters beta, shape (n, r).
 
         Row j is the column of ``Ia_j`` in the regrouping ``beta = K p``
-        (:class:`~plant.robot_model.BaseParameterSet`): the rigid-equivalent
+        (:class:`~plant.robot.robot_model.BaseParameterSet`): the rigid-equivalent
         beta of a flexible arm is its link's beta plus ``Ia @ columns``.
         """
         names = list(self.model.standard_parameter_names)
@@ -230,7 +230,7 @@ def _dynamics_function(model, base) -> ca.Function:
 
 
 def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
-    """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.core`).
+    """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.simulation.core`).
 
     With ``lane_friction`` the joint-side friction of joint j is the lane's
     ``p[o + 3 j : o + 3 j + 3]`` (viscous, Coulomb for positive and for
@@ -317,13 +317,13 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
     control of elastic joint robots", J. Dyn. Syst. Meas. Control 109 (1987);
     backlash as a dead zone: M. Nordin and P.-O. Gutman, Automatica 38
     (2002).  The PUMA 560 links 2-3 instance is
-    :class:`plant.plants.FlexibleJoints`.
+    :class:`plant.simulation.plants.FlexibleJoints`.
 
     Parameters
     ----------
-    model : plant.robot_model.RobotModel
+    model : plant.robot.robot_model.RobotModel
         The robot (its active joints are the plant's joints).
-    base : plant.robot_model.BaseParameterSet, optional
+    base : plant.robot.robot_model.BaseParameterSet, optional
         Its QR base parameters (default ``model.base_parameters()``).
     lane_friction : bool
         Take the joint-side drive friction per lane, as parameters after beta
@@ -338,7 +338,7 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
     Returns
     -------
     ArmPlant
-        Registered in :data:`plant.plants.RIGHT_HAND_SIDES` under a kind of
+        Registered in :data:`plant.simulation.plants.RIGHT_HAND_SIDES` under a kind of
         its own; the same robot (same generated code) gives the same plant.
 
     Raises
@@ -346,7 +346,7 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
     ValueError
         If ``model`` is not a RobotModel, or ``base`` is a named basis.
     """
-    from .robot_model import RobotModel
+    from plant.robot.robot_model import RobotModel
 
     if not isinstance(model, RobotModel):
         raise ValueError(f"arm_plant needs a plant.RobotModel, got {type(model).__name__}")
@@ -360,7 +360,7 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
         return ArmPlant(name=model.name, kind=old.kind, encoder_row=enc, model=model, base=base,
                         source=src, lane_friction=lane_friction, flexible=flexible)
     scope = {"math": math, "friction_torque": friction_torque}
-    exec(compile(src, f"<plant.arm rhs {model.name} {key}>", "exec"), scope)  # noqa: S102
+    exec(compile(src, f"<plant.simulation.arm rhs {model.name} {key}>", "exec"), scope)  # noqa: S102
     rhs = _jit(scope["rhs"])
     kind_class = NamedTuple(f"ArmKind_{key}", [("code", int)])
     register_plant(kind_class, rhs, (4 if flexible else 2) * n,
@@ -484,7 +484,7 @@ class ArmSimulation:
         error, paper eq. 4, against the log; replay: prediction errors);
         inf for a failed candidate.
     status : ndarray, shape (n_candidates,), int
-        :data:`plant.core.STATUS_OK` or a failure code.
+        :data:`plant.simulation.core.STATUS_OK` or a failure code.
     message : tuple of str
         Per candidate, ``"ok"`` or the failure and its time.
     """
@@ -498,7 +498,7 @@ class ArmSimulation:
 def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0, qd0, k_start,
          bound, workers=None):
     if not isinstance(plant, ArmPlant):
-        raise ValueError(f"plant must be an ArmPlant (plant.arm.arm_plant), got {type(plant).__name__}")
+        raise ValueError(f"plant must be an ArmPlant (plant.simulation.arm.arm_plant), got {type(plant).__name__}")
     n = plant.n_joints
     c = rig_constants(rig, q0=q0, qd0=qd0)
     if len(c.pulses_per_rad) != n:
@@ -545,7 +545,7 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     (``act = trunc(q k N / 2 pi)``), the integer error ``e = trunc(q_ref k N
     / 2 pi) - act`` sets the current ``i = P e`` (clipped at the drive's
     full scale), held over the sample while the core advances the arm
-    (``substeps`` RK4 steps; :func:`plant.core.advance_sample`).
+    (``substeps`` RK4 steps; :func:`plant.simulation.core.advance_sample`).
 
     Parameters
     ----------

@@ -27,10 +27,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ._errors import LogError
-from .fileio import write_text_atomic
-from .rig import Rig
-from .sidecar import (
+from plant._errors import LogError
+from plant.logs.fileio import write_text_atomic
+from plant.logs.rig import Rig
+from plant.logs.sidecar import (
     sidecar_error,
     parse_window,
     SidecarKeys,
@@ -40,7 +40,7 @@ from .sidecar import (
     short_text,
     rig_from_sidecar,
 )
-from .trajectory import Trajectory
+from plant.logs.trajectory import Trajectory
 
 __all__ = [
     "COLUMNS",
@@ -466,7 +466,7 @@ class ExperimentLog:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    """Write ``text`` atomically with the policy of :mod:`plant.fileio` (directory must exist)."""
+    """Write ``text`` atomically with the policy of :mod:`plant.logs.fileio` (directory must exist)."""
     write_text_atomic(path, text)
 
 
@@ -619,7 +619,7 @@ def example_log_path(name: str = DEFAULT_EXAMPLE) -> Path:
     Parameters
     ----------
     name : {'paper_rigid', 'drill_flex'}
-        Which example (the keys of ``plant.log.EXAMPLES``).
+        Which example (the keys of ``plant.logs.log.EXAMPLES``).
 
     Returns
     -------
@@ -634,7 +634,7 @@ def example_log_path(name: str = DEFAULT_EXAMPLE) -> Path:
 
     Examples
     --------
-    >>> from plant.log import example_log_path
+    >>> from plant.logs.log import example_log_path
     >>> example_log_path().name
     'puma560_paper_rigid.csv'
     >>> example_log_path("drill_flex").name
@@ -643,7 +643,7 @@ def example_log_path(name: str = DEFAULT_EXAMPLE) -> Path:
     if not isinstance(name, str) or name not in EXAMPLES:
         raise ValueError(f"unknown example log {name!r}; choose one of "
                          f"{', '.join(repr(k) for k in EXAMPLES)}")
-    return Path(__file__).resolve().parent / "data" / f"{EXAMPLES[name][0]}.csv"
+    return Path(__file__).resolve().parents[1] / "data" / f"{EXAMPLES[name][0]}.csv"
 
 
 def load_example(name: str = DEFAULT_EXAMPLE) -> ExperimentLog:

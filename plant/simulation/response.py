@@ -49,7 +49,7 @@ class ClosedLoopResponse:
         clipped by the drive.
     joint_names : tuple of str
         Names of the joints (default ``("q2", "q3")``, the PUMA links 2-3;
-        the ``joint_names`` of a :class:`~plant.robot_model.RobotModel`).
+        the ``joint_names`` of a :class:`~plant.robot.robot_model.RobotModel`).
     """
 
     t: np.ndarray

@@ -14,16 +14,16 @@ This module holds the library's only numeric copy of the dynamics
     g2  = -f5 g cos(q2+q3) + f6 g sin(q2+q3)
 
 and of the joint-side drive friction.  The closed-loop simulator
-(:mod:`plant.simulate`), the identification objective and the computed-torque
+(:mod:`plant.simulation.simulate`), the identification objective and the computed-torque
 controller (:mod:`ctc`) all call the compiled scalar kernels defined here
 (``mass_terms``, ``coriolis_terms``, ``gravity_terms``, ``friction_torque``,
-``joint_acceleration``); :mod:`plant.symbolic` derives the same expressions
+``joint_acceleration``); :mod:`plant.robot.symbolic` derives the same expressions
 with casadi from Lagrange's equations and the tests prove they agree.
 
 Angles follow the paper's modified-DH (Craig) convention: q = 0 is the DH zero
 configuration with the upper arm horizontal.  Joint order is (joint 2, joint 3)
 everywhere; the parameter vector ``f`` has shape (9,) and holds f1..f9 in SI
-units (see :data:`plant.rig.F_UNITS`).
+units (see :data:`plant.logs.rig.F_UNITS`).
 
 The public functions accept a single state (``q`` of shape (2,)) or a batch of
 states stacked time-first (``q`` of shape (n, 2)).

@@ -225,11 +225,11 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
 # Drive friction as vectors (motor side, sidecar order) and per-lane rows (joint side)
 # ----------------------------------------------------------------------------
 def friction_vector(rig) -> np.ndarray:
-    """The rig's friction as a vector (6,) in :data:`plant.friction.FRICTION_NAMES` order; unknown -> 0.
+    """The rig's friction as a vector (6,) in :data:`plant.simulation.friction.FRICTION_NAMES` order; unknown -> 0.
 
     Parameters
     ----------
-    rig : plant.rig.Rig
+    rig : plant.logs.rig.Rig
 
     Returns
     -------
@@ -249,8 +249,8 @@ def joint_side_friction(V, rig) -> np.ndarray:
     Parameters
     ----------
     V : array_like, shape (m, 6) or (6,)
-        Motor-side friction (:data:`plant.friction.FRICTION_NAMES`).
-    rig : plant.rig.Rig
+        Motor-side friction (:data:`plant.simulation.friction.FRICTION_NAMES`).
+    rig : plant.logs.rig.Rig
         For the gear ratios k.
 
     Returns

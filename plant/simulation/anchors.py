@@ -1,6 +1,6 @@
 """Trigonometric anchors: sin/cos of the link angles by angle addition.
 
-The stages of the core (:mod:`plant.core`) take sin/cos of the link angles by
+The stages of the core (:mod:`plant.simulation.core`) take sin/cos of the link angles by
 angle addition from the sample's start angles (the *anchors*: per angle q,
 sin q, cos q, rows of an array ``A`` of shape (3 m, lanes) for a plant with
 m angles; for the PUMA 560 links 2-3 q2, sin q2, cos q2, q3, sin q3, cos q3), with
@@ -121,7 +121,7 @@ def update_anchors(X, A, n, reanchor):
 def update_anchors_impl(m):
     """The compiled :func:`update_anchors` for m angles: straight-line code per lane.
 
-    For the core's overload (:func:`plant.core.anchors_update`): the
+    For the core's overload (:func:`plant.simulation.core.anchors_update`): the
     operations of :func:`update_anchors`, each angle's written out, so that
     the lane loops have no inner loop (the PUMA's two angles give the code
     the core had before it took any number of angles, bit for bit).
@@ -159,7 +159,7 @@ def update_anchors_impl(m):
     for r in range(m):
         lines.append(f"        A[{3 * r}, j] = X[{r}, j]")
     scope = {"math": math, "sincos_offset": sincos_offset, "SINCOS_RANGE": SINCOS_RANGE}
-    exec(compile("\n".join(lines) + "\n", f"<plant.anchors.update_anchors m={m}>", "exec"),  # noqa: S102
+    exec(compile("\n".join(lines) + "\n", f"<plant.simulation.anchors.update_anchors m={m}>", "exec"),  # noqa: S102
          scope)
     return scope["impl"]
 
@@ -221,7 +221,7 @@ def _lane_sincos_source(m):
 @functools.lru_cache(maxsize=None)
 def _lane_sincos_impl(m):
     scope = {"math": math, "sincos_offset": sincos_offset, "SINCOS_RANGE": SINCOS_RANGE}
-    exec(compile(_lane_sincos_source(m), "<plant.anchors.lane_sincos>", "exec"), scope)  # noqa: S102
+    exec(compile(_lane_sincos_source(m), "<plant.simulation.anchors.lane_sincos>", "exec"), scope)  # noqa: S102
     return scope["impl"]
 
 

@@ -1,9 +1,9 @@
 """The one closed-loop core: one sample step that every simulation drives.
 
 Every simulation in the library -- the logged P-control experiment
-(:mod:`plant.simulate`), the logged-input replay of the refinement
-(:mod:`plant.replay`), the loop with any sampled controller
-(:mod:`plant.closed_loop`), rigid or two-mass flexible plant, one candidate
+(:mod:`plant.simulation.simulate`), the logged-input replay of the refinement
+(:mod:`plant.simulation.replay`), the loop with any sampled controller
+(:mod:`plant.simulation.closed_loop`), rigid or two-mass flexible plant, one candidate
 or a batch of candidates in SIMD lanes -- advances the robot through the
 functions of this module and nothing else::
 
@@ -25,7 +25,7 @@ functions of this module and nothing else::
   plant's right-hand side.  The plant is a *parameter* (its ``kind``, a
   type tag whose numba type is known at compile time): :func:`plant_rhs` is
   the one place where a kind becomes its right-hand side (the registry
-  :data:`plant.plants.RIGHT_HAND_SIDES`: rigid or flexible), so every kernel
+  :data:`plant.simulation.plants.RIGHT_HAND_SIDES`: rigid or flexible), so every kernel
   is compiled once per plant with only that plant's right-hand side, and is
   not a copy of the loop.  (A kind rather than a compiled function passed as
   an argument: numba cannot load kernels that take functions as arguments
@@ -36,16 +36,16 @@ A plant's right-hand side is a function of one lane with the signature
 ``rhs(p, c, x, u, sc) -> (xdot, margin)``: the lane's parameters ``p`` (a
 tuple of n_par floats, :func:`lane_parameters`), the rig layout ``c`` (a
 ``NamedTuple`` with at least ``sample_time_s``, e.g.
-:class:`plant.rig.RigConstants`), the stage state ``x`` (a tuple of n_x
+:class:`plant.logs.rig.RigConstants`), the stage state ``x`` (a tuple of n_x
 floats), the held motor currents ``u`` (a tuple of n_u floats, A; one per
 driven joint) and ``sc = (sin x[0], cos x[0], ..., sin x[m-1], cos x[m-1])``
 for the plant's first m states, its angles whose sine and cosine the
 dynamics need; it returns the state derivative (a tuple of n_x floats) and a
 positive-definiteness margin (e.g. det D(q) or the smallest Cholesky pivot;
 a stage with a margin <= 0 is rejected).  The sizes n_x, n_par, n_u and m
-are the plant's registration (:func:`plant.plants.register_plant`): the
+are the plant's registration (:func:`plant.simulation.plants.register_plant`): the
 PUMA 560 links 2-3 have n_u = m = 2 (q2, q3), a robot model's rigid arm
-(:mod:`plant.arm`) one of each per joint.  No arrays cross the right-hand
+(:mod:`plant.simulation.arm`) one of each per joint.  No arrays cross the right-hand
 side, so nothing is reference-counted inside the loops.
 
 Lanes
@@ -73,8 +73,8 @@ leaves reference-count updates in the loop, which stops vectorisation).
 Trigonometry
 ------------
 The stages take sin/cos of the link angles by angle addition from the
-sample's start angles (:mod:`plant.anchors`); a lane that moved further than
-:data:`~plant.anchors.SINCOS_RANGE` within a sample is recomputed with libm.
+sample's start angles (:mod:`plant.simulation.anchors`); a lane that moved further than
+:data:`~plant.simulation.anchors.SINCOS_RANGE` within a sample is recomputed with libm.
 
 Status codes
 ------------
@@ -94,8 +94,8 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
-from .anchors import lane_sincos, update_anchors, update_anchors_impl
-from .plants import RIGHT_HAND_SIDES
+from plant.simulation.anchors import lane_sincos, update_anchors, update_anchors_impl
+from plant.simulation.plants import RIGHT_HAND_SIDES
 
 __all__ = [
     "STATUS_OK",
@@ -243,15 +243,15 @@ def _generated(name, params, lines):
     """A Python function ``name(params)`` with the body ``lines`` (overload impls)."""
     src = f"def {name}({params}):\n" + "".join(f"    {line}\n" for line in lines)
     scope = {"math": math}
-    exec(compile(src, f"<plant.core.{name}>", "exec"), scope)  # noqa: S102 - fixed templates
+    exec(compile(src, f"<plant.simulation.core.{name}>", "exec"), scope)  # noqa: S102 - fixed templates
     return scope[name]
 
 
 def _registered(kind):
-    """The :class:`plant.plants.RightHandSide` of a plant kind's numba type (typing time)."""
+    """The :class:`plant.simulation.plants.RightHandSide` of a plant kind's numba type (typing time)."""
     entry = RIGHT_HAND_SIDES.get(getattr(kind, "instance_class", None))
     if not isinstance(kind, types.BaseNamedTuple) or entry is None:
-        raise TypingError(f"unknown plant kind {kind}; register it with plant.plants.register_plant")
+        raise TypingError(f"unknown plant kind {kind}; register it with plant.simulation.plants.register_plant")
     return entry
 
 
@@ -328,7 +328,7 @@ def _lane_inputs_overload(kind, U, j):
 
 
 def lane_anchors(kind, A, j):
-    """Lane ``j``'s trigonometric anchors as a tuple of ``3 m`` floats (:mod:`plant.anchors`).
+    """Lane ``j``'s trigonometric anchors as a tuple of ``3 m`` floats (:mod:`plant.simulation.anchors`).
 
     Parameters
     ----------
@@ -352,14 +352,14 @@ def _lane_anchors_overload(kind, A, j):
 
 
 def anchors_update(kind, X, A, n, reanchor):
-    """:func:`plant.anchors.update_anchors` for plant ``kind`` (compiled per its angle count).
+    """:func:`plant.simulation.anchors.update_anchors` for plant ``kind`` (compiled per its angle count).
 
     Parameters
     ----------
     kind : NamedTuple
         A plant kind (its registered ``n_angles`` gives m).
     X, A, n, reanchor
-        As :func:`plant.anchors.update_anchors`.
+        As :func:`plant.simulation.anchors.update_anchors`.
     """
     update_anchors(X, A, n, reanchor)
 
@@ -442,16 +442,16 @@ def plant_rhs(kind, p, c, x, u, sc):
     """The right-hand side of plant ``kind`` for one lane: the one place a kind becomes its function.
 
     In compiled code the *type* of ``kind`` selects the function at
-    compile time (:data:`plant.plants.RIGHT_HAND_SIDES` maps kind classes to
+    compile time (:data:`plant.simulation.plants.RIGHT_HAND_SIDES` maps kind classes to
     functions), so that a kernel compiles the right-hand side of its own
     plant and no other.
 
     Parameters
     ----------
     kind : NamedTuple
-        A plant's :attr:`~plant.plants.Plant.kind`.
+        A plant's :attr:`~plant.simulation.plants.Plant.kind`.
     p, c, x, u, sc
-        As the right-hand sides of :mod:`plant.plants` (module docstring):
+        As the right-hand sides of :mod:`plant.simulation.plants` (module docstring):
         parameters (n_par,), rig layout, state (n_x,), held currents (n_u,)
         and sin/cos of the m angles (2 m,).
 
@@ -485,8 +485,8 @@ def rk4_lane(kind, p, c, x, u, a, hh, h, h6, exact):
     """One classical RK4 step of one lane from state ``x`` with held currents ``u``.
 
     The stages take sin/cos of the angles by angle addition from the lane's
-    anchors ``a`` (:func:`plant.anchors.lane_sincos`); with ``exact`` a stage
-    further than :data:`~plant.anchors.SINCOS_RANGE` from the anchors takes
+    anchors ``a`` (:func:`plant.simulation.anchors.lane_sincos`); with ``exact`` a stage
+    further than :data:`~plant.simulation.anchors.SINCOS_RANGE` from the anchors takes
     them from libm instead.
 
     Parameters
@@ -496,7 +496,7 @@ def rk4_lane(kind, p, c, x, u, a, hh, h, h6, exact):
     p : tuple of n_par float
         The lane's plant parameters (:func:`lane_parameters`).
     c : NamedTuple
-        Rig layout (:class:`plant.rig.RigConstants`).
+        Rig layout (:class:`plant.logs.rig.RigConstants`).
     x : tuple of n_x float
         State at the step's start.
     u : tuple of n_u float
@@ -539,7 +539,7 @@ def _rk4_lane_exact(kind, p, c, x, u, a, hh, h, h6):
     return rk4_lane(kind, p, c, x, u, a, hh, h, h6, True)
 
 
-@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.core)
+@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined (plant.simulation.core)
 def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     """Advance lanes ``0..n-1`` over one sample with the held currents ``U``.
 
@@ -549,24 +549,24 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     sample (zero-order hold, as the rig's amplifiers do).  Each step is one
     loop over the lanes (SIMD) with the lane's state in registers
     (:func:`rk4_lane`); a lane whose stages moved further than
-    :data:`~plant.anchors.SINCOS_RANGE` from its anchors is left untouched
+    :data:`~plant.simulation.anchors.SINCOS_RANGE` from its anchors is left untouched
     there and stepped again with libm sin/cos (rare).
 
     Parameters
     ----------
     kind : NamedTuple
-        The plant (:attr:`plant.plants.Plant.kind`); its right-hand side is
+        The plant (:attr:`plant.simulation.plants.Plant.kind`); its right-hand side is
         chosen by :func:`plant_rhs`.
     P : ndarray, shape (n_par, lanes)
         Per-lane plant parameters (column j: lane j).
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout.
     X : ndarray, shape (n_x, lanes)
         State at the sample's start; advanced in place.
     U : ndarray, shape (n_u, lanes)
         Motor currents (A) held over the sample.
     A : ndarray, shape (3 m, lanes)
-        Trigonometric anchors (:mod:`plant.anchors`); updated in place.
+        Trigonometric anchors (:mod:`plant.simulation.anchors`); updated in place.
     S : ndarray, shape (lanes,), int64
         Status per lane: set to :data:`STATUS_NOT_PD` (the lane keeps the
         state of the step's start) or :data:`STATUS_NONFINITE` on failure (a

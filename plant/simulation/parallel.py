@@ -58,7 +58,7 @@ MIN_LANES_PER_CHUNK = 16
 def chunk_ranges(m: int, workers: int) -> list:
     """Split ``m`` candidates into at most ``workers`` contiguous chunks ``(lo, hi)``.
 
-    At least :data:`plant.parallel.MIN_LANES_PER_CHUNK` candidates go to a
+    At least :data:`plant.simulation.parallel.MIN_LANES_PER_CHUNK` candidates go to a
     chunk (one chunk for a smaller batch).
 
     Parameters

@@ -1,6 +1,6 @@
 """Symbolic derivation of the PUMA 560 links 2-3 model by Lagrange's equations (casadi).
 
-This module is the *reference* for the numeric model in :mod:`plant.model`:
+This module is the *reference* for the numeric model in :mod:`plant.robot.model`:
 it derives the rigid-body dynamics
 
 .. math::  D(q)\\,\\ddot q + h(q, \\dot q) + g(q) = \\tau
@@ -10,7 +10,7 @@ casadi ``SX`` expressions, shows that they depend on those parameters only
 through the nine base parameters f1..f9 of the paper's eq. 3, and builds the
 base-parameter model of eq. 2 (with its two printing errors corrected, see
 ``docs/model.rst``) together with its regressor :math:`Y = \\partial\\tau/\\partial f`.
-The tests compare :mod:`plant.model` with these functions.
+The tests compare :mod:`plant.robot.model` with these functions.
 
 Kinematics (planar, everything in the plane of joints 2 and 3)
 ---------------------------------------------------------------

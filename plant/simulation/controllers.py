@@ -1,8 +1,8 @@
 """Compiled control laws in the logged-run driver: the controller that ran, in the loop.
 
-The logged-run driver (``plant.simulate.log_chunk``) simulates a
+The logged-run driver (``plant.simulation.simulate.log_chunk``) simulates a
 window or a run *with the controller that actually ran*.  As the plants of
-the core (``plant.plants``), a control law is found by a *kind* (a type
+the core (``plant.simulation.plants``), a control law is found by a *kind* (a type
 tag whose numba type selects the law at compile time) in the registry
 :data:`CONTROL_LAWS`; the driver calls :func:`control_law`, so each kernel is
 compiled once per (plant, law) with only that law, loads from numba's cache,
@@ -10,7 +10,7 @@ and is not a copy of the sample loop.
 
 A compiled law has the signature ``law(lp, c, k, q2m, q3m, e2, e3, CS, j) ->
 (i2, i3)``: law parameters ``lp`` (any numba-typed value, e.g. a NamedTuple
-of constants and arrays), the rig layout ``c`` (:class:`plant.rig.RigConstants`),
+of constants and arrays), the rig layout ``c`` (:class:`plant.logs.rig.RigConstants`),
 the absolute sample index ``k`` (t = k Ts from the start of the run), the
 measured joint angles ``q2m, q3m`` (rad, the encoder counts times 2 pi / kN),
 the pulse errors ``e2, e3``, and the per-lane controller state ``CS``
@@ -73,7 +73,7 @@ def saturated(i2, i3, c):
     ----------
     i2, i3 : float
         Commanded motor currents (A).
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout (``current_limit``, ``torque_per_amp``).
 
     Returns
@@ -97,7 +97,7 @@ def p_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
     ----------
     lp : float
         Unused.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout (``p_gain``).
     k : int
         Sample index.
@@ -119,7 +119,7 @@ CONTROL_LAWS = {}
 
 
 def register_control_law(kind_class, law) -> None:
-    """Register a compiled control law under its kind class (as :func:`plant.plants.register_plant`).
+    """Register a compiled control law under its kind class (as :func:`plant.simulation.plants.register_plant`).
 
     Parameters
     ----------
@@ -151,7 +151,7 @@ def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     """The control law of ``kind``: the one place a law kind becomes its function.
 
     In compiled code the kind's type selects the law at compile time (the
-    pattern of ``plant.core.plant_rhs``); called from Python it looks the law
+    pattern of ``plant.simulation.core.plant_rhs``); called from Python it looks the law
     up in :data:`CONTROL_LAWS` (a ``KeyError`` for an unregistered kind).
 
     Parameters
@@ -174,7 +174,7 @@ def _control_law_overload(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     law = CONTROL_LAWS.get(getattr(kind, "instance_class", None))
     if not isinstance(kind, types.BaseNamedTuple) or law is None:
         raise TypingError(f"unknown control-law kind {kind}; register it in "
-                          "plant.controllers.CONTROL_LAWS")
+                          "plant.simulation.controllers.CONTROL_LAWS")
 
     def impl(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
         return law(lp, c, k, q2m, q3m, e2, e3, CS, j)
@@ -250,5 +250,5 @@ def as_logged_controller(controller, log) -> LoggedController:
     if make is None:
         raise ValueError(f"{type(controller).__name__} provides no compiled law for the logged "
                          "run (a logged_controller(log) method returning a "
-                         "plant.controllers.LoggedController)")
+                         "plant.simulation.controllers.LoggedController)")
     return make(log)

@@ -1,15 +1,15 @@
 """A rigid plant whose drive friction is a per-lane parameter (friction unknown).
 
-The plants of :mod:`plant.plants` take the drive friction from the rig
-(:class:`plant.rig.RigConstants`, shared by all lanes).  When the sidecar does not know the friction
+The plants of :mod:`plant.simulation.plants` take the drive friction from the rig
+(:class:`plant.logs.rig.RigConstants`, shared by all lanes).  When the sidecar does not know the friction
 (``"viscous_friction_Nms_per_rad": null`` and/or ``"coulomb_friction_Nm":
-null``; :attr:`plant.rig.Rig.unknown_friction`) it has to be identified with
+null``; :attr:`plant.logs.rig.Rig.unknown_friction`) it has to be identified with
 f, so every candidate carries its own: :data:`RIGID_FRICTION` is the rigid
-robot of :data:`plant.plants.RIGID` with six more rows in its per-lane
+robot of :data:`plant.simulation.plants.RIGID` with six more rows in its per-lane
 parameters P, the joint-side viscous coefficients and asymmetric Coulomb
 levels.  Its right-hand side :func:`rigid_friction_rhs` is registered in
-:data:`plant.plants.RIGHT_HAND_SIDES` under :class:`RigidFrictionKind`
-(:func:`plant.plants.register_plant`), so every
+:data:`plant.simulation.plants.RIGHT_HAND_SIDES` under :class:`RigidFrictionKind`
+(:func:`plant.simulation.plants.register_plant`), so every
 driver of the core (:func:`plant.simulate_batch`, :func:`plant.prediction_errors`)
 simulates it with ``plant=RIGID_FRICTION, plant_parameters={"friction": ...}``.
 With the core's per-lane parameter tuples it costs about as much per
@@ -20,7 +20,7 @@ Friction vectors are given motor side, in the sidecar's units and order
 (:data:`FRICTION_NAMES`): ``B2, B3`` (N m s/rad) and ``Tc2+, Tc2-, Tc3+,
 Tc3-`` (N m, magnitudes for positive / negative joint velocity); the lanes
 hold them joint side (``k^2 B``, ``abs(k) Tc``).  The Coulomb ramp speed stays
-the rig's (:attr:`plant.rig.Rig.coulomb_ramp_speed_rad_per_s`).
+the rig's (:attr:`plant.logs.rig.Rig.coulomb_ramp_speed_rad_per_s`).
 """
 from __future__ import annotations
 
@@ -30,8 +30,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from .plants import Plant, register_plant, rigid_derivative
-from .rig import friction_vector, joint_side_friction  # noqa: F401 (their home is plant.rig)
+from plant.simulation.plants import Plant, register_plant, rigid_derivative
+from plant.logs.rig import friction_vector, joint_side_friction  # noqa: F401 (their home is plant.logs.rig)
 
 __all__ = ["RigidFrictionKind", "RIGID_FRICTION_KIND", "RigidWithFriction", "RIGID_FRICTION",
            "rigid_friction_rhs", "FRICTION_NAMES", "friction_vector", "friction_fields",
@@ -48,7 +48,7 @@ _jit = numba.njit(nogil=True, error_model="numpy")
 
 
 class RigidFrictionKind(NamedTuple):
-    """Type tag of :data:`RIGID_FRICTION` (see :class:`plant.plants.RigidKind`).
+    """Type tag of :data:`RIGID_FRICTION` (see :class:`plant.simulation.plants.RigidKind`).
 
     Attributes
     ----------
@@ -86,7 +86,7 @@ def friction_fields(v) -> dict:
 def rigid_friction_rhs(p, c, x, u, sc):
     """Right-hand side of the rigid robot with per-lane drive friction.
 
-    As :func:`plant.plants.rigid_rhs`, with the lane's joint-side friction
+    As :func:`plant.simulation.plants.rigid_rhs`, with the lane's joint-side friction
     in ``p[9:15]`` (viscous 2, Coulomb for positive rate 2, for negative
     rate 2) instead of the rig's; the ramp speed is the rig's.
 
@@ -94,7 +94,7 @@ def rigid_friction_rhs(p, c, x, u, sc):
     ----------
     p : tuple of 15 float
         The lane's f1..f9 and friction.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout.
     x : tuple of 4 float
         Stage state (q2, q3, qd2, qd3).
@@ -143,7 +143,7 @@ class RigidWithFriction(Plant):
         ----------
         F : ndarray, shape (m, 9)
             Base parameters f1..f9 per candidate.
-        rig : plant.rig.Rig
+        rig : plant.logs.rig.Rig
             Gear ratios (and the friction when ``friction`` is None).
         friction : array_like, shape (m, 6) or (6,), optional
             Motor-side friction per candidate (:data:`FRICTION_NAMES`);

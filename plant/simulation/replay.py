@@ -4,7 +4,7 @@ The P controller's current is known exactly from the logged integer error
 (``i_k = P e_k``), so the model can be driven by the current the rig applied
 instead of by its own, quantised, feedback.  The replay is the second mode
 of the logged-run driver of the one closed-loop core
-(:func:`plant.simulate.log_chunk`; one compiled kernel for both modes); the
+(:func:`plant.simulation.simulate.log_chunk`; one compiled kernel for both modes); the
 refinement of :mod:`identification.refinement` least-squares its prediction
 errors.
 """
@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .parallel import check_workers, run_chunks
-from .controllers import as_logged_controller
-from .plants import RIGID
-from .simulate import (
+from plant.simulation.parallel import check_workers, run_chunks
+from plant.simulation.controllers import as_logged_controller
+from plant.simulation.plants import RIGID
+from plant.simulation.simulate import (
     DEFAULT_SUBSTEPS,
     log_chunk,
     check_candidates,
@@ -38,7 +38,7 @@ def measured_counts(log) -> np.ndarray:
 
     The logged error gives the integer count ``a = trunc(ref) - e``; the
     continuous count c satisfies ``trunc(c) == a``, an interval of width 1
-    (width 2 around 0) whose centre is returned (:func:`plant.core.cell_centre`).
+    (width 2 around 0) whose centre is returned (:func:`plant.simulation.core.cell_centre`).
 
     Parameters
     ----------
@@ -50,7 +50,7 @@ def measured_counts(log) -> np.ndarray:
     """
     inputs = simulation_inputs(log)
     a = np.trunc(inputs.ref_counts[inputs.start_index:]) - inputs.e_log
-    # plant.core.cell_centre in numpy (calling the compiled helper from Python
+    # plant.simulation.core.cell_centre in numpy (calling the compiled helper from Python
     # would compile it at the first call: ~0.3 s, more than an on-line identification)
     return np.where(a > 0, a + 0.5, np.where(a < 0, a - 0.5, 0.0))
 
@@ -96,8 +96,8 @@ def prediction_errors(
         State (q2, q3, qd2, qd3 for the rigid plant) in rad, rad/s at the
         log's first sample, per candidate; the replay then starts there
         (required for a window log without a start state).
-    plant : plant.plants.Plant, optional
-        Default :data:`plant.plants.RIGID`.
+    plant : plant.simulation.plants.Plant, optional
+        Default :data:`plant.simulation.plants.RIGID`.
     plant_parameters : dict, optional
         Per-candidate plant parameters beyond f (see
         :func:`plant.simulate_batch`).
@@ -112,7 +112,7 @@ def prediction_errors(
     eps : ndarray, shape (n_candidates, n_samples, 2) or (n_samples, 2)
         Prediction errors in pulses.
     status : ndarray, shape (n_candidates,) or int
-        :data:`~plant.core.STATUS_OK` or a failure code.
+        :data:`~plant.simulation.core.STATUS_OK` or a failure code.
 
     Raises
     ------

@@ -1,12 +1,12 @@
 """Numeric code generated from casadi expressions: straight-line Python for numba.
 
-The compiled closed-loop core (:mod:`plant.core`) evaluates a robot's
+The compiled closed-loop core (:mod:`plant.simulation.core`) evaluates a robot's
 dynamics millions of times per identification, inside SIMD loops over
 candidates where no array may be allocated and no Python object touched.
 :func:`function_source` turns a casadi ``SX`` :class:`casadi.Function`
 into the source of a plain Python function of scalars and tuples -- one
 assignment per casadi instruction, casadi's common subexpressions kept --
-that numba compiles like hand-written code.  :mod:`plant.arm` generates the
+that numba compiles like hand-written code.  :mod:`plant.simulation.arm` generates the
 right-hand side of a robot model's rigid arm with it.
 
 The translation walks the function's algorithm (``n_instructions``,

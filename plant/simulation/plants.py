@@ -1,32 +1,32 @@
 """Plants of the closed-loop core: the robot's right-hand side, rigid or flexible.
 
 A plant is a right-hand side of one lane, ``rhs(p, c, x, u, sc) -> (xdot,
-margin)``, of the core (:mod:`plant.core`, where the
+margin)``, of the core (:mod:`plant.simulation.core`, where the
 signature is described), registered under a kind (a type tag) by
 :func:`register_plant` in :data:`RIGHT_HAND_SIDES`, together with its state
 layout (:class:`Plant`): which rows the motor encoders read, how many
 per-lane parameters it takes and how its start state follows from the
 rig's.  Two plants are defined here:
 
-* :data:`RIGID` -- the rigid model of :mod:`plant.model` (paper eq. 2),
+* :data:`RIGID` -- the rigid model of :mod:`plant.robot.model` (paper eq. 2),
   state ``(q2, q3, qd2, qd3)``, parameters f1..f9, the encoders read q;
 * :class:`FlexibleJoints` -- Spong's two-mass flexible joints, state
   ``(q2, q3, qd2, qd3, th2, th3, thd2, thd3)`` (link, then motor angle / k),
   the encoders read th.
 
-A robot model's rigid n-joint arm (:class:`plant.arm.ArmPlant`) registers
+A robot model's rigid n-joint arm (:class:`plant.simulation.arm.ArmPlant`) registers
 its own kind, generated from the model.
 
 Both add the joint-side drive friction of the rig (motor side: viscous and
-asymmetric Coulomb with a linear ramp; :func:`plant.model.friction_torque`)
+asymmetric Coulomb with a linear ramp; :func:`plant.robot.model.friction_torque`)
 and turn the held motor current into joint torque ``k Kt i``.  To add a
 plant (another friction law, a third joint), write its right-hand side with
 the same signature, register it under a new kind with :func:`register_plant`
 and describe it by a :class:`Plant`; every driver of the core then
 simulates it.  The drive friction is the rig's
-(:class:`plant.rig.RigConstants`, shared by all lanes); a plant that
+(:class:`plant.logs.rig.RigConstants`, shared by all lanes); a plant that
 identifies friction carries it in its own per-lane parameters
-(:data:`plant.friction.RIGID_FRICTION`).
+(:data:`plant.simulation.friction.RIGID_FRICTION`).
 """
 from __future__ import annotations
 
@@ -36,8 +36,8 @@ from typing import Callable, NamedTuple
 import numba
 import numpy as np
 
-from .model import friction_torque, joint_acceleration_sc
-from .rig import friction_vector, joint_side_friction
+from plant.robot.model import friction_torque, joint_acceleration_sc
+from plant.logs.rig import friction_vector, joint_side_friction
 
 __all__ = ["Plant", "RIGID", "FlexibleJoints", "rigid_rhs", "rigid_derivative", "flexible_rhs", "RigidKind",
            "FlexibleKind", "RIGID_KIND", "FLEXIBLE_KIND", "RightHandSide", "RIGHT_HAND_SIDES",
@@ -91,7 +91,7 @@ class FlexibleKind(NamedTuple):
 
 
 #: Plant kinds: values whose numba *type* chooses a right-hand side at
-#: compile time (:func:`plant.core.plant_rhs`), so each kernel is compiled
+#: compile time (:func:`plant.simulation.core.plant_rhs`), so each kernel is compiled
 #: once per plant, with only that plant's right-hand side, and loads from
 #: numba's cache (a value would be a runtime branch over all plants; a
 #: compiled function as an argument cannot be cached).
@@ -113,7 +113,7 @@ class Plant:
         ``"rigid"`` or ``"flexible"``.
     kind : RigidKind or FlexibleKind
         :data:`RIGID_KIND` or :data:`FLEXIBLE_KIND`: how the core finds the
-        right-hand side (:func:`plant.core.plant_rhs`), registered with its
+        right-hand side (:func:`plant.simulation.core.plant_rhs`), registered with its
         sizes by :func:`register_plant`.
     encoder_row : int
         Row of the angle the joint-2 motor encoder reads (joint 3: the next
@@ -133,7 +133,7 @@ class Plant:
         entry = RIGHT_HAND_SIDES.get(type(self.kind))
         if entry is None:
             raise ValueError(f"unknown plant kind {type(self.kind).__name__}: register its "
-                             "right-hand side with plant.plants.register_plant")
+                             "right-hand side with plant.simulation.plants.register_plant")
         return entry
 
     @property
@@ -156,7 +156,7 @@ class Plant:
         ----------
         F : ndarray, shape (m, 9)
             Base parameters f1..f9 per candidate.
-        rig : plant.rig.Rig
+        rig : plant.logs.rig.Rig
 
         Returns
         -------
@@ -174,7 +174,7 @@ class Plant:
 
         Parameters
         ----------
-        c : plant.rig.RigConstants
+        c : plant.logs.rig.RigConstants
 
         Returns
         -------
@@ -198,13 +198,13 @@ def rigid_rhs(p, c, x, u, sc):
     """Right-hand side of the rigid robot (paper eq. 2) for one lane.
 
     State ``x = (q2, q3, qd2, qd3)``; parameters ``p = (f1, ..., f9)``.  See
-    :mod:`plant.core` for the protocol.
+    :mod:`plant.simulation.core` for the protocol.
 
     Parameters
     ----------
     p : tuple of 9 float
         The lane's base parameters f1..f9.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout.
     x : tuple of 4 float
         Stage state (rad, rad/s).
@@ -228,7 +228,7 @@ def rigid_derivative(p, c, x, u, sc, viscous, coulomb_pos, coulomb_neg):
     """The rigid robot's state derivative with the given joint-side friction.
 
     The one copy of the rigid right-hand side: :func:`rigid_rhs` passes the
-    rig's friction, :func:`plant.friction.rigid_friction_rhs` the lane's.
+    rig's friction, :func:`plant.simulation.friction.rigid_friction_rhs` the lane's.
 
     Parameters
     ----------
@@ -264,7 +264,7 @@ class RightHandSide(NamedTuple):
     Attributes
     ----------
     function : callable
-        The compiled right-hand side (protocol of :mod:`plant.core`).
+        The compiled right-hand side (protocol of :mod:`plant.simulation.core`).
     n_states : int
         Length of the state tuple it takes and returns.
     n_parameters : int
@@ -283,7 +283,7 @@ class RightHandSide(NamedTuple):
 
 
 #: Registry of the core: plant kind class -> :class:`RightHandSide`
-#: (:func:`plant.core.plant_rhs`).
+#: (:func:`plant.simulation.core.plant_rhs`).
 RIGHT_HAND_SIDES: dict = {}
 
 
@@ -300,7 +300,7 @@ def register_plant(kind_class, rhs, n_states: int, n_parameters: int, n_inputs: 
         margin)`` with ``x`` and ``xdot`` tuples of ``n_states`` floats,
         ``p`` a tuple of ``n_parameters`` floats, ``u`` of ``n_inputs``
         currents and ``sc`` the sine and cosine of the first ``n_angles``
-        states (:mod:`plant.core`).
+        states (:mod:`plant.simulation.core`).
     n_states : int
         State components; rows ``0..n_angles-1`` are the angles.
     n_parameters : int
@@ -326,7 +326,7 @@ def register_plant(kind_class, rhs, n_states: int, n_parameters: int, n_inputs: 
 
 register_plant(RigidKind, rigid_rhs, 4, 9)
 
-#: The rigid robot of :mod:`plant.model`: state (q2, q3, qd2, qd3), the
+#: The rigid robot of :mod:`plant.robot.model`: state (q2, q3, qd2, qd3), the
 #: encoders read q, parameters f1..f9.
 RIGID = Plant(name="rigid", kind=RIGID_KIND, encoder_row=0)
 
@@ -377,13 +377,13 @@ def flexible_rhs(p, c, x, u, sc):
     Jm k^2 (2), joint-side drive friction (viscous 2, Coulomb for positive
     rate 2, for negative rate 2) and backlash width b (2).  The spring
     torque is ``K dead_zone(th - q, b) + D (th' - q')`` (:func:`dead_zone`).
-    See :mod:`plant.core` for the protocol.
+    See :mod:`plant.simulation.core` for the protocol.
 
     Parameters
     ----------
     p : tuple of 23 float
         The lane's parameters.
-    c : plant.rig.RigConstants
+    c : plant.logs.rig.RigConstants
         Rig layout (the Coulomb ramp speed).
     x : tuple of 8 float
         Stage state (rad, rad/s).
@@ -426,7 +426,7 @@ class FlexibleJoints(Plant):
         D_link(q) q'' + h(q, q') + g(q) = tau_s
         tau_s = Ks (delta - clip(delta, -b/2, b/2)) + Ds (th' - q'),  delta = th - q
 
-    ``D_link`` is the rigid model of :mod:`plant.model` with the reflected
+    ``D_link`` is the rigid model of :mod:`plant.robot.model` with the reflected
     motor inertias removed from f7 (joint 2) and f1 (joint 3) (f1 - Jm k3^2,
     f7 - Jm k2^2); friction acts on the motor side; ``b`` is the gearbox
     backlash (a dead zone of total width b on the deflection,
@@ -481,7 +481,7 @@ class FlexibleJoints(Plant):
 
         Parameters
         ----------
-        rig : plant.rig.Rig
+        rig : plant.logs.rig.Rig
         """
         k = np.asarray(rig.gear_ratio, float)
         return np.asarray(self.motor_inertia_kgm2) * k * k
@@ -493,7 +493,7 @@ class FlexibleJoints(Plant):
         ----------
         f : array_like, shape (9,) or (m, 9)
             Rigid-equivalent base parameters (link plus Jm k^2 in f1 and f7).
-        rig : plant.rig.Rig
+        rig : plant.logs.rig.Rig
 
         Returns
         -------
@@ -509,14 +509,14 @@ class FlexibleJoints(Plant):
         ----------
         F : ndarray, shape (m, 9)
             Rigid-equivalent base parameters per candidate.
-        rig : plant.rig.Rig
+        rig : plant.logs.rig.Rig
         joints : array_like, shape (m, 6), optional
             Per-candidate joints ``(K2, K3, D2, D3, Jm2 k2^2, Jm3 k3^2)``
             (N m/rad, N m s/rad, kg m^2; identification); default this
             plant's constants for every candidate.
         friction : array_like, shape (m, 6) or (6,), optional
             Motor-side drive friction per candidate in the order of
-            :data:`plant.friction.FRICTION_NAMES`; default the rig's
+            :data:`plant.simulation.friction.FRICTION_NAMES`; default the rig's
             (unknown values 0).
         backlash : array_like, shape (m, 2) or (2,), optional
             Backlash widths b (rad, joint side) per candidate; default this

@@ -1,14 +1,14 @@
 """Closed-loop simulation of the rig with any sampled controller.
 
 :func:`simulate_closed_loop` runs the robot (rigid by default, or the
-two-mass flexible-joint robot of :class:`plant.plants.FlexibleJoints`) under
+two-mass flexible-joint robot of :class:`plant.simulation.plants.FlexibleJoints`) under
 a controller that follows the sampled-controller protocol of :mod:`ctc`
 (``reset()`` and ``__call__(k, t, q_meas, e_pulses) -> (2,)`` A).  It is a
-driver of the one closed-loop core (:mod:`plant.core`) with one lane; at
+driver of the one closed-loop core (:mod:`plant.simulation.core`) with one lane; at
 each sample ``t_k = k Ts``, exactly as the rig's control card and
 :func:`plant.simulate_experiment` do:
 
-1. the motor encoders are read (:func:`plant.core.encoder_read`,
+1. the motor encoders are read (:func:`plant.simulation.core.encoder_read`,
    ``act = trunc(q k N / 2 pi)``) and the quantised joint angles
    ``q_meas = act 2 pi / (k N)`` are formed;
 2. the integer error ``e = ref - act`` with
@@ -19,7 +19,7 @@ each sample ``t_k = k Ts``, exactly as the rig's control card and
    library's controllers saturate there themselves, with anti-windup, and
    ``n_clipped`` counts the samples at the limit);
 4. the current is held over ``[t_k, t_k + Ts)`` (ZOH, no computation delay)
-   and the plant is advanced by :func:`plant.core.advance_sample`.
+   and the plant is advanced by :func:`plant.simulation.core.advance_sample`.
 
 With the paper's P controller this is the logged experiment itself: the
 pulses equal :func:`plant.simulate_experiment`'s bit for bit (tested).  The
@@ -40,15 +40,15 @@ import math
 import numba
 import numpy as np
 
-from .anchors import REANCHOR
-from .core import STATUS_MESSAGES, STATUS_OK, advance_sample, encoder_read
-from .plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older code)
-from .response import ClosedLoopResponse
-from .rig import rig_constants
-from .simulate import dummy_problem, kernel, check_substeps, new_lanes
-from .model import checked_f, is_positive_definite
+from plant.simulation.anchors import REANCHOR
+from plant.simulation.core import STATUS_MESSAGES, STATUS_OK, advance_sample, encoder_read
+from plant.simulation.plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older code)
+from plant.simulation.response import ClosedLoopResponse
+from plant.logs.rig import rig_constants
+from plant.simulation.simulate import dummy_problem, kernel, check_substeps, new_lanes
+from plant.robot.model import checked_f, is_positive_definite
 
-# ClosedLoopResponse (plant.response) and FlexibleJoints (plant.plants) are
+# ClosedLoopResponse (plant.simulation.response) and FlexibleJoints (plant.simulation.plants) are
 # importable from here too, for older code; they are documented where defined.
 __all__ = [
     "DEFAULT_CLOSED_LOOP_SUBSTEPS",
@@ -56,7 +56,7 @@ __all__ = [
 ]
 
 #: RK4 substeps per sample used by default.  The rigid closed loop's pulses
-#: converge at 24-48 substeps (see :mod:`plant.simulate`); 32 is in that range.
+#: converge at 24-48 substeps (see :mod:`plant.simulation.simulate`); 32 is in that range.
 DEFAULT_CLOSED_LOOP_SUBSTEPS = 32
 
 
@@ -80,7 +80,7 @@ def _step_py(kind, lanes, c, substeps, k, i):
 
 _read = kernel(_read_py)
 _step = kernel(_step_py)
-# a generated robot's kind (plant.arm) cannot be cached on disk: compiled per process
+# a generated robot's kind (plant.simulation.arm) cannot be cached on disk: compiled per process
 _read_arm = numba.njit(nogil=True, error_model="numpy")(_read_py)
 _step_arm = numba.njit(nogil=True, error_model="numpy")(_step_py)
 
@@ -104,7 +104,7 @@ def simulate_closed_loop(
 
     Parameters
     ----------
-    log_or_rig : plant.ExperimentLog or plant.rig.Rig
+    log_or_rig : plant.ExperimentLog or plant.logs.rig.Rig
         Source of the rig constants (Ts, gears, encoders, Kt, friction,
         gravity, start state, current full scale) and, for a log, of the
         default reference trajectory and run length (``log.n_total`` samples
@@ -119,7 +119,7 @@ def simulate_closed_loop(
         the n motor currents (A); ``q_meas`` (n,) rad are the quantised
         encoder angles, ``e_pulses`` (n,) int64 the pulse errors ref - act
         (n = 2 for the PUMA links 2-3).
-    trajectory : plant.trajectory.Trajectory, optional
+    trajectory : plant.logs.trajectory.Trajectory, optional
         Reference (default: the log's); required with a Rig.
     n_samples : int, optional
         Samples to run from t = 0 (default: ``log.n_total``); required with a Rig.
@@ -127,7 +127,7 @@ def simulate_closed_loop(
         RK4 steps per sample (>= 1).
     q0, qd0 : array_like, shape (2,), optional
         Start angles (rad) and rates (rad/s) (default: the rig's start state).
-    flexible : plant.plants.FlexibleJoints, optional
+    flexible : plant.simulation.plants.FlexibleJoints, optional
         Simulate the two-mass flexible-joint robot instead of the rigid one;
         it starts with the springs relaxed.
     label : str, optional
@@ -137,8 +137,8 @@ def simulate_closed_loop(
         after ``t_s`` on, the robot is ``f`` (e.g. a payload picked up:
         ``[(1.0, plant.add_payload(f, payload, a3))]``); the state carries
         over.  With ``plant``: base parameters beta (r,).
-    plant : plant.arm.ArmPlant, optional
-        Simulate a robot model's rigid arm (:func:`plant.arm.arm_plant`)
+    plant : plant.simulation.arm.ArmPlant, optional
+        Simulate a robot model's rigid arm (:func:`plant.simulation.arm.arm_plant`)
         instead of the PUMA 560 links 2-3; the rig and the trajectory must
         have its joint count.
 
@@ -177,10 +177,10 @@ def simulate_closed_loop(
     c = rig_constants(rig, q0=q0, qd0=qd0)
     arm = plant is not None
     if arm:
-        from .arm import ArmPlant
+        from plant.simulation.arm import ArmPlant
 
         if not isinstance(plant, ArmPlant) or flexible is not None:
-            raise ValueError("plant must be a plant.arm.ArmPlant (and flexible None)")
+            raise ValueError("plant must be a plant.simulation.arm.ArmPlant (and flexible None)")
         if len(c.pulses_per_rad) != plant.n_joints:
             raise ValueError(f"the rig has {len(c.pulses_per_rad)} joints, the robot {plant.n_joints}")
 
@@ -202,7 +202,7 @@ def simulate_closed_loop(
     ts = c.sample_time_s
     t = np.arange(n) * ts
     q_ref = np.ascontiguousarray(trajectory.position(t), dtype=float)
-    # the same expression as plant.simulate.reference_counts, so both agree bit for bit
+    # the same expression as plant.simulation.simulate.reference_counts, so both agree bit for bit
     ref = np.ascontiguousarray(trajectory.position(t) * rig.pulses_per_rad)
     if q_ref.shape != (n, nj):
         raise ValueError(f"the trajectory has {q_ref.shape[1]} joints, the rig {nj}")

@@ -1,0 +1,218 @@
+"""A following-error limit: fall back to the rig's own P law when a controller loses the arm.
+
+A computed-torque controller is only as good as its model.  When the robot
+changes in a way the model does not describe (a heavy tool picked up by a
+flexible-joint robot, a model identified badly) its tracking error can grow
+far beyond what the rig's own decentralised P law ever produced -- the
+controller is then *less* safe than the one it replaced.  Industrial drives
+guard against this with a *following-error limit*: the axis faults when
+``|q_ref - q|`` exceeds a set bound.  Here the bound trips a fallback rather
+than a fault: from the first sample at which any joint's pulse error exceeds
+its limit, the controller is replaced by the rig's P law ``i = P e`` (the
+paper's controller, the one the robot was logged under and known to be
+stable with), clipped at the drive's full scale, until :meth:`reset`.
+
+The default limit of each joint is the largest pulse error of the log the
+controller was built from -- the P law's own following error along the
+logged reference -- but at least :data:`MIN_LIMIT_PULSES`: a computed-torque
+controller that tracks worse than the P law did has lost its model.
+
+:class:`FollowingErrorGuard` wraps any sampled controller
+(:mod:`ctc.protocol`);
+:class:`ctc.AdaptiveComputedTorqueController` applies the same limit
+(``following_error_limit=``) around its inner controller.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+__all__ = ["FollowingErrorGuard", "FollowingErrorLimit", "FollowingErrorWarning",
+           "MIN_LIMIT_PULSES"]
+
+#: Smallest default limit (pulses): a log whose P law never left a few pulses
+#: must not trip the limit on a computed-torque controller's quantisation-level errors.
+MIN_LIMIT_PULSES = 4
+
+
+class FollowingErrorWarning(UserWarning):
+    """A controller's following error passed its limit: the rig's P law took over."""
+
+
+class FollowingErrorLimit:
+    """Per-joint following-error limit and the rig's P law it falls back to.
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+        The log the controller was built from: its rig (P gains, current
+        full scale) and, for ``limit_pulses='log'``, its pulse errors.
+    limit_pulses : 'log', float or array_like, shape (n_joints,)
+        Limit per joint (pulses, > 0).  ``'log'`` (default): the log's
+        largest ``|e|`` per joint, at least :data:`MIN_LIMIT_PULSES`.
+
+    Attributes
+    ----------
+    limit_pulses : ndarray, shape (n_joints,)
+    p_gain : ndarray, shape (n_joints,)
+        The rig's P gains (A per pulse).
+    current_limit : float
+        The drive's full scale (A; ``inf`` when the sidecar gives none).
+
+    Raises
+    ------
+    ValueError
+        If a given limit is not finite and > 0, or has the wrong length.
+    """
+
+    def __init__(self, log, limit_pulses="log"):
+        rig = log.rig
+        self.p_gain = np.asarray(rig.p_gain_A_per_pulse, dtype=float)
+        n = self.p_gain.size
+        fs = rig.current_full_scale_A
+        self.current_limit = math.inf if fs is None else float(fs)
+        if isinstance(limit_pulses, str):
+            if limit_pulses != "log":
+                raise ValueError(f"limit_pulses must be 'log' or pulses > 0, got {limit_pulses!r}")
+            e = np.asarray(log.e_pulses, dtype=float)
+            lim = np.max(np.abs(e), axis=0) if e.size else np.zeros(n)
+            lim = np.maximum(lim, MIN_LIMIT_PULSES)
+        else:
+            try:
+                lim = np.broadcast_to(np.asarray(limit_pulses, dtype=float), (n,)).copy()
+            except (TypeError, ValueError):
+                raise ValueError(f"limit_pulses must be 'log' or {n} numbers > 0 (pulses), "
+                                 f"got {limit_pulses!r}") from None
+            if not np.all(np.isfinite(lim)) or np.any(lim <= 0):
+                raise ValueError(f"limit_pulses must be finite numbers > 0 (pulses), got {limit_pulses!r}")
+        self.limit_pulses = lim
+
+    def exceeded(self, e_pulses) -> bool:
+        """True when any joint's ``|e|`` is above its limit.
+
+        Parameters
+        ----------
+        e_pulses : array_like, shape (n_joints,)
+
+        Returns
+        -------
+        bool
+        """
+        return bool(np.any(np.abs(np.asarray(e_pulses, dtype=float)) > self.limit_pulses))
+
+    def p_current(self, e_pulses) -> np.ndarray:
+        """The rig's P law ``clip(P e, -I_fs, I_fs)`` (n_joints,) A.
+
+        Parameters
+        ----------
+        e_pulses : array_like, shape (n_joints,)
+
+        Returns
+        -------
+        ndarray, shape (n_joints,)
+        """
+        return np.clip(self.p_gain * np.asarray(e_pulses, dtype=float),
+                       -self.current_limit, self.current_limit)
+
+    def message(self, t, e_pulses) -> str:
+        """One line saying what tripped and what runs now.
+
+        Parameters
+        ----------
+        t : float
+            Time (s).
+        e_pulses : array_like, shape (n_joints,)
+
+        Returns
+        -------
+        str
+        """
+        e = np.asarray(e_pulses).astype(int).tolist()
+        return (f"following error {e} pulses at t = {t:.3f} s exceeds the limit "
+                f"{self.limit_pulses.astype(int).tolist()}: the rig's P law (i = P e) runs from "
+                f"here on (reset() to try the model again)")
+
+
+class FollowingErrorGuard:
+    """Any sampled controller behind a following-error limit (see the module docstring).
+
+    Parameters
+    ----------
+    controller : SampledController
+        The controller to guard (``reset()``, ``__call__(k, t, q_meas, e_pulses)``).
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+        Its log (rig and, by default, the limit).
+    limit_pulses : 'log', float or array_like, shape (n_joints,)
+        See :class:`FollowingErrorLimit`.
+
+    Attributes
+    ----------
+    controller : SampledController
+    limit : FollowingErrorLimit
+    tripped_t_s : float or None
+        When the P law took over (None: never).
+    events : list of dict
+        ``t_s``, ``kind`` (``'fallback'``), ``message``.
+
+    Raises
+    ------
+    ValueError
+        On a bad limit.
+
+    Warns
+    -----
+    FollowingErrorWarning
+        When the limit trips (once per run).
+
+    Examples
+    --------
+    >>> import ctc, plant
+    >>> log = plant.load_example()
+    >>> guarded = ctc.FollowingErrorGuard(ctc.ComputedTorqueController.from_log(
+    ...     [0.3, 0.3, 0.01, -0.5, 0.02, -1.0, 3.0, -0.1, 4.0], log), log)
+    >>> guarded.limit.limit_pulses.shape
+    (2,)
+    """
+
+    def __init__(self, controller, log, *, limit_pulses="log"):
+        if not (callable(controller) and callable(getattr(controller, "reset", None))):
+            raise ValueError("controller must follow the sampled-controller protocol "
+                             "(reset() and __call__(k, t, q_meas, e_pulses))")
+        self.controller = controller
+        self.limit = FollowingErrorLimit(log, limit_pulses)
+        self.reset()
+
+    def reset(self) -> None:
+        """Reset the guarded controller and re-arm the limit."""
+        self.controller.reset()
+        self.tripped_t_s = None
+        self.events = []
+
+    def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
+        """Currents (n_joints,) A: the guarded controller's, or the P law's once tripped.
+
+        Parameters
+        ----------
+        k : int
+        t : float
+        q_meas : ndarray, shape (n_joints,)
+        e_pulses : ndarray, shape (n_joints,)
+
+        Returns
+        -------
+        ndarray, shape (n_joints,)
+        """
+        if self.tripped_t_s is None and self.limit.exceeded(e_pulses):
+            self.tripped_t_s = float(t)
+            msg = self.limit.message(t, e_pulses)
+            self.events.append(dict(t_s=float(t), kind="fallback", message=msg))
+            warnings.warn(msg, FollowingErrorWarning, stacklevel=2)
+        if self.tripped_t_s is not None:
+            return self.limit.p_current(e_pulses)
+        return self.controller(k, t, q_meas, e_pulses)
+
+    def __repr__(self) -> str:
+        state = "armed" if self.tripped_t_s is None else f"tripped at {self.tripped_t_s:.3f} s"
+        return f"FollowingErrorGuard({self.controller!r}, limit {self.limit.limit_pulses.tolist()}, {state})"

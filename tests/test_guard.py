@@ -1,0 +1,124 @@
+"""The following-error limit (ctc.guard): the rig's P law takes over when a controller loses the arm."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from conftest import PAPER_RIGID
+from ctc import (AdaptiveComputedTorqueController, ComputedTorqueController, FollowingErrorGuard,
+                 FollowingErrorWarning, PController)
+from ctc.guard import MIN_LIMIT_PULSES, FollowingErrorLimit
+from plant.simulation.closed_loop import simulate_closed_loop
+
+SUBSTEPS = 32
+
+
+class Destabilising:
+    """A law that pushes the wrong way (positive feedback): it loses the arm."""
+
+    def __init__(self, p):
+        self.p = np.asarray(p, dtype=float)
+
+    def reset(self):
+        pass
+
+    def __call__(self, k, t, q_meas, e_pulses):
+        return -0.5 * self.p * e_pulses
+
+
+@pytest.fixture(scope="module")
+def f_true(truth):
+    return np.array(truth(PAPER_RIGID)["f_vector"])
+
+
+def test_default_limit_is_the_logs_p_error(paper_log):
+    lim = FollowingErrorLimit(paper_log)
+    expected = np.maximum(np.abs(paper_log.e_pulses).max(axis=0), MIN_LIMIT_PULSES)
+    np.testing.assert_array_equal(lim.limit_pulses, expected)
+    e = np.array([3, -5])
+    np.testing.assert_allclose(lim.p_current(e), np.asarray(paper_log.rig.p_gain_A_per_pulse) * e)
+    big = np.array([10 ** 6, 0])
+    assert np.all(np.abs(lim.p_current(big)) <= paper_log.rig.current_full_scale_A)
+    assert lim.exceeded(expected + 1) and not lim.exceeded(expected)
+
+
+def test_guard_hands_a_lost_arm_to_the_p_law(paper_log, f_true):
+    """Unguarded, the destabilising law runs away; guarded, the P law holds the arm
+    from the first sample past the limit, at the error level of the rig's own P run."""
+    n = 2000
+    p = paper_log.rig.p_gain_A_per_pulse
+    lost = simulate_closed_loop(paper_log, f_true, Destabilising(p), n_samples=n, substeps=SUBSTEPS)
+    guard = FollowingErrorGuard(Destabilising(p), paper_log)
+    with pytest.warns(FollowingErrorWarning, match="P law"):
+        held = simulate_closed_loop(paper_log, f_true, guard, n_samples=n, substeps=SUBSTEPS)
+    p_run = simulate_closed_loop(paper_log, f_true, PController.from_log(paper_log), n_samples=n,
+                                 substeps=SUBSTEPS)
+    limit = guard.limit.limit_pulses
+    assert np.abs(lost.e_pulses).max() > 3 * limit.max()
+    assert guard.tripped_t_s is not None and [e["kind"] for e in guard.events] == ["fallback"]
+    k_trip = int(round(guard.tripped_t_s / paper_log.rig.sample_time_s))
+    # tripped at the first sample past the limit; never far beyond it; then the P run's level
+    assert np.all(np.abs(held.e_pulses[:k_trip]) <= limit)
+    assert np.abs(held.e_pulses).max() <= 2 * limit.max()
+    settle = k_trip + 500
+    assert np.all(np.abs(held.e_pulses[settle:]).max(axis=0) <= np.abs(p_run.e_pulses).max(axis=0) + 2)
+    guard.reset()
+    assert guard.tripped_t_s is None and guard.events == []
+
+
+def test_guard_leaves_a_good_controller_alone(paper_log, f_true):
+    ctl = FollowingErrorGuard(ComputedTorqueController.from_log(f_true, paper_log), paper_log)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FollowingErrorWarning)
+        r = simulate_closed_loop(paper_log, f_true, ctl, substeps=SUBSTEPS)
+    assert ctl.tripped_t_s is None
+    k = int(np.ceil(0.1 / paper_log.rig.sample_time_s))
+    assert np.abs(r.e_pulses[k:]).max() <= 1
+
+
+@pytest.mark.parametrize("limit, match", [
+    ("loose", "'log' or pulses"), (0.0, "> 0"), ([1.0, np.nan], "> 0"), ([1.0, 2.0, 3.0], "2 numbers"),
+])
+def test_bad_limit(paper_log, limit, match):
+    with pytest.raises(ValueError, match=match):
+        FollowingErrorLimit(paper_log, limit)
+
+
+def test_guard_refuses_a_non_controller(paper_log):
+    with pytest.raises(ValueError, match="sampled-controller protocol"):
+        FollowingErrorGuard(object(), paper_log)
+
+
+def test_p_controller_saturates_at_full_scale(paper_log):
+    pc = PController.from_log(paper_log)
+    assert pc.current_full_scale_A == paper_log.rig.current_full_scale_A
+    i = pc(0, 0.0, np.zeros(2), np.array([10 ** 6, -10 ** 6]))
+    np.testing.assert_allclose(np.abs(i), paper_log.rig.current_full_scale_A)
+    with pytest.raises(ValueError, match="current_full_scale_A"):
+        PController([0.1, 0.1], current_full_scale_A=-1.0)
+
+
+def test_adaptive_ctc_bad_following_error_limit(paper_log, f_true):
+    with pytest.raises(ValueError, match="limit_pulses"):
+        AdaptiveComputedTorqueController.from_log(f_true, paper_log, following_error_limit=-3)
+
+
+def test_adaptive_ctc_falls_back_to_the_p_law(paper_log, f_true):
+    """A limit below one pulse trips on the first error: from then on the adaptive CTC is
+    the P law (no further identification), says so once, and reset() re-arms it."""
+    ctl = AdaptiveComputedTorqueController.from_log(f_true, paper_log, following_error_limit=0.5)
+    n = 1500
+    with pytest.warns(FollowingErrorWarning):
+        r = simulate_closed_loop(paper_log, f_true, ctl, n_samples=n, substeps=SUBSTEPS)
+    assert ctl.fallback_t_s is not None
+    kinds = [e["kind"] for e in ctl.events]
+    assert kinds.count("fallback") == 1
+    k_trip = int(round(ctl.fallback_t_s / paper_log.rig.sample_time_s))
+    assert all(w["window_s"][1] <= ctl.fallback_t_s + 1e-12 for w in ctl.identifications)
+    p = np.asarray(paper_log.rig.p_gain_A_per_pulse)
+    fs = paper_log.rig.current_full_scale_A
+    np.testing.assert_allclose(r.i_A[k_trip:], np.clip(p * r.e_pulses[k_trip:], -fs, fs))
+    ctl.reset()
+    assert ctl.fallback_t_s is None and ctl.events == []
