@@ -31,10 +31,12 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
 * the current is saturated at the drive's full scale; the observer is then
   driven by the acceleration the saturated current gives (no windup).
 
-Safety: :meth:`ArmComputedTorque.from_result` arms a watchdog
-(``envelope``, :func:`log_envelope`): a tracking error beyond half the
-largest error of the P loop the log was recorded with hands the arm to that
-P law for the rest of the run, with a warning (the model does not fit).  A
+Safety: :meth:`ArmComputedTorque.from_result` arms the following-error
+limit (``envelope``, :func:`log_envelope`, :class:`ctc.guard.FollowingErrorLimit`,
+the same rule as the PUMA controllers' ``from_result``): a tracking error
+beyond the largest error of the P loop the log was recorded with hands the
+arm to that P law for the rest of the run, with a
+:class:`ctc.guard.FollowingErrorWarning` (the model does not fit).  A
 flexible result gives :class:`ArmFlexibleComputedTorque` (the motor-side
 CTC with the spring torque of the identified link model) only when it holds
 a model-error set (stiffness +-30 %, damping x0.5 .. x2) at least as well as
@@ -56,27 +58,31 @@ from plant.robot.model import friction_torque
 from plant.logs.rig import rig_constants
 
 from .design import gains_for
+from .guard import FollowingErrorLimit
 
 __all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "log_envelope",
            "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S"]
 
 
 def log_envelope(log) -> np.ndarray:
-    """The watchdog's envelope of a log: half its largest P-control error per joint (pulses), (n,).
+    """The watchdog's envelope of a log: its largest P-control error per joint (pulses), (n,).
 
-    The P loop the log was recorded with held the arm within its largest
-    errors; a computed torque whose error reaches half of them tracks no
-    better than that loop (it exists to track far better), and handing the
-    arm over at half leaves the P loop room for the arm's momentum at the
-    hand-over.  At least 2 pulses per joint (a log that held its joints
-    within a pulse or two leaves the computed torque its own quantisation).
+    The limit of :class:`ctc.guard.FollowingErrorLimit`: the P loop the log
+    was recorded with held the arm within its largest errors; a computed
+    torque whose error passes them tracks worse than that loop and has lost
+    its model.  At least :data:`ctc.guard.MIN_LIMIT_PULSES` per joint (a log
+    that held its joints within a few pulses leaves the computed torque its
+    own quantisation).
 
     Parameters
     ----------
     log : plant.logs.arm_log.ArmLog
+
+    Returns
+    -------
+    ndarray, shape (n,)
     """
-    e = np.abs(np.asarray(log.e_pulses, dtype=float))
-    return np.maximum(0.5 * e.max(axis=0) if e.size else np.zeros(log.n_joints), 2.0)
+    return FollowingErrorLimit(log).limit_pulses
 
 
 class ArmComputedTorque:
@@ -98,11 +104,14 @@ class ArmComputedTorque:
         The safety watchdog (default none): pulses per joint beyond which
         the controller no longer trusts its model and hands the arm to the
         rig's P law ``i = P e`` (its gains from ``rig``), for the rest of
-        the run, with a ``RuntimeWarning``; ``tripped_at`` is the sample.
-        :meth:`from_result` takes half the log's largest P-control errors
+        the run, with a :class:`ctc.guard.FollowingErrorWarning` (a
+        ``RuntimeWarning``); ``tripped_at`` is the sample, ``fallback_t_s``
+        its time (the :class:`ctc.guard.FollowingErrorLimit` is
+        ``following_error``).
+        :meth:`from_result` takes the log's largest P-control errors
         (:func:`log_envelope`): the P loop the log was recorded with is
         known to hold the arm within them, and a computed torque that
-        tracks no better rests on a model that does not fit.
+        tracks worse rests on a model that does not fit.
     **design
         Keywords of :func:`ctc.design.design_gains` (instead of ``gains``).
 
@@ -141,14 +150,28 @@ class ArmComputedTorque:
         D, _ = self.terms(q[0], np.zeros(self.n))
         if np.any(np.linalg.eigvalsh(D) <= 0):
             raise ValueError("the controller's D_hat(q) is not positive definite at the reference's start")
-        self.p_gain = np.asarray(rig.p_gain_A_per_pulse, dtype=float)
+        self._rig = rig
+        self.envelope = envelope
+        self.reset()
+
+    @property
+    def envelope(self):
+        """The following-error limit (n,) pulses, or None (no watchdog)."""
+        return None if self.following_error is None else self.following_error.limit_pulses
+
+    @envelope.setter
+    def envelope(self, envelope):
         if envelope is not None:
             envelope = np.asarray(envelope, dtype=float).reshape(-1)
             if envelope.shape != (self.n,) or not np.all(envelope > 0):
                 raise ValueError(f"envelope must be {self.n} positive numbers (pulses), got "
                                  f"{envelope!r}")
-        self.envelope = envelope
-        self.reset()
+        self.following_error = None if envelope is None else FollowingErrorLimit(self._rig, envelope)
+
+    @property
+    def tripped_at(self):
+        """The sample at which the watchdog handed the arm to the P law (None: never)."""
+        return None if self.fallback_t_s is None else int(round(self.fallback_t_s / self.ts))
 
     @classmethod
     def from_result(cls, result, log, **design):
@@ -164,7 +187,7 @@ class ArmComputedTorque:
         Returns
         -------
         ArmComputedTorque
-            With the safety watchdog at half the log's largest P-control
+            With the safety watchdog at the log's largest P-control
             errors (``envelope``, :func:`log_envelope`; pass ``envelope=None``
             for none).
 
@@ -230,7 +253,7 @@ class ArmComputedTorque:
         q, qd, _ = self.trajectory.evaluate(np.zeros(1))
         self.x = np.vstack([q[0], qd[0]])  # rows: q_hat, qd_hat
         self.a_prev = np.zeros(self.n)
-        self.tripped_at = None
+        self.fallback_t_s = None
 
     def __call__(self, k, t, q_meas, e_pulses):
         """Motor currents (n,) A for sample ``k`` at time ``t`` (sampled-controller protocol).
@@ -238,18 +261,10 @@ class ArmComputedTorque:
         The computed torque, unless the watchdog has tripped (``envelope``):
         then the rig's P law ``clip(P e, -I_fs, I_fs)``.
         """
-        e = np.asarray(e_pulses, dtype=float)
-        if self.tripped_at is None and self.envelope is not None and np.any(
-                np.abs(e) > self.envelope):
-            import warnings
-
-            self.tripped_at = int(k)
-            warnings.warn(f"{type(self).__name__}: tracking errors {np.abs(e).astype(int).tolist()} "
-                          f"pulses beyond the envelope {self.envelope.astype(int).tolist()} at "
-                          f"sample {k}: the model does not fit this robot; the rig's P law "
-                          "holds the arm from here", RuntimeWarning, stacklevel=2)
-        if self.tripped_at is not None:
-            return np.clip(self.p_gain * e, -self.limit, self.limit)
+        if self.following_error is not None:
+            i = self.following_error.hold(self, t, e_pulses)
+            if i is not None:
+                return i
         return self._law(k, t, q_meas, e_pulses)
 
     def _law(self, k, t, q_meas, e_pulses):
@@ -392,7 +407,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             With ``model == "flexible"`` and its joints.
         log : plant.logs.arm_log.ArmLog
         **options
-            As the constructor (``envelope`` by default half the log's
+            As the constructor (``envelope`` by default the log's
             largest P-control errors, :func:`log_envelope`).
 
         Returns

@@ -76,6 +76,7 @@ from plant.simulation.controllers import LoggedController, register_control_law,
 from plant.logs.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, gains_for
+from .guard import as_limit
 
 __all__ = ["ComputedTorqueController", "CTCParameters", "CTCLaw", "CTCLawKind", "ctc_law",
            "reference_of", "model_f"]
@@ -430,10 +431,15 @@ class ComputedTorqueController:
         self._n = n
         self._scratch = np.zeros((1, 6))
         self._state = np.zeros((S_LEN, 1))
+        #: following-error limit (:class:`ctc.guard.FollowingErrorLimit`) or None: see :meth:`from_result`
+        self.following_error = None
+        #: when the limit handed the arm to the rig's P law (s; None: never)
+        self.fallback_t_s = None
 
     @classmethod
     def from_log(cls, f, log, *, gains=None, nonlinear_velocity="reference", friction=True,
-                 cell_centre=True, n_samples=None, trajectory=None, **design):
+                 cell_centre=True, n_samples=None, trajectory=None, following_error_limit=None,
+                 **design):
         """Build the CTC of a log's rig and reference.
 
         Parameters
@@ -453,6 +459,15 @@ class ComputedTorqueController:
         trajectory : plant.logs.trajectory.Trajectory, optional
             The reference to follow (default the log's): any reference, e.g.
             ``Trajectory.from_terms(...)`` or ``Trajectory.paper(T)``.
+        following_error_limit : None, 'log', float, array_like (2,) or ctc.guard.FollowingErrorLimit
+            A following-error limit (:mod:`ctc.guard`; default none, the
+            paper's CTC): from the first sample at which a joint's pulse
+            error passes it, the rig's P law ``i = P e`` holds the arm until
+            :meth:`reset` (``fallback_t_s``, a
+            :class:`ctc.guard.FollowingErrorWarning`).  ``'log'``: the log's
+            largest P-law error per joint, at least
+            :data:`ctc.guard.MIN_LIMIT_PULSES` (the default of
+            :meth:`from_result`); see :func:`ctc.guard.as_limit`.
         **design
             Keyword arguments of :func:`ctc.design.design_gains`
             (``bandwidth_hz``, ``damping``, ``estimator``,
@@ -470,12 +485,15 @@ class ComputedTorqueController:
         """
         f = model_f(f)
         traj = reference_of(log, trajectory)
+        limit = as_limit(following_error_limit, log)
         gains = gains_for(log.rig, gains, **design)
-        return cls(
+        ctrl = cls(
             f, log.rig, traj, gains,
             n_samples=log.n_total if n_samples is None else n_samples,
             nonlinear_velocity=nonlinear_velocity, friction=friction, cell_centre=cell_centre,
         )
+        ctrl.following_error = limit
+        return ctrl
 
     @classmethod
     def from_result(cls, result, log, **options):
@@ -493,8 +511,17 @@ class ComputedTorqueController:
           comes from a link model in the controller; see :mod:`ctc.flexible`
           for the design and the measurements that chose it).
 
+        Safety: the controller is armed with a following-error limit
+        (``following_error_limit='log'``, :class:`ctc.guard.FollowingErrorLimit`:
+        the log's largest P-law error per joint): a robot the model no
+        longer describes (a tool it does not know of, a badly identified
+        model) is handed to the rig's P law, the loop the log was recorded
+        with, instead of being destabilised.  Pass
+        ``following_error_limit=None`` for the bare law.
+
         A rigid result with the sidecar's friction gives exactly
-        ``ComputedTorqueController.from_log(result.f, log, **options)``.
+        ``ComputedTorqueController.from_log(result.f, log, following_error_limit='log',
+        **options)``.
 
         Parameters
         ----------
@@ -526,12 +553,14 @@ class ComputedTorqueController:
         """
         if RESULT_FACTORY["build"] is None:  # pragma: no cover - ctc/__init__ imports ctc.flexible
             raise RuntimeError("no controller factory registered (import ctc, not ctc.computed_torque alone)")
+        options.setdefault("following_error_limit", "log")
         return RESULT_FACTORY["build"](result, log, **options)
 
     # ------------------------------------------------------------ protocol
     def reset(self) -> None:
-        """Clear the estimator state (call before a new run)."""
+        """Clear the estimator state and re-arm the following-error limit (call before a new run)."""
         self._state[:] = 0.0
+        self.fallback_t_s = None
 
     def set_model_f(self, f) -> np.ndarray:
         """Switch the controller's model (D_hat, h_hat, g_hat) to ``f`` (on-line adaptation).
@@ -579,14 +608,20 @@ class ComputedTorqueController:
         q_meas : ndarray, shape (2,)
             Quantised joint angles (rad) from the encoder counts.
         e_pulses : ndarray, shape (2,)
-            Pulse errors (unused: the CTC forms its error from the continuous
-            reference and the position estimate).
+            Pulse errors: read by the following-error limit only (the CTC
+            forms its error from the continuous reference and the position
+            estimate).
 
         Returns
         -------
         ndarray, shape (2,)
-            Motor currents (A).
+            Motor currents (A): the rig's P law once the following-error
+            limit has tripped.
         """
+        if self.following_error is not None:
+            i = self.following_error.hold(self, t, e_pulses)
+            if i is not None:
+                return i
         if type(q_meas) is not np.ndarray or q_meas.dtype != np.float64:
             q_meas = np.asarray(q_meas, dtype=np.float64)
         if q_meas.shape != (2,):

@@ -95,6 +95,7 @@ from plant.simulation.controllers import LoggedController, register_control_law,
 from plant.robot.model import friction_torque, is_positive_definite, joint_acceleration
 from plant.simulation.plants import dead_zone, link_f as link_model_f
 
+from .guard import as_limit
 from .computed_torque import (
     S_A,
     S_INIT,
@@ -518,9 +519,11 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         self.n_estimator_resets = 0
 
     def reset(self) -> None:
-        """Clear the estimator state and the restart count (call before a new run)."""
+        """Clear the estimator state and the restart count, re-arm the following-error limit
+        (call before a new run)."""
         self._state[:] = 0.0
         self.n_estimator_resets = 0
+        self.fallback_t_s = None
 
     def set_model_f(self, f) -> np.ndarray:
         """Switch the controller's model to the rigid-equivalent ``f`` (its link model follows).
@@ -565,7 +568,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
                  friction=True, cell_centre=True, n_samples=None,
                  link_substeps=DEFAULT_LINK_SUBSTEPS,
                  link_damping=DEFAULT_LINK_OBSERVER_DAMPING, backlash_rad=None, trajectory=None,
-                 **design):
+                 following_error_limit=None, **design):
         """Build the flexible-joint CTC of a log's rig and reference.
 
         Parameters
@@ -587,6 +590,8 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
             The reference to follow (default the log's).
         n_samples : int, optional
             Samples to tabulate (default ``log.n_total``).
+        following_error_limit : None, 'log', float, array_like (2,) or ctc.guard.FollowingErrorLimit
+            As :meth:`ctc.ComputedTorqueController.from_log` (default none).
         **design
             Keyword arguments of :func:`ctc.design.design_gains`.
 
@@ -604,14 +609,17 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
 
         f = model_f(f)
         traj = reference_of(log, trajectory)
+        limit = as_limit(following_error_limit, log)
         gains = gains_for(log.rig, gains, **design)
-        return cls(f, log.rig, traj, gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
+        ctrl = cls(f, log.rig, traj, gains, stiffness_Nm_per_rad=stiffness_Nm_per_rad,
                    damping_Nms_per_rad=damping_Nms_per_rad,
                    motor_inertia_reflected_kgm2=motor_inertia_reflected_kgm2,
                    n_samples=log.n_total if n_samples is None else n_samples,
                    nonlinear_velocity=nonlinear_velocity, friction=friction,
                    cell_centre=cell_centre, link_substeps=link_substeps,
                    link_damping=link_damping, backlash_rad=backlash_rad)
+        ctrl.following_error = limit
+        return ctrl
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (2,) A for sample ``k`` at time ``t`` (s).
@@ -625,7 +633,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         q_meas : ndarray, shape (2,)
             Quantised joint-side motor angles (rad) from the encoder counts.
         e_pulses : ndarray, shape (2,)
-            Pulse errors (unused).
+            Pulse errors (read by the following-error limit only).
 
         Returns
         -------
@@ -636,6 +644,10 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
             q_meas = np.asarray(q_meas, dtype=np.float64)
         if q_meas.shape != (2,):
             raise ValueError(f"q_meas must have shape (2,), got {q_meas.shape}")
+        if self.following_error is not None:
+            i = self.following_error.hold(self, t, e_pulses)
+            if i is not None:
+                return i
         i = self._step(k, t, q_meas)
         if not (math.isfinite(i[0]) and math.isfinite(i[1])):
             # the link model diverged (a robot far from the model): never a NaN to the
@@ -758,7 +770,9 @@ def controller_from_result(result, log, **options):
         Rig constants and reference trajectory.
     **options
         Keyword arguments of :meth:`ComputedTorqueController.from_log`
-        (``trajectory`` among them); for a flexible result also
+        (``trajectory`` and ``following_error_limit`` among them: the limit
+        is armed on the controller returned, after the checks below, which
+        run the bare law); for a flexible result also
         ``link_substeps``, ``link_damping`` and ``robust``: None builds the
         flexible-joint CTC unchecked; ``'check'`` runs
         :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` (stiffness
@@ -792,6 +806,14 @@ def controller_from_result(result, log, **options):
         identification found that its model does not describe the log), and
         when the flexible-joint design cannot hold the uncertainty set.
     """
+    limit = options.pop("following_error_limit", None)
+    ctrl = _build_from_result(result, log, **options)
+    ctrl.following_error = as_limit(limit, log)
+    return ctrl
+
+
+def _build_from_result(result, log, **options):
+    """:func:`controller_from_result` without its following-error limit (the checks run the bare law)."""
     robust = options.pop("robust", "fallback")  # flexible results only; a rigid CTC needs no check
     if robust not in (None, "check", "fallback"):
         raise ValueError(f"robust must be None, 'check' or 'fallback', got {robust!r}")

@@ -12,15 +12,23 @@ its limit, the controller is replaced by the rig's P law ``i = P e`` (the
 paper's controller, the one the robot was logged under and known to be
 stable with), clipped at the drive's full scale, until :meth:`reset`.
 
-The default limit of each joint is the largest pulse error of the log the
+The limit of each joint is the largest pulse error of the log the
 controller was built from -- the P law's own following error along the
-logged reference -- but at least :data:`MIN_LIMIT_PULSES`: a computed-torque
-controller that tracks worse than the P law did has lost its model.
+logged reference -- but at least :data:`MIN_LIMIT_PULSES` (a log whose P
+law never left a few pulses must not trip the limit on a computed-torque
+controller's quantisation-level errors).  A computed-torque controller that
+tracks worse than the P law did has lost its model; one that tracks better,
+even if far from its +-1 pulse goal, is left in charge (handing it over
+earlier -- at half the P law's error, say -- makes a bounded run worse:
+the P law's own error is then the run's).  The rig's P law holds the arm
+after the hand-over at about its own error (``tests/test_guard.py``).
 
-:class:`FollowingErrorGuard` wraps any sampled controller
-(:mod:`ctc.protocol`);
-:class:`ctc.AdaptiveComputedTorqueController` applies the same limit
-(``following_error_limit=``) around its inner controller.
+Every computed-torque controller built from an identification result
+carries the limit (:meth:`ctc.ComputedTorqueController.from_result`,
+:meth:`ctc.arm.ArmComputedTorque.from_result`), and so does
+:class:`ctc.AdaptiveComputedTorqueController` (``following_error_limit=``)
+around its inner controller; :class:`FollowingErrorGuard` wraps any other
+sampled controller (:mod:`ctc.protocol`).
 """
 from __future__ import annotations
 
@@ -30,14 +38,14 @@ import warnings
 import numpy as np
 
 __all__ = ["FollowingErrorGuard", "FollowingErrorLimit", "FollowingErrorWarning",
-           "MIN_LIMIT_PULSES"]
+           "MIN_LIMIT_PULSES", "as_limit"]
 
 #: Smallest default limit (pulses): a log whose P law never left a few pulses
 #: must not trip the limit on a computed-torque controller's quantisation-level errors.
 MIN_LIMIT_PULSES = 4
 
 
-class FollowingErrorWarning(UserWarning):
+class FollowingErrorWarning(RuntimeWarning):
     """A controller's following error passed its limit: the rig's P law took over."""
 
 
@@ -46,9 +54,10 @@ class FollowingErrorLimit:
 
     Parameters
     ----------
-    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+    log : plant.ExperimentLog, plant.logs.arm_log.ArmLog or plant.Rig
         The log the controller was built from: its rig (P gains, current
-        full scale) and, for ``limit_pulses='log'``, its pulse errors.
+        full scale) and, for ``limit_pulses='log'``, its pulse errors; or
+        a rig alone, with the limit given in pulses.
     limit_pulses : 'log', float or array_like, shape (n_joints,)
         Limit per joint (pulses, > 0).  ``'log'`` (default): the log's
         largest ``|e|`` per joint, at least :data:`MIN_LIMIT_PULSES`.
@@ -64,18 +73,21 @@ class FollowingErrorLimit:
     Raises
     ------
     ValueError
-        If a given limit is not finite and > 0, or has the wrong length.
+        If a given limit is not finite and > 0, or has the wrong length;
+        ``'log'`` without a log.
     """
 
     def __init__(self, log, limit_pulses="log"):
-        rig = log.rig
-        self.p_gain = np.asarray(rig.p_gain_A_per_pulse, dtype=float)
+        rig = getattr(log, "rig", log)
+        self.p_gain = np.asarray(rig.p_gain_A_per_pulse, dtype=float).reshape(-1)
         n = self.p_gain.size
         fs = rig.current_full_scale_A
         self.current_limit = math.inf if fs is None else float(fs)
         if isinstance(limit_pulses, str):
             if limit_pulses != "log":
                 raise ValueError(f"limit_pulses must be 'log' or pulses > 0, got {limit_pulses!r}")
+            if not hasattr(log, "e_pulses"):
+                raise ValueError("limit_pulses='log' needs the log (its pulse errors), not a rig")
             e = np.asarray(log.e_pulses, dtype=float)
             lim = np.max(np.abs(e), axis=0) if e.size else np.zeros(n)
             lim = np.maximum(lim, MIN_LIMIT_PULSES)
@@ -116,6 +128,39 @@ class FollowingErrorLimit:
         return np.clip(self.p_gain * np.asarray(e_pulses, dtype=float),
                        -self.current_limit, self.current_limit)
 
+    def hold(self, holder, t, e_pulses):
+        """The P law's currents once the limit has tripped, else None (a controller's first step).
+
+        Trips the limit -- sets ``holder.fallback_t_s`` and warns once --
+        when ``|e|`` first passes it.
+
+        Parameters
+        ----------
+        holder : object
+            The controller; its ``fallback_t_s`` (None: not tripped) is read and set.
+        t : float
+            Time (s).
+        e_pulses : array_like, shape (n_joints,)
+
+        Returns
+        -------
+        ndarray, shape (n_joints,), or None
+            ``clip(P e, -I_fs, I_fs)`` (A) from the trip on; None while the
+            controller's own law is in charge.
+
+        Warns
+        -----
+        FollowingErrorWarning
+            When the limit trips.
+        """
+        if holder.fallback_t_s is None:
+            if not self.exceeded(e_pulses):
+                return None
+            holder.fallback_t_s = float(t)
+            warnings.warn(f"{type(holder).__name__}: {self.message(t, e_pulses)}",
+                          FollowingErrorWarning, stacklevel=3)
+        return self.p_current(e_pulses)
+
     def message(self, t, e_pulses) -> str:
         """One line saying what tripped and what runs now.
 
@@ -131,8 +176,33 @@ class FollowingErrorLimit:
         """
         e = np.asarray(e_pulses).astype(int).tolist()
         return (f"following error {e} pulses at t = {t:.3f} s exceeds the limit "
-                f"{self.limit_pulses.astype(int).tolist()}: the rig's P law (i = P e) runs from "
-                f"here on (reset() to try the model again)")
+                f"{np.round(self.limit_pulses, 1).tolist()}: the model does not fit this robot; "
+                "the rig's P law holds the arm from here on (i = P e; reset() to try the model "
+                "again)")
+
+
+def as_limit(limit, log):
+    """A controller's ``following_error_limit`` option as a :class:`FollowingErrorLimit` or None.
+
+    Parameters
+    ----------
+    limit : None, 'log', float, array_like (n_joints,) or FollowingErrorLimit
+        None: no limit; ``'log'`` or pulses: :class:`FollowingErrorLimit`
+        of ``log``; a limit: itself.
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+
+    Returns
+    -------
+    FollowingErrorLimit or None
+
+    Raises
+    ------
+    ValueError
+        As :class:`FollowingErrorLimit`.
+    """
+    if limit is None or isinstance(limit, FollowingErrorLimit):
+        return limit
+    return FollowingErrorLimit(log, limit)
 
 
 class FollowingErrorGuard:
@@ -151,7 +221,7 @@ class FollowingErrorGuard:
     ----------
     controller : SampledController
     limit : FollowingErrorLimit
-    tripped_t_s : float or None
+    fallback_t_s : float or None
         When the P law took over (None: never).
     events : list of dict
         ``t_s``, ``kind`` (``'fallback'``), ``message``.
@@ -187,7 +257,7 @@ class FollowingErrorGuard:
     def reset(self) -> None:
         """Reset the guarded controller and re-arm the limit."""
         self.controller.reset()
-        self.tripped_t_s = None
+        self.fallback_t_s = None
         self.events = []
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
@@ -204,15 +274,15 @@ class FollowingErrorGuard:
         -------
         ndarray, shape (n_joints,)
         """
-        if self.tripped_t_s is None and self.limit.exceeded(e_pulses):
-            self.tripped_t_s = float(t)
-            msg = self.limit.message(t, e_pulses)
-            self.events.append(dict(t_s=float(t), kind="fallback", message=msg))
-            warnings.warn(msg, FollowingErrorWarning, stacklevel=2)
-        if self.tripped_t_s is not None:
-            return self.limit.p_current(e_pulses)
-        return self.controller(k, t, q_meas, e_pulses)
+        was = self.fallback_t_s
+        i = self.limit.hold(self, t, e_pulses)
+        if i is None:
+            return self.controller(k, t, q_meas, e_pulses)
+        if was is None:
+            self.events.append(dict(t_s=float(t), kind="fallback",
+                                    message=self.limit.message(t, e_pulses)))
+        return i
 
     def __repr__(self) -> str:
-        state = "armed" if self.tripped_t_s is None else f"tripped at {self.tripped_t_s:.3f} s"
+        state = "armed" if self.fallback_t_s is None else f"tripped at {self.fallback_t_s:.3f} s"
         return f"FollowingErrorGuard({self.controller!r}, limit {self.limit.limit_pulses.tolist()}, {state})"

@@ -6,6 +6,8 @@ import warnings
 import numpy as np
 import pytest
 
+import plant
+
 from conftest import PAPER_RIGID
 from ctc import (AdaptiveComputedTorqueController, ComputedTorqueController, FollowingErrorGuard,
                  FollowingErrorWarning, PController)
@@ -57,15 +59,15 @@ def test_guard_hands_a_lost_arm_to_the_p_law(paper_log, f_true):
                                  substeps=SUBSTEPS)
     limit = guard.limit.limit_pulses
     assert np.abs(lost.e_pulses).max() > 3 * limit.max()
-    assert guard.tripped_t_s is not None and [e["kind"] for e in guard.events] == ["fallback"]
-    k_trip = int(round(guard.tripped_t_s / paper_log.rig.sample_time_s))
+    assert guard.fallback_t_s is not None and [e["kind"] for e in guard.events] == ["fallback"]
+    k_trip = int(round(guard.fallback_t_s / paper_log.rig.sample_time_s))
     # tripped at the first sample past the limit; never far beyond it; then the P run's level
     assert np.all(np.abs(held.e_pulses[:k_trip]) <= limit)
     assert np.abs(held.e_pulses).max() <= 2 * limit.max()
     settle = k_trip + 500
     assert np.all(np.abs(held.e_pulses[settle:]).max(axis=0) <= np.abs(p_run.e_pulses).max(axis=0) + 2)
     guard.reset()
-    assert guard.tripped_t_s is None and guard.events == []
+    assert guard.fallback_t_s is None and guard.events == []
 
 
 def test_guard_leaves_a_good_controller_alone(paper_log, f_true):
@@ -73,7 +75,7 @@ def test_guard_leaves_a_good_controller_alone(paper_log, f_true):
     with warnings.catch_warnings():
         warnings.simplefilter("error", FollowingErrorWarning)
         r = simulate_closed_loop(paper_log, f_true, ctl, substeps=SUBSTEPS)
-    assert ctl.tripped_t_s is None
+    assert ctl.fallback_t_s is None
     k = int(np.ceil(0.1 / paper_log.rig.sample_time_s))
     assert np.abs(r.e_pulses[k:]).max() <= 1
 
@@ -122,3 +124,50 @@ def test_adaptive_ctc_falls_back_to_the_p_law(paper_log, f_true):
     np.testing.assert_allclose(r.i_A[k_trip:], np.clip(p * r.e_pulses[k_trip:], -fs, fs))
     ctl.reset()
     assert ctl.fallback_t_s is None and ctl.events == []
+
+
+def test_from_result_arms_the_limit(paper_log, f_true):
+    """Every CTC built from a result carries the log's following-error limit (the arm's too);
+    ``following_error_limit=None`` gives the bare law; the adaptive CTC's inner law has none."""
+    from ctc.arm import log_envelope
+
+    res = dict(f=list(f_true), model="rigid", success=True)
+    ctl = ComputedTorqueController.from_result(res, paper_log)
+    np.testing.assert_array_equal(ctl.following_error.limit_pulses,
+                                  FollowingErrorLimit(paper_log).limit_pulses)
+    np.testing.assert_array_equal(log_envelope(paper_log), ctl.following_error.limit_pulses)
+    assert ComputedTorqueController.from_result(res, paper_log,
+                                                following_error_limit=None).following_error is None
+    assert ComputedTorqueController.from_log(f_true, paper_log).following_error is None
+    assert AdaptiveComputedTorqueController.from_log(f_true, paper_log)._ctc.following_error is None
+    with pytest.raises(ValueError, match="limit_pulses"):
+        ComputedTorqueController.from_result(res, paper_log, following_error_limit=[1.0, 2.0, 3.0])
+
+
+def test_flexible_ctc_from_a_wrong_result_hands_over(drill_log, truth):
+    """Issue 21: a flexible-joint CTC whose joints are far off (stiffness x3) runs the compliant
+    arm away; built by ``from_result`` it hands the arm to the P law, which holds it near the
+    logged P run's own errors, and ``reset()`` re-arms it."""
+    from plant.simulation.closed_loop import simulate_closed_loop as run
+
+    tr = truth("puma560_paper_drill_flex")
+    f = np.array(tr["f_vector"])
+    emu = tr["emulator"]["variant"]
+    k, d = np.array(emu["flex_stiffness"]), np.array(emu["flex_damping"])
+    robot = plant.FlexibleJoints(k, d, 200e-6)
+    wrong = dict(f=list(f), model="flexible", success=True,
+                 joint_stiffness_Nm_per_rad=list(3 * k), joint_damping_Nms_per_rad=list(d),
+                 motor_inertia_reflected_kgm2=list(200e-6 * np.asarray(drill_log.rig.gear_ratio) ** 2))
+    n = 3000
+    bare = ComputedTorqueController.from_result(wrong, drill_log, robust=None,
+                                                following_error_limit=None)
+    lost = run(drill_log, f, bare, flexible=robot, substeps=16, n_samples=n)
+    ctl = ComputedTorqueController.from_result(wrong, drill_log, robust=None)
+    with pytest.warns(FollowingErrorWarning, match="P law holds the arm"):
+        held = run(drill_log, f, ctl, flexible=robot, substeps=16, n_samples=n)
+    limit = ctl.following_error.limit_pulses
+    assert np.abs(lost.e_pulses).max() > 5 * limit.max()
+    assert ctl.fallback_t_s is not None and held.success
+    assert np.all(np.abs(held.e_pulses).max(axis=0) <= 2 * limit)
+    ctl.reset()
+    assert ctl.fallback_t_s is None
