@@ -806,9 +806,9 @@ def controller_from_result(result, log, **options):
         identification found that its model does not describe the log), and
         when the flexible-joint design cannot hold the uncertainty set.
     """
-    limit = options.pop("following_error_limit", None)
+    limit = as_limit(options.pop("following_error_limit", None), log)
     ctrl = _build_from_result(result, log, **options)
-    ctrl.following_error = as_limit(limit, log)
+    ctrl.following_error = limit
     return ctrl
 
 

@@ -74,11 +74,13 @@ class FollowingErrorLimit:
     ------
     ValueError
         If a given limit is not finite and > 0, or has the wrong length;
-        ``'log'`` without a log.
+        ``'log'`` without a log; ``log`` neither a log nor a rig.
     """
 
     def __init__(self, log, limit_pulses="log"):
         rig = getattr(log, "rig", log)
+        if not hasattr(rig, "p_gain_A_per_pulse"):
+            raise ValueError(f"log must be a plant log (or a rig for a limit in pulses), got {type(log).__name__}")
         self.p_gain = np.asarray(rig.p_gain_A_per_pulse, dtype=float).reshape(-1)
         n = self.p_gain.size
         fs = rig.current_full_scale_A
