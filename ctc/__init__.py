@@ -11,6 +11,8 @@
   payload identification and adaptation);
 * :mod:`ctc.guard` -- :class:`FollowingErrorGuard` (a following-error
   limit around any controller: the rig's P law takes over when the arm is lost);
+* :mod:`ctc.contract` -- :class:`IdentifiedModel` (the result -> controller
+  contract: what every ``from_result`` reads from an identification);
 * :mod:`ctc.design` -- gain design and analysis with python-control
   (:func:`design_gains`);
 * :mod:`ctc.evaluate` -- closed-loop evaluation with casadi
@@ -21,6 +23,7 @@ Run a controller against the model robot with
 """
 from .adaptive import AdaptiveComputedTorqueController, UnmodelledChangeWarning
 from .computed_torque import ComputedTorqueController
+from .contract import IdentifiedModel
 from .design import GainDesign, design_gains
 from .flexible import FlexibleJointComputedTorqueController
 from .guard import FollowingErrorGuard, FollowingErrorWarning
@@ -30,6 +33,7 @@ __all__ = [
     "SampledController",
     "PController",
     "ComputedTorqueController",
+    "IdentifiedModel",
     "AdaptiveComputedTorqueController", "UnmodelledChangeWarning",
     "FlexibleJointComputedTorqueController",
     "FollowingErrorGuard", "FollowingErrorWarning",

@@ -133,7 +133,9 @@ import time
 
 import numpy as np
 
+from .contract import IdentifiedModel
 from .computed_torque import ComputedTorqueController, reference_of
+from .guard import as_limit
 
 __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledChangeWarning",
            "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "DIVERGE_FACTOR", "SMALL_MASS_FRACTION",
@@ -255,34 +257,6 @@ def _prior_entries(prior):
     return d if hasattr(d, "get") else None
 
 
-def _flexible_joints(d):
-    """``(joints (6,), backlash (2,))`` of a flexible prior, or None for a rigid one.
-
-    A flexible prior without its joints cannot be used and is refused in one
-    line, never reduced to its rigid-equivalent f (issue 21, item 2).
-    """
-    if d is None:
-        return None
-    model = d.get("model")
-    if model is None or model == "rigid":
-        return None
-    if model != "flexible":
-        raise ValueError(f"the adaptive CTC takes a rigid or flexible prior; this prior's model "
-                         f"is {model!r}")
-    try:
-        k = np.asarray(d["joint_stiffness_Nm_per_rad"], dtype=float).reshape(2)
-        c = np.asarray(d["joint_damping_Nms_per_rad"], dtype=float).reshape(2)
-        j = np.asarray(d["motor_inertia_reflected_kgm2"], dtype=float).reshape(2)
-    except (KeyError, TypeError, ValueError):
-        raise ValueError("a flexible prior needs joint_stiffness_Nm_per_rad, "
-                         "joint_damping_Nms_per_rad and motor_inertia_reflected_kgm2 (2 values "
-                         "each); this one cannot be used (it is never reduced to its rigid f)") \
-            from None
-    b = d.get("joint_backlash_rad")
-    b = np.zeros(2) if b is None else np.asarray(b, dtype=float).reshape(2)
-    return np.concatenate([k, c, j]), b
-
-
 class AdaptiveComputedTorqueController:
     """CTC that identifies its payload on-line and adapts D_hat, h_hat, g_hat.
 
@@ -375,14 +349,19 @@ class AdaptiveComputedTorqueController:
         from identification.parameters import prior_f as as_prior_f
 
         d = _prior_entries(prior_f)
-        flex = _flexible_joints(d)
+        # a result (the result -> controller contract): a flexible prior without its joints
+        # is refused in one line, never reduced to its rigid-equivalent f (issue 21, item 2)
+        model = None if d is None else IdentifiedModel.from_result(d, what="prior")
+        flex = None
+        if model is not None and model.flexible:
+            b = np.zeros(2) if model.backlash_rad is None else model.backlash_rad
+            flex = (np.concatenate([model.stiffness_Nm_per_rad, model.damping_Nms_per_rad,
+                                    model.motor_inertia_reflected_kgm2]), b)
         self.prior_f = as_prior_f(prior_f)
-        if d is not None:
-            # a result: its identified friction (friction unknown in the sidecar) goes into
-            # the inner CTC and the window's simulated plant, as from_result does
-            from .flexible import rig_with_result_friction
-
-            rig = rig_with_result_friction(log.rig, d)
+        if model is not None:
+            # its identified friction (friction unknown in the sidecar) goes into the inner
+            # CTC and the window's simulated plant, as from_result does
+            rig = model.rig(log.rig)
             if rig is not log.rig:
                 log = log.replace(rig=rig)
         ts = float(log.rig.sample_time_s)
@@ -403,11 +382,8 @@ class AdaptiveComputedTorqueController:
         if not (latency_s == "measured" or (isinstance(latency_s, (int, float))
                                             and np.isfinite(latency_s) and latency_s >= 0)):
             raise ValueError(f"latency_s must be a number >= 0 (s) or 'measured', got {latency_s!r}")
-        from .guard import FollowingErrorLimit
-
         #: the following-error limit (:mod:`ctc.guard`), or None
-        self.following_error = (None if following_error_limit is None
-                                else FollowingErrorLimit(log, following_error_limit))
+        self.following_error = as_limit(following_error_limit, log)
         self.log = log
         self.window_s = float(window_s)
         self.improvement = float(improvement)
@@ -437,7 +413,8 @@ class AdaptiveComputedTorqueController:
 
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                inner = controller_from_result(d, log, trajectory=self.trajectory, **ctc_options)
+                inner = controller_from_result(model, log, trajectory=self.trajectory,
+                                               **ctc_options)
             #: what the inner controller's design said (warnings), kept, not raised
             self.design_warnings = [str(w.message) for w in caught]
             if isinstance(inner, FlexibleJointComputedTorqueController):

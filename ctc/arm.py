@@ -57,6 +57,7 @@ from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
 from plant.logs.rig import rig_constants
 
+from .contract import IdentifiedModel
 from .design import gains_for
 from .guard import FollowingErrorLimit
 
@@ -215,13 +216,14 @@ class ArmComputedTorque:
         """
         if not result.get("success", False):
             raise ValueError(f"the identification did not succeed: {result.get('message')}")
+        m = IdentifiedModel.from_result(result, n_joints=result["plant"].n_joints)
         design.setdefault("envelope", log_envelope(log))
-        if cls is ArmComputedTorque and result.get("model") == "flexible":
+        if cls is ArmComputedTorque and m.flexible:
             # a flexible result: the motor-side CTC with the spring torque of its link model,
             # unless it tracks the identified robot worse than the rigid-equivalent CTC
             return _checked_flexible(result, log, **design)
         # the result's rig: the log's, with the friction the identification found
-        return cls(result["plant"], result["beta"], result["rig"], log.trajectory, **design)
+        return cls(result["plant"], m.f, result["rig"], log.trajectory, **design)
 
     def terms(self, q, qd):
         """``D_hat(q)`` (n, n) and ``n_hat(q, qd)`` (n,) of the controller's model.
@@ -421,14 +423,14 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         """
         if not result.get("success", False):
             raise ValueError(f"the identification did not succeed: {result.get('message')}")
-        if result.get("model") != "flexible":
+        m = IdentifiedModel.from_result(result, n_joints=result["plant"].n_joints)
+        if not m.flexible:
             raise ValueError("ArmFlexibleComputedTorque needs a flexible result (model 'flexible')")
         options.setdefault("envelope", log_envelope(log))
-        return cls(result["plant"], result["beta"], result["rig"], log.trajectory,
-                   stiffness=result["joint_stiffness_Nm_per_rad"],
-                   damping=result["joint_damping_Nms_per_rad"],
-                   motor_inertia=result["motor_inertia_reflected_kgm2"],
-                   backlash=result.get("joint_backlash_rad"), **options)
+        return cls(result["plant"], m.f, result["rig"], log.trajectory,
+                   stiffness=m.stiffness_Nm_per_rad, damping=m.damping_Nms_per_rad,
+                   motor_inertia=m.motor_inertia_reflected_kgm2, backlash=m.backlash_rad,
+                   **options)
 
     def _link_terms(self, q, qd):
         """The link model's ``D_link(q)`` (n, n) and ``n_link(q, qd)`` (n,)."""

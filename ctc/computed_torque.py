@@ -525,8 +525,9 @@ class ComputedTorqueController:
 
         Parameters
         ----------
-        result : identification.IdentificationResult, dict or path
-            The result, its :meth:`~identification.IdentificationResult.to_dict`,
+        result : identification.IdentificationResult, ctc.contract.IdentifiedModel, dict or path
+            The result (read through :class:`ctc.contract.IdentifiedModel`), its
+            :meth:`~identification.IdentificationResult.to_dict`,
             or a JSON file written by ``save_json`` / the CLI's ``--output``
             (read with :meth:`~identification.IdentificationResult.load_json`).
         log : plant.ExperimentLog

@@ -95,6 +95,7 @@ from plant.simulation.controllers import LoggedController, register_control_law,
 from plant.robot.model import friction_torque, is_positive_definite, joint_acceleration
 from plant.simulation.plants import dead_zone, link_f as link_model_f
 
+from .contract import IdentifiedModel
 from .guard import as_limit
 from .computed_torque import (
     S_A,
@@ -725,47 +726,14 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
                 f"bandwidth_hz={g.bandwidth_hz.tolist()}, friction={self.friction})")
 
 
-def _result_entries(result) -> dict:
-    """The result as a mapping (an IdentificationResult, its dict, or a JSON path)."""
-    import os
-
-    if isinstance(result, (str, os.PathLike)):
-        from identification.result import IdentificationResult
-
-        return IdentificationResult.load_json(result)
-    if isinstance(result, dict):
-        return result
-    raise ValueError("result must be an IdentificationResult, its dict or a result JSON path, "
-                     f"got {type(result).__name__}")
-
-
-def rig_with_result_friction(rig, d):
-    """The rig with the result's friction when it was identified (else the rig itself)."""
-    import dataclasses
-
-    if not d.get("friction_identified"):
-        return rig
-    try:
-        visc = np.asarray(d["viscous_friction_Nms_per_rad"], dtype=float).reshape(2)
-        coul = np.asarray(d["coulomb_friction_Nm"], dtype=float).reshape(2, 2)
-    except (KeyError, TypeError, ValueError):
-        raise ValueError("a result with friction_identified needs viscous_friction_Nms_per_rad "
-                         "(2) and coulomb_friction_Nm (2 x 2)") from None
-    if not (np.all(np.isfinite(visc)) and np.all(np.isfinite(coul))):
-        raise ValueError("the result's identified friction is not finite")
-    return dataclasses.replace(
-        rig, viscous_friction_Nms_per_rad=(float(visc[0]), float(visc[1])),
-        coulomb_friction_Nm=((float(coul[0, 0]), float(coul[0, 1])),
-                             (float(coul[1, 0]), float(coul[1, 1]))))
-
-
 def controller_from_result(result, log, **options):
     """The CTC of an identification result (:meth:`ctc.ComputedTorqueController.from_result`).
 
     Parameters
     ----------
-    result : identification.IdentificationResult, dict or path
-        The result, its dict, or its JSON file.
+    result : identification.IdentificationResult, ctc.contract.IdentifiedModel, dict or path
+        The result, its dict, or its JSON file (read through
+        :class:`ctc.contract.IdentifiedModel`).
     log : plant.ExperimentLog
         Rig constants and reference trajectory.
     **options
@@ -817,12 +785,9 @@ def _build_from_result(result, log, **options):
     robust = options.pop("robust", "fallback")  # flexible results only; a rigid CTC needs no check
     if robust not in (None, "check", "fallback"):
         raise ValueError(f"robust must be None, 'check' or 'fallback', got {robust!r}")
-    d = _result_entries(result)
-    if "f" not in d:
-        raise ValueError("the result has no 'f' (not an identification result?)")
-    f = np.asarray(d["f"], dtype=float)
-    choice = d.get("model_choice") or {}
-    if choice.get("adequate") is False:
+    d = IdentifiedModel.from_result(result)
+    f = d.f
+    if d.adequate is False:
         # the identification said its model does not describe the log: a controller
         # built on it (and its robustness check, which trusts it) may not hold
         import warnings
@@ -830,23 +795,11 @@ def _build_from_result(result, log, **options):
         warnings.warn("the result's model does not describe its log (model_choice['adequate'] "
                       "is False): this controller's tracking rests on a model known to be off; "
                       "check it on the robot at low speed first", RuntimeWarning, stacklevel=3)
-    rig = rig_with_result_friction(log.rig, d)
+    rig = d.rig(log.rig)
     target = log if rig is log.rig else log.replace(rig=rig)
-    model = d.get("model") or "rigid"
-    if model == "rigid":
+    if not d.flexible:
         return ComputedTorqueController.from_log(f, target, **options)
-    if model != "flexible":
-        raise ValueError(f"unknown model {model!r} in the result (expected 'rigid' or 'flexible')")
-    joints = {}
-    for key, name in (("joint_stiffness_Nm_per_rad", "stiffness_Nm_per_rad"),
-                      ("joint_damping_Nms_per_rad", "damping_Nms_per_rad"),
-                      ("motor_inertia_reflected_kgm2", "motor_inertia_reflected_kgm2")):
-        if d.get(key) is None:
-            raise ValueError(f"a flexible result needs {key!r} (2 values)")
-        joints[name] = d[key]
-    if d.get("joint_backlash_rad") is not None:
-        joints["backlash_rad"] = d["joint_backlash_rad"]
-    ctrl = FlexibleJointComputedTorqueController.from_log(f, target, **joints, **options)
+    ctrl = FlexibleJointComputedTorqueController.from_log(f, target, **d.joints(), **options)
     if robust is None:
         return ctrl
     import warnings
@@ -861,7 +814,7 @@ def _build_from_result(result, log, **options):
         for factor, link_damping in ROBUST_DESIGNS:
             gains = design_gains(target.rig, bandwidth_hz=factor * default_bandwidth_hz(target.rig))
             cand = FlexibleJointComputedTorqueController.from_log(
-                f, target, **joints, gains=gains, link_damping=link_damping, **options)
+                f, target, **d.joints(), gains=gains, link_damping=link_damping, **options)
             rep = robustness_check(cand, d, target)
             cand.robustness = rep
             if _worst(rep) < _worst(report):
@@ -965,7 +918,7 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     Parameters
     ----------
     ctrl : FlexibleJointComputedTorqueController
-    result : dict
+    result : ctc.contract.IdentifiedModel, result, dict or path
         The flexible identification (joints, backlash, f).
     log : plant.ExperimentLog
         Rig and reference.
@@ -985,11 +938,13 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     """
     import plant
 
-    f = np.asarray(result["f"], dtype=float)
-    K = np.asarray(result["joint_stiffness_Nm_per_rad"], dtype=float)
-    D = np.asarray(result["joint_damping_Nms_per_rad"], dtype=float)
-    jk2 = np.asarray(result["motor_inertia_reflected_kgm2"], dtype=float)
-    b = result.get("joint_backlash_rad") or (0.0, 0.0)
+    model = IdentifiedModel.from_result(result)
+    if not model.flexible:
+        raise ValueError("robustness_check needs a flexible result (model 'flexible')")
+    f = model.f
+    K, D = model.stiffness_Nm_per_rad, model.damping_Nms_per_rad
+    jk2 = model.motor_inertia_reflected_kgm2
+    b = np.zeros(2) if model.backlash_rad is None else model.backlash_rad
     k = np.asarray(log.rig.gear_ratio, dtype=float)
     ts = log.rig.sample_time_s
     n = min(int(log.n_total), int(round(duration_s / ts)))
