@@ -101,14 +101,15 @@ change in a linear-Gaussian regression):
    (``'unexplained'``) and makes no update until a window shows no change.
 
 6. **Following-error limit** (:mod:`ctc.guard`).  Whatever the model, a
-   joint whose pulse error passes its limit -- by default the largest error
-   of the P-controlled log the prior was identified from, i.e. the rig's own
-   controller's following error on that reference -- hands the arm to that
-   P law (``i = P e``, clipped at full scale) at once and for the rest of
-   the run (event ``'fallback'``, :class:`ctc.guard.FollowingErrorWarning`):
-   a computed-torque controller tracking worse than the controller it
-   replaced has lost its model, and a flexible-joint CTC whose model is far
-   off (a heavy tool on a compliant arm) can otherwise go unstable.
+   joint whose pulse error passes its limit -- by default twice the largest
+   error of the P-controlled log the prior was identified from, the rig's
+   own controller's following error on that reference
+   (:func:`ctc.guard.lost_bound`) -- hands the arm to that P law
+   (``i = P e``, clipped at full scale) at once and for the rest of the run
+   (event ``'fallback'``, :class:`ctc.guard.FollowingErrorWarning`): a
+   computed-torque controller that far off has lost the arm (a
+   flexible-joint CTC whose model is far off, a heavy tool on a compliant
+   arm, can otherwise go unstable).
 
 So an update reaches the arm only when the window shows it, a payload
 describes it and the arm tracks better with it; otherwise the controller
@@ -296,8 +297,9 @@ class AdaptiveComputedTorqueController:
     following_error_limit : 'log', float, array_like (2,) or None
         The following-error limit (pulses per joint) beyond which the rig's
         P law takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor
-        step 6).  ``'log'`` (default): the log's largest P-law error per
-        joint, at least :data:`ctc.guard.MIN_LIMIT_PULSES`.  None: no limit.
+        step 6).  ``'log'`` (default): :func:`ctc.guard.lost_bound` of the
+        log, twice its largest P-law error per joint, at least
+        :data:`ctc.guard.MIN_LIMIT_PULSES`.  None: no limit.
     **ctc_options
         Keyword arguments of :meth:`ctc.ComputedTorqueController.from_log`
         (gains, estimator, ...).

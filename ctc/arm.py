@@ -34,7 +34,8 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
 Safety: :meth:`ArmComputedTorque.from_result` arms the following-error
 limit (``envelope``, :func:`log_envelope`, :class:`ctc.guard.FollowingErrorLimit`,
 the same rule as the PUMA controllers' ``from_result``): a tracking error
-beyond the largest error of the P loop the log was recorded with hands the
+beyond twice the largest error of the P loop the log was recorded with
+(:func:`ctc.guard.lost_bound`) hands the
 arm to that P law for the rest of the run, with a
 :class:`ctc.guard.FollowingErrorWarning` (the model does not fit).  A
 flexible result gives :class:`ArmFlexibleComputedTorque` (the motor-side
@@ -66,14 +67,14 @@ __all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "log_envelope",
 
 
 def log_envelope(log) -> np.ndarray:
-    """The watchdog's envelope of a log: its largest P-control error per joint (pulses), (n,).
+    """The watchdog's envelope of a log: twice its largest P-control error per joint (pulses), (n,).
 
-    The limit of :class:`ctc.guard.FollowingErrorLimit`: the P loop the log
-    was recorded with held the arm within its largest errors; a computed
-    torque whose error passes them tracks worse than that loop and has lost
-    its model.  At least :data:`ctc.guard.MIN_LIMIT_PULSES` per joint (a log
-    that held its joints within a few pulses leaves the computed torque its
-    own quantisation).
+    The limit of :class:`ctc.guard.FollowingErrorLimit`
+    (:func:`ctc.guard.lost_bound`): the P loop the log was recorded with
+    held the arm within its largest errors; a computed torque whose error
+    passes twice them has lost the arm (a transient after a change the
+    model does not describe passes the P law's own errors too, and
+    recovers).  At least :data:`ctc.guard.MIN_LIMIT_PULSES` per joint.
 
     Parameters
     ----------
@@ -109,7 +110,7 @@ class ArmComputedTorque:
         ``RuntimeWarning``); ``tripped_at`` is the sample, ``fallback_t_s``
         its time (the :class:`ctc.guard.FollowingErrorLimit` is
         ``following_error``).
-        :meth:`from_result` takes the log's largest P-control errors
+        :meth:`from_result` takes twice the log's largest P-control errors
         (:func:`log_envelope`): the P loop the log was recorded with is
         known to hold the arm within them, and a computed torque that
         tracks worse rests on a model that does not fit.
@@ -188,7 +189,7 @@ class ArmComputedTorque:
         Returns
         -------
         ArmComputedTorque
-            With the safety watchdog at the log's largest P-control
+            With the safety watchdog at twice the log's largest P-control
             errors (``envelope``, :func:`log_envelope`; pass ``envelope=None``
             for none).
 
@@ -409,7 +410,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             With ``model == "flexible"`` and its joints.
         log : plant.logs.arm_log.ArmLog
         **options
-            As the constructor (``envelope`` by default the log's
+            As the constructor (``envelope`` by default twice the log's
             largest P-control errors, :func:`log_envelope`).
 
         Returns

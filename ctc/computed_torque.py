@@ -464,9 +464,9 @@ class ComputedTorqueController:
             paper's CTC): from the first sample at which a joint's pulse
             error passes it, the rig's P law ``i = P e`` holds the arm until
             :meth:`reset` (``fallback_t_s``, a
-            :class:`ctc.guard.FollowingErrorWarning`).  ``'log'``: the log's
-            largest P-law error per joint, at least
-            :data:`ctc.guard.MIN_LIMIT_PULSES` (the default of
+            :class:`ctc.guard.FollowingErrorWarning`).  ``'log'``: twice the
+            log's largest P-law error per joint, at least
+            :data:`ctc.guard.MIN_LIMIT_PULSES` (:func:`ctc.guard.lost_bound`; the default of
             :meth:`from_result`); see :func:`ctc.guard.as_limit`.
         **design
             Keyword arguments of :func:`ctc.design.design_gains`
@@ -513,7 +513,7 @@ class ComputedTorqueController:
 
         Safety: the controller is armed with a following-error limit
         (``following_error_limit='log'``, :class:`ctc.guard.FollowingErrorLimit`:
-        the log's largest P-law error per joint): a robot the model no
+        twice the log's largest P-law error per joint): a robot the model no
         longer describes (a tool it does not know of, a badly identified
         model) is handed to the rig's P law, the loop the log was recorded
         with, instead of being destabilised.  Pass

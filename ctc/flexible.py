@@ -96,7 +96,7 @@ from plant.robot.model import friction_torque, is_positive_definite, joint_accel
 from plant.simulation.plants import dead_zone, link_f as link_model_f
 
 from .contract import IdentifiedModel
-from .guard import as_limit
+from .guard import as_limit, lost_bound
 from .computed_torque import (
     S_A,
     S_INIT,
@@ -949,8 +949,8 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     ts = log.rig.sample_time_s
     n = min(int(log.n_total), int(round(duration_s / ts)))
     k0 = int(np.ceil(0.1 / ts))
-    e_log = np.abs(np.asarray(log.e_pulses))
-    bound = max(20, 2 * int(e_log.max()) if e_log.size else 20)
+    # a loop has lost the arm beyond twice the logged P errors (the following-error limit's bound)
+    bound = int(lost_bound(log.e_pulses).max())
     rows, worst = [], None
     for sc in scenarios:
         fr = f

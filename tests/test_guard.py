@@ -11,7 +11,7 @@ import plant
 from conftest import PAPER_RIGID
 from ctc import (AdaptiveComputedTorqueController, ComputedTorqueController, FollowingErrorGuard,
                  FollowingErrorWarning, PController)
-from ctc.guard import MIN_LIMIT_PULSES, FollowingErrorLimit
+from ctc.guard import MIN_LIMIT_PULSES, FollowingErrorLimit, lost_bound
 from plant.simulation.closed_loop import simulate_closed_loop
 
 SUBSTEPS = 32
@@ -37,7 +37,8 @@ def f_true(truth):
 
 def test_default_limit_is_the_logs_p_error(paper_log):
     lim = FollowingErrorLimit(paper_log)
-    expected = np.maximum(np.abs(paper_log.e_pulses).max(axis=0), MIN_LIMIT_PULSES)
+    expected = np.maximum(2 * np.abs(paper_log.e_pulses).max(axis=0), MIN_LIMIT_PULSES)
+    np.testing.assert_array_equal(lost_bound(paper_log.e_pulses), expected)
     np.testing.assert_array_equal(lim.limit_pulses, expected)
     e = np.array([3, -5])
     np.testing.assert_allclose(lim.p_current(e), np.asarray(paper_log.rig.p_gain_A_per_pulse) * e)
