@@ -54,7 +54,7 @@ from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
 from plant.logs.rig import rig_constants
 
-from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, _floor_cutoff_hz, reversal_mask
+from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
 from .result_schema import jsonable
 from .uncertainty import RSE_WARN, sandwich_covariance
@@ -137,7 +137,7 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
     ts = rig.sample_time_s
     n = log.n_joints
     counts = log.measured_counts()
-    fc = _floor_cutoff_hz(counts, ts) if cutoff_hz is None else float(cutoff_hz)
+    fc = cutoff_from_counts(counts, ts) if cutoff_hz is None else float(cutoff_hz)
     if not (0.0 < fc < 0.5 / ts):
         raise ValueError(f"cutoff_hz must lie in (0, {0.5 / ts:.4g}) Hz, got {cutoff_hz}")
     c = rig_constants(rig)

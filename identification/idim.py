@@ -128,8 +128,8 @@ from plant.logs.rig import rig_constants
 
 from .uncertainty import RSE_WARN, poorly_excited, sandwich_covariance, structure_scale
 
-__all__ = ["idim_ls", "idim_cutoff_hz", "identify_idim", "FLOOR_MARGIN_DB", "REVERSAL_GUARD",
-           "IV_ITERATIONS", "reversal_mask", "friction_columns"]
+__all__ = ["idim_ls", "idim_cutoff_hz", "cutoff_from_counts", "identify_idim", "FLOOR_MARGIN_DB",
+           "REVERSAL_GUARD", "IV_ITERATIONS", "reversal_mask", "friction_columns"]
 
 #: Instrumental-variable iterations of IDIM-IV.
 IV_ITERATIONS = 3
@@ -160,11 +160,26 @@ def idim_cutoff_hz(log) -> float:
         ``(1/12) / (f_s / 2)`` pulse^2/Hz, the lower of the two joints',
         clipped to ``[2 Hz, f_s / 20]`` (module docstring, "Cut-off rule").
     """
-    return _floor_cutoff_hz(plant.measured_counts(log), log.rig.sample_time_s)
+    return cutoff_from_counts(plant.measured_counts(log), log.rig.sample_time_s)
 
 
-def _floor_cutoff_hz(counts, ts):
-    """:func:`idim_cutoff_hz` from the counts (n, 2) and the sample time (s)."""
+def cutoff_from_counts(counts, ts):
+    """:func:`idim_cutoff_hz` from the encoder counts of any number of joints.
+
+    Parameters
+    ----------
+    counts : ndarray, shape (n_samples, n_joints)
+        Measured encoder counts.
+    ts : float
+        Sample time (s).
+
+    Returns
+    -------
+    float
+        The low-pass cut-off (Hz): the lowest joint's frequency where the
+        counts' spectrum meets the quantisation floor, within
+        ``[2, fs / 20]`` Hz.
+    """
     fs = 1.0 / ts
     nperseg = int(min(1024, max(64, counts.shape[0] // 4)))
     freq, psd = signal.welch(counts, fs=fs, axis=0, nperseg=min(nperseg, counts.shape[0]),
@@ -318,7 +333,7 @@ def idim_ls(log, *, cutoff_hz=None, decimate=1, trim_s=0.1, iv_iterations=0,
     rig = log.rig
     ts = rig.sample_time_s
     counts = plant.measured_counts(log)
-    fc = _floor_cutoff_hz(counts, ts) if cutoff_hz is None else float(cutoff_hz)
+    fc = cutoff_from_counts(counts, ts) if cutoff_hz is None else float(cutoff_hz)
     if not (0 < fc < 0.5 / ts):
         raise ValueError(f"cutoff_hz must lie in (0, {0.5 / ts:.4g}) Hz, got {cutoff_hz}")
     decimate = int(decimate)

@@ -172,3 +172,12 @@ def test_flexible_ctc_from_a_wrong_result_hands_over(drill_log, truth):
     assert np.all(np.abs(held.e_pulses).max(axis=0) <= 2 * limit)
     ctl.reset()
     assert ctl.fallback_t_s is None
+
+
+def test_lost_bound_is_the_robustness_checks_bound(paper_log):
+    """One definition of a lost loop: the guard's default and the flexible design's check."""
+    e = np.array([[3, -50], [-7, 12]])
+    np.testing.assert_array_equal(lost_bound(e), [20, 100])
+    assert int(lost_bound(paper_log.e_pulses).max()) == max(20, 2 * int(np.abs(paper_log.e_pulses).max()))
+    with pytest.raises(ValueError, match="n_samples, n_joints"):
+        lost_bound([1, 2, 3])

@@ -270,3 +270,62 @@ def test_parameter_ranges_by_interval_arithmetic():
         puma.parameter_ranges({1: dict(mass=(20.0, 15.0))})
     with pytest.raises(ValueError, match="only moving links"):
         puma.parameter_ranges({0: dict(mass=(1.0, 2.0))})
+
+
+def test_payload_on_the_last_link_against_robotics_toolbox():
+    """A payload fixed to the last link shifts the base parameters by K dp: the six-joint
+    PUMA 560 with a 2.5 kg tool (off-axis centre of mass, own inertia) against Robotics
+    Toolbox's rne with the tool merged into its link 6."""
+    rtb = pytest.importorskip("roboticstoolbox")
+    ref = rtb.models.DH.Puma560().nofriction(coulomb=True, viscous=True)
+    m, c, ip = 2.5, np.array([0.02, -0.03, 0.1]), np.diag([3e-3, 4e-3, 2e-3])
+    link = ref.links[5]
+    m0, c0, i0 = link.m, np.asarray(link.r, dtype=float), np.asarray(link.I, dtype=float)
+    mt = m0 + m
+    ct = (m0 * c0 + m * c) / mt
+
+    def about(i, mi, d):  # parallel axes, written here apart from the library
+        return i + mi * (d @ d * np.eye(3) - np.outer(d, d))
+
+    link.m, link.r, link.I = mt, ct, about(i0, m0, c0 - ct) + about(ip, m, c - ct)
+    puma = RobotModel.puma560(active=range(6))
+    base = puma.base_parameters()
+    beta = base(puma.standard_parameters()) + puma.payload_delta(m, c, ip, base=base)
+    rng = np.random.default_rng(5)
+    for _ in range(3):
+        q, qd, qdd = rng.uniform(-3, 3, 6), rng.normal(size=6), rng.normal(size=6)
+        tau = puma.regressor(q, qd, qdd)[:, base.independent] @ beta
+        np.testing.assert_allclose(tau, ref.rne(q, qd, qdd), atol=1e-10)
+    dp = puma.payload_parameters(m, c, ip)
+    assert np.count_nonzero(dp) <= 10 and np.all(dp[:50] == 0)
+    with pytest.raises(ValueError, match="mass"):
+        puma.payload_parameters(-1.0)
+
+
+def test_payload_in_the_papers_basis_is_eq3():
+    """Links 2-3 with the wrist locked: the payload's shift of f1..f9 has the paper's
+    structure (plant.robot.payload.payload_delta_matrix, eq. 3) for a tool given in the
+    flange frame."""
+    from plant.robot.payload import payload_delta_matrix
+
+    puma = RobotModel.puma560()
+    basis = puma.express(PUMA560_LINKS23_BASIS)
+    m = 1.7
+    df = puma.payload_delta(m, (0.03, 0.01, 0.12), np.diag([2e-3, 1e-3, 3e-3]), base=basis)
+    a3 = PUMA560_DH[1]["a"]  # the paper's a3 (modified DH) is the standard table's a2
+    # m xp = df5, m yp = df6, J = df1 in the paper's link-3 frame
+    np.testing.assert_allclose(df, payload_delta_matrix(a3) @ [m, df[4], df[5], df[0]],
+                               atol=1e-12)
+    assert df[8] == pytest.approx(a3 * m)
+
+
+def test_payload_delta_gives_the_drill_logs_truth(truth):
+    """The development logs' truth (made with Robotics Toolbox): the drill log's f minus the
+    rigid log's f is the 1.5 kg drill of its truth file, fixed to link 6."""
+    drill, rigid = truth("puma560_paper_drill_flex"), truth("puma560_paper_rigid")
+    tool = drill["payload"]
+    puma = RobotModel.puma560()
+    df = puma.payload_delta(tool["mass_kg"], tool["com_m_rtb_frame6"],
+                            np.diag(tool["inertia_about_com_kgm2"]),
+                            base=puma.express(PUMA560_LINKS23_BASIS))
+    np.testing.assert_allclose(df, np.subtract(drill["f_vector"], rigid["f_vector"]), atol=1e-9)

@@ -453,6 +453,77 @@ class RobotModel:
         ia = [self.links[i].motor_inertia * self.links[i].gear_ratio ** 2 for i in self.active]
         return np.concatenate(p + [np.array(ia)])
 
+    def payload_parameters(self, mass_kg, com_m=(0.0, 0.0, 0.0), inertia_kgm2=None) -> np.ndarray:
+        """Standard parameters (n_std,) of a rigid payload fixed to the chain's last link.
+
+        The payload adds its own ``XX .. ZZ, MX, MY, MZ, M`` (about the last
+        link's frame origin: inertia about its centre of mass plus the
+        parallel-axis term, :meth:`Link.standard_parameters`) to the last
+        link's, which moves with the last active joint (a locked wrist
+        included); every other entry is zero.  The robot with the payload has
+        standard parameters ``p + payload_parameters(...)``: the dynamics are
+        linear in them (Khalil & Dombre, *Modeling, Identification and
+        Control of Robots*, sec. 9.3; the payload on the last link is the
+        paper's on-line identification, sec. 5, for any arm).
+
+        Parameters
+        ----------
+        mass_kg : float
+            Payload mass (kg), >= 0.
+        com_m : array_like, shape (3,)
+            Its centre of mass in the last link's frame (m) -- Robotics
+            Toolbox's ``payload(m, p)`` frame for a DH table.
+        inertia_kgm2 : array_like, shape (3, 3) or (6,), optional
+            Its inertia about its centre of mass, in the last link's frame
+            (default a point mass).
+
+        Returns
+        -------
+        ndarray, shape (n_std,)
+            In the order of :attr:`standard_parameter_names`.
+
+        Raises
+        ------
+        ValueError
+            As :class:`Link` (a negative or non-finite mass, a malformed
+            centre of mass or inertia).
+        """
+        body = Link(mass=mass_kg, com=com_m,
+                    inertia=(0.0,) * 6 if inertia_kgm2 is None else inertia_kgm2)
+        dp = np.zeros(len(self.standard_parameter_names))
+        k = self._moving.index(len(self.links) - 1)
+        dp[10 * k:10 * k + 10] = body.standard_parameters()
+        return dp
+
+    def payload_delta(self, mass_kg, com_m=(0.0, 0.0, 0.0), inertia_kgm2=None, *,
+                      base=None) -> np.ndarray:
+        """Change of the base parameters when the arm carries a payload, shape (r,).
+
+        ``base(p + dp) - base(p) = K dp`` with ``dp`` from
+        :meth:`payload_parameters`: the base parameters are linear in the
+        standard ones (Gautier 1990), so a payload shifts them by a vector
+        that does not depend on the robot's own inertias.
+
+        Parameters
+        ----------
+        mass_kg, com_m, inertia_kgm2
+            See :meth:`payload_parameters`.
+        base : BaseParameterSet, optional
+            The parameters to change (default :meth:`base_parameters`; a named
+            basis from :meth:`express`, e.g. the paper's f1..f9).
+
+        Returns
+        -------
+        ndarray, shape (len(base.names),)
+
+        Raises
+        ------
+        ValueError
+            As :meth:`payload_parameters`.
+        """
+        base = self.base_parameters() if base is None else base
+        return base.K @ self.payload_parameters(mass_kg, com_m, inertia_kgm2)
+
     # ------------------------------------------------------------- derivation
     @cached_property
     def _symbols(self):
