@@ -371,6 +371,8 @@ def ctc_row(res, log, s, truth) -> dict:
         row["ctc_success"] = bool(run["success"])
         row["ctc_max_abs_e"] = np.max(np.abs(run["e"][k0:]), axis=0).astype(int).tolist()
         row["ctc_saturated"] = int(run["n_saturated"])
+        # the following-error limit (ctc.guard) handed the arm to the rig's P law at this time
+        row["ctc_fallback_t_s"] = getattr(ctrl, "fallback_t_s", None)
         row["p_max_abs_e"] = truth["run"]["max_abs_e_pulses"]
     except Exception as exc:  # noqa: BLE001
         row["ctc_error"] = f"{type(exc).__name__}: {exc}"
@@ -392,7 +394,7 @@ def recheck_ctc(csv: Path, out: Path) -> dict:
     truth = json.loads((csv.parent / f"{stem}.truth.json").read_text())
     s = ir.RobotSettings.from_dict(truth["settings"])
     res = identification.IdentificationResult.load_json(saved)
-    for key in ("ctc_error", "ctc_type", "ctc_warnings"):
+    for key in ("ctc_error", "ctc_type", "ctc_warnings", "ctc_fallback_t_s"):
         row.pop(key, None)
     row.update(ctc_row(res, plant.load_log(csv), s, truth))
     cache.write_text(json.dumps(row, indent=1, default=_json_default) + "\n")
@@ -528,6 +530,11 @@ def print_summary(s, rows, file=sys.stdout):
     print(f"  median wall time of identify(): {s['median_wall_time_s']:.2f} s "
           f"(max {s['max_wall_time_s']:.2f} s; numba warmed first)", file=file)
     ok = [r for r in rows if r.get("error") is None]
+    handed = [r for r in ok if r.get("ctc_fallback_t_s") is not None]
+    print(f"  CTC handed to the rig's P law by its following-error limit: {len(handed)} "
+          + "".join(f"\n    {r['stem']} at {r['ctc_fallback_t_s']:.3f} s: max|e| after 0.1 s "
+                    f"{r['ctc_max_abs_e']} (P loop's log {r.get('p_max_abs_e')})" for r in handed),
+          file=file)
 
     def badness(r):
         if r.get("error"):

@@ -8,8 +8,10 @@ identification chose (rigid or two-mass flexible joints with their
 stiffness, damping, reflected motor inertia and backlash), the drive
 friction it identified, and whether it found its model adequate.  The
 controllers (:mod:`ctc.computed_torque`, :mod:`ctc.flexible`,
-:mod:`ctc.adaptive`, :mod:`ctc.arm`) take this object; none of them reads
-a result's keys.
+:mod:`ctc.adaptive`, :mod:`ctc.arm`) take this object and read none of
+these keys themselves (an arm result's simulation objects -- its generated
+plant and its rig -- are no part of the contract: :mod:`ctc.arm` takes
+them from the result where it runs them).
 
 The keys read are the result schema's (:mod:`identification.result_schema`;
 ``docs/api.rst``): ``f`` (or ``beta`` for an arm), ``model``,

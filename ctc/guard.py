@@ -25,8 +25,9 @@ a moment and then recovers still tracks far better than the P law would.
 Measured on the changes benchmark (``benchmarks/bench_changes.py``, 57
 random changes on the independent simulator): a limit at the log's
 largest error itself handed 13 of the 114 static and adaptive runs to the
-P law, and 8 of them ended worse than the bare controller (up to 72 / 42
-pulses where it held 12 / 31).
+P law, and 8 of them ended worse than the same controller had without a
+limit in the benchmark's previous run (up to 72 / 42 pulses where it held
+12 / 31).
 A runaway passes any such bound within a few samples (a flexible-joint CTC
 with its stiffness 3x off: 616 / 941 pulses unguarded), and the rig's P
 law then holds the arm at about its own error (``tests/test_guard.py``).
@@ -69,6 +70,11 @@ def lost_bound(e_pulses) -> np.ndarray:
     ndarray, shape (n_joints,)
         :data:`LIMIT_FACTOR` times the largest ``|e|`` per joint, at least
         :data:`MIN_LIMIT_PULSES`.
+
+    Raises
+    ------
+    ValueError
+        If ``e_pulses`` is not two-dimensional.
     """
     e = np.abs(np.asarray(e_pulses, dtype=float))
     if e.ndim != 2:
@@ -113,7 +119,8 @@ class FollowingErrorLimit:
     def __init__(self, log, limit_pulses="log"):
         rig = getattr(log, "rig", log)
         if not hasattr(rig, "p_gain_A_per_pulse"):
-            raise ValueError(f"log must be a plant log (or a rig for a limit in pulses), got {type(log).__name__}")
+            raise ValueError("log must be a plant log (or a rig for a limit in pulses), got "
+                             f"{type(log).__name__}")
         self.p_gain = np.asarray(rig.p_gain_A_per_pulse, dtype=float).reshape(-1)
         n = self.p_gain.size
         fs = rig.current_full_scale_A
