@@ -294,7 +294,7 @@ class AdaptiveComputedTorqueController:
         Extra keyword arguments of :func:`identification.identify`.
     trajectory : plant.logs.trajectory.Trajectory, optional
         The reference to follow (default the log's).
-    following_error_limit : 'log', float, array_like (2,) or None
+    following_error_limit : 'log', float, array_like (2,), ctc.guard.FollowingErrorLimit or None
         The following-error limit (pulses per joint) beyond which the rig's
         P law takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor
         step 6).  ``'log'`` (default): :func:`ctc.guard.lost_bound` of the
