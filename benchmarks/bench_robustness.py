@@ -50,7 +50,6 @@ import argparse
 import json
 import math
 import multiprocessing as mp
-import os
 import sys
 import time
 import traceback
@@ -278,7 +277,6 @@ def evaluate(csv: Path, out: Path) -> dict:
     f_true = np.asarray(truth["f_vector"], float)
     row = dict(stem=stem, settings=settings_summary(truth), error=None)
     try:
-        import ctc
         import identification
         import plant
 

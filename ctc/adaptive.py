@@ -550,10 +550,12 @@ class AdaptiveComputedTorqueController:
         ndarray, shape (2,)
         """
         if self.following_error is not None:
-            if self.fallback_t_s is None and self.following_error.exceeded(e_pulses):
-                self._fall_back(k, t, e_pulses)
-            if self.fallback_t_s is not None:
-                return self.following_error.p_current(e_pulses)
+            tripped = self.fallback_t_s is not None
+            i = self.following_error.hold(self, t, e_pulses)
+            if i is not None:
+                if not tripped:
+                    self._fall_back(k, t, e_pulses)
+                return i
         if self._pending is not None and k >= self._pending[0]:
             _, f, payload, kind = self._pending
             self._install(f)
@@ -587,17 +589,12 @@ class AdaptiveComputedTorqueController:
         self.events.append(dict(t_s=k * self._ts, kind=kind, message=message, **details))
 
     def _fall_back(self, k, t, e_pulses):
-        """Supervisor step 6: the following error passed its limit; the P law takes over."""
-        import warnings
-
-        from .guard import FollowingErrorWarning
-
-        self.fallback_t_s = float(t)
+        """Supervisor step 6: the limit tripped (:meth:`ctc.guard.FollowingErrorLimit.hold`
+        warned); no identification is pending or gathered from here on."""
         self._pending = None
         self._rows = []
-        msg = self.following_error.message(t, e_pulses)
-        self._event(k, "fallback", msg, model_mass_kg=self.payload_mass_kg)
-        warnings.warn(msg, FollowingErrorWarning, stacklevel=3)
+        self._event(k, "fallback", self.following_error.message(t, e_pulses),
+                    model_mass_kg=self.payload_mass_kg)
 
     def _supervise_tracking(self, rows, k_end) -> bool:
         """Supervisor step 4 on a completed window; True when it rolled the model back.

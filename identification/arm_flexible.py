@@ -253,7 +253,7 @@ class ArmFlexibleSpace:
         -------
         ndarray, shape (p, k)
         """
-        r, n = self.r, self.n
+        n = self.n
         rng = np.random.default_rng(_POOL_SEED)
         modes = [np.full(n, f) for f in _POOL_MODES_HZ]
         modes += list(np.exp(rng.uniform(np.log(3.0), np.log(50.0), (_POOL_RANDOM, n))))

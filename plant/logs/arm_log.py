@@ -35,7 +35,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,7 +43,7 @@ import numpy as np
 from plant._errors import LogError
 from plant.logs.fileio import write_text_atomic
 from plant.logs.rig import Rig
-from plant.logs.sidecar import read_sidecar, read_text, rig_from_sidecar, rig_into_sidecar, sidecar_error
+from plant.logs.sidecar import read_sidecar, read_text, rig_from_sidecar, sidecar_error
 from plant.logs.trajectory import Trajectory
 
 __all__ = ["ArmLog", "load_arm_log", "robot_from_sidecar", "robot_section",
