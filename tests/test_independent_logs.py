@@ -160,3 +160,17 @@ def test_identify_meets_the_issue_targets(stem):
         c = np.asarray(res["coulomb_friction_Nm"])
         assert np.all(np.abs(v / np.asarray(fr["viscous_friction_Nms_per_rad"]) - 1) <= 0.15), v
         assert np.all(np.abs(c / np.asarray(fr["coulomb_friction_Nm"]) - 1) <= 0.15), c
+
+
+@pytest.mark.slow
+def test_the_backlash_search_keeps_its_best_schedule_and_only_improving_hops():
+    """On the backlash log the model choice records the backlash fit's search
+    (:func:`identification.flexible.fit_backlash`): one cost per gain schedule,
+    the kept one the lowest, and every accepted hop lower than the one before."""
+    res, _ = _identify("indep_d_flex_backlash_2mrad")
+    search = res["model_choice"]["backlash_search"]
+    costs = [np.inf if c is None else c for c in search["schedule_costs"]]
+    assert len(costs) == len(search["schedules"]) >= 2
+    assert search["schedule"] == int(np.argmin(costs))
+    chain = [costs[search["schedule"]]] + list(search["hops"])
+    assert all(b < a for a, b in zip(chain, chain[1:])), chain
