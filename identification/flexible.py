@@ -515,7 +515,7 @@ HOP_ROUNDS = 3
 HOP_TOLERANCE = 0.01
 
 
-def _hop_points(x, space, xb):
+def _hop_points(x, xb):
     """Per-joint perturbations of a backlash fit's point x (k,): shape (m, k), x first.
 
     Stiffness x 0.5, 0.7, 1.4, 2; backlash width -0.5, +0.5, +1 mrad; damping
@@ -530,11 +530,10 @@ def _hop_points(x, space, xb):
             y = x.copy()
             y[9 + j] += math.log10(fk)
             pts.append(y)
-        if space.backlash:
-            for db in (-5e-4, 5e-4, 1e-3):
-                y = x.copy()
-                y[15 + j] += db
-                pts.append(y)
+        for db in (-5e-4, 5e-4, 1e-3):
+            y = x.copy()
+            y[15 + j] += db
+            pts.append(y)
         for fd, dd in ((0.3, 0.0), (3.0, 0.1)):
             y = x.copy()
             y[11 + j] = y[11 + j] * fd + dd
@@ -603,7 +602,7 @@ def fit_backlash(log, rigid, start, *, workers=None, gain=DEFAULT_GAIN, hold_bac
     hops = []
     x, cost = np.asarray(best["x"], dtype=float), float(best["cost"])
     for _ in range(int(hop_rounds)):
-        P = _hop_points(x, space, xb)
+        P = _hop_points(x, xb)
         R = fit.residuals(P)
         c = np.einsum("ij,ij->i", R, R)
         ref = refine(fit, P[np.argsort(c, kind="stable")[:4]], xb, max_iter=max_iter,

@@ -5,22 +5,21 @@ import math
 
 import numpy as np
 
-from identification.flexible import FlexibleParameters, _hop_points
+from identification.flexible import _hop_points
 
 
 def _box_and_point():
-    space = FlexibleParameters(backlash=True)
     k = 17
     xb = np.array([[-10.0, 10.0]] * 9 + [[3.0, 5.3]] * 2 + [[0.0, 50.0]] * 2
                   + [[0.1, 0.95]] * 2 + [[0.0, 0.01]] * 2)
     x = np.array([1.0] * 9 + [4.0, 4.5, 0.0, 2.0, 0.5, 0.5, 0.0, 2e-3])
     assert x.size == k
-    return space, xb, x
+    return xb, x
 
 
 def test_hop_points_move_one_joint_parameter_at_a_time_inside_the_box():
-    space, xb, x = _box_and_point()
-    P = _hop_points(x, space, xb)
+    xb, x = _box_and_point()
+    P = _hop_points(x, xb)
     assert np.array_equal(P[0], x)
     assert np.all(P >= xb[:, 0]) and np.all(P <= xb[:, 1])
     moved = P[1:] != x
@@ -32,8 +31,8 @@ def test_hop_points_move_one_joint_parameter_at_a_time_inside_the_box():
 
 
 def test_hop_points_cover_stiffness_factors_and_move_a_zero_damping():
-    space, xb, x = _box_and_point()
-    P = _hop_points(x, space, xb)
+    xb, x = _box_and_point()
+    P = _hop_points(x, xb)
     factors = sorted(10.0 ** (P[1:, 9] - x[9]))
     assert any(math.isclose(f, 2.0) for f in factors) and any(math.isclose(f, 0.5) for f in factors)
     assert np.any(P[1:, 11] > 0.0)  # joint 2's damping was 0: the x3 move adds 0.1
