@@ -303,7 +303,8 @@ def identify(
     if callback is not None:  # the caller's callback may stop the model choice too (Ctrl-C)
         stop = lambda: bool(callback(OptimizeResult(  # noqa: E731
             x=res.get("x"), fun=res.get("fun"), stage="model", nfev=res.get("nfev"))))
-    res = apply_model(res, log, model, workers=workers, eligible=eligible, space=space, stop=stop)
+    res = apply_model(res, log, model, workers=workers, eligible=eligible, space=space, stop=stop,
+                      rng=rng)
     search_s = float(res["wall_time_s"])
     t_model = time.perf_counter()
     if eligible and model == "auto":
@@ -350,7 +351,7 @@ def _restart_failed_search(res, log, space, model, search_options, stop):
         if nxt.interrupted:
             break
         nxt = apply_model(nxt, log, model, workers=search_options["workers"], eligible=True,
-                          space=space, stop=stop)
+                          space=space, stop=stop, rng=search_options["rng"])
         f_i = unexplained_fraction(nxt, log)
         attempts.append(dict(attempt=i, model=(nxt.get("model_choice") or {}).get("model"),
                              unexplained_fraction=f_i, nfev=int(nxt.get("nfev") or 0)))

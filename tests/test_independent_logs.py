@@ -166,7 +166,8 @@ def test_identify_meets_the_issue_targets(stem):
 def test_the_backlash_search_keeps_its_best_schedule_and_only_improving_hops():
     """On the backlash log the model choice records the backlash fit's search
     (:func:`identification.flexible.fit_backlash`): one cost per gain schedule,
-    the kept one the lowest, and every accepted hop lower than the one before."""
+    the kept one the lowest, every accepted hop lower than the one before, and
+    the random hops never above where the deterministic ones ended."""
     res, _ = _identify("indep_d_flex_backlash_2mrad")
     search = res["model_choice"]["backlash_search"]
     costs = [np.inf if c is None else c for c in search["schedule_costs"]]
@@ -174,3 +175,7 @@ def test_the_backlash_search_keeps_its_best_schedule_and_only_improving_hops():
     assert search["schedule"] == int(np.argmin(costs))
     chain = [costs[search["schedule"]]] + list(search["hops"])
     assert all(b < a for a, b in zip(chain, chain[1:])), chain
+    # the random hops continue from there and never raise the cost
+    random_chain = chain[-1:] + list(search["random_hops"])
+    assert all(b <= a for a, b in zip(random_chain, random_chain[1:])), random_chain
+    assert search["floor_pulses2"] > 0
