@@ -533,10 +533,12 @@ RANDOM_HOP_ROUNDS = 8
 #: Random moves per round of the random basin hopping.
 RANDOM_HOP_POINTS = 24
 
-#: Refinement starts (the best random moves) per round, and their
-#: Levenberg-Marquardt iterations: a round only has to reach a basin (the
-#: full fit polishes the end point), so it is cut short.
+#: Refinement starts (the best random moves) per round of the random hopping.
 RANDOM_HOP_STARTS = 2
+
+#: Levenberg-Marquardt iterations per round of the random hopping: a round
+#: only has to reach a basin (the full fit polishes the end point), so it is
+#: cut short.
 RANDOM_HOP_ITER = 10
 
 #: The random hopping stops after this many rounds in a row without a lower cost.
@@ -615,7 +617,7 @@ def fit_backlash(log, rigid, start, *, workers=None, gain=DEFAULT_GAIN, hold_bac
     Levenberg-Marquardt, accepted when the fitted cost falls by more than
     :data:`HOP_TOLERANCE`; at most ``hop_rounds`` rounds), then by random
     basin hopping (:data:`RANDOM_HOP_POINTS` random moves of every joint
-    parameter at once per round, :func:`_random_hop_points`, the
+    parameter at once per round, ``_random_hop_points``, the
     :data:`RANDOM_HOP_STARTS` best refined for :data:`RANDOM_HOP_ITER`
     iterations, any lower cost accepted; at most ``random_rounds`` rounds,
     the step doubling after each round without progress up to
