@@ -50,6 +50,7 @@ import argparse
 import json
 import math
 import multiprocessing as mp
+import os
 import sys
 import time
 import traceback
@@ -675,8 +676,6 @@ def run_jobs(fn, jobs, n_jobs) -> list:
     the wall time of one process alone on a backlash log (61 s -> 215 s),
     and the per-log wall times would mostly measure that contention.
     """
-    import os
-
     t0 = time.perf_counter()
     rows = []
     if n_jobs > 1:

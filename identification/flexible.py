@@ -487,8 +487,7 @@ def identify_flexible(log, rigid, *, substeps=None, workers=None, gain=DEFAULT_G
         # the given start (and its backlash variants) is refined anyway; the pool's
         # best n_starts besides it keep other basins in play (the start may sit in a
         # local minimum of the model without backlash)
-        R = fit.residuals(X)
-        costs = np.einsum("ij,ij->i", R, R)
+        costs = _batch_costs(fit, X)
         S = np.vstack([S, X[np.argsort(costs, kind="stable")[:max(1, n_starts)]]])
     ref = refine(fit, S, xb, max_iter=max_iter, ftol=ftol, callback=_stop_callback())
     _raise_if_stopped(ref)
@@ -604,6 +603,20 @@ def _random_hop_points(x, xb, rng, m=RANDOM_HOP_POINTS, step=1.0):
     return np.clip(P, xb[:, 0], xb[:, 1])
 
 
+def _batch_costs(problem, X):
+    """Prediction-error costs (pulses^2) of a batch X (m, k) in one simulation call: shape (m,)."""
+    R = problem.residuals(X)
+    return np.einsum("ij,ij->i", R, R)
+
+
+def _refine_best(problem, P, xb, n_starts, max_iter):
+    """Levenberg-Marquardt from the ``n_starts`` points of P with the lowest cost (a hop round)."""
+    ref = refine(problem, P[np.argsort(_batch_costs(problem, P), kind="stable")[:n_starts]], xb,
+                 max_iter=max_iter, callback=_stop_callback())
+    _raise_if_stopped(ref)
+    return ref
+
+
 def fit_backlash(log, rigid, start, *, workers=None, gain=DEFAULT_GAIN, hold_back=True,
                  max_iter=None, schedules=BACKLASH_SCHEDULES, hop_rounds=HOP_ROUNDS,
                  random_rounds=RANDOM_HOP_ROUNDS, rng=0):
@@ -678,17 +691,14 @@ def fit_backlash(log, rigid, start, *, workers=None, gain=DEFAULT_GAIN, hold_bac
     best = dict(fits[i_best])
     xb = space.bounds(log)
     fit = _problem(log, space, best["substeps"], workers, gain)
+    n_fitted = 2 * log.n_samples
     if hold_back:
-        fit = MaskedProblem(fit, _hold_mask(log)[0])
+        mask = _hold_mask(log)[0]
+        fit, n_fitted = MaskedProblem(fit, mask), int(mask.sum())
     hops = []
     x, cost = np.asarray(best["x"], dtype=float), float(best["cost"])
     for _ in range(int(hop_rounds)):
-        P = _hop_points(x, xb)
-        R = fit.residuals(P)
-        c = np.einsum("ij,ij->i", R, R)
-        ref = refine(fit, P[np.argsort(c, kind="stable")[:4]], xb, max_iter=max_iter,
-                     callback=_stop_callback())
-        _raise_if_stopped(ref)
+        ref = _refine_best(fit, _hop_points(x, xb), xb, 4, max_iter)
         if not (np.isfinite(ref.fun) and ref.fun < (1.0 - HOP_TOLERANCE) * cost):
             break
         x, cost = ref.x, float(ref.fun)
@@ -696,17 +706,13 @@ def fit_backlash(log, rigid, start, *, workers=None, gain=DEFAULT_GAIN, hold_bac
         hops.append(cost)
     # random basin hopping: moves of the whole joint block (see RANDOM_HOP_ROUNDS)
     rng = np.random.default_rng(rng)
-    floor = quantisation_floor(int(_hold_mask(log)[0].sum()) if hold_back else 2 * log.n_samples)
+    floor = quantisation_floor(n_fitted)
     random_hops, idle, step = [], 0, 1.0
     for _ in range(int(random_rounds)):
         if not np.isfinite(cost) or cost <= RANDOM_HOP_FLOOR * floor or idle >= RANDOM_HOP_PATIENCE:
             break
-        P = _random_hop_points(x, xb, rng, step=step)
-        R = fit.residuals(P)
-        c = np.einsum("ij,ij->i", R, R)
-        ref = refine(fit, P[np.argsort(c, kind="stable")[:RANDOM_HOP_STARTS]], xb,
-                     max_iter=RANDOM_HOP_ITER, callback=_stop_callback())
-        _raise_if_stopped(ref)
+        ref = _refine_best(fit, _random_hop_points(x, xb, rng, step=step), xb,
+                           RANDOM_HOP_STARTS, RANDOM_HOP_ITER)
         if np.isfinite(ref.fun) and ref.fun < cost:
             x, cost, idle, step = ref.x, float(ref.fun), 0, 1.0
             best["refine"] = ref
@@ -973,7 +979,8 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, s
         rigid result with ``interrupted`` True (a Ctrl-C in the CLI).
     rng : numpy.random.Generator or int
         Stream of the backlash fit's random basin hopping (:func:`fit_backlash`;
-        a Generator is not advanced: a child is spawned from it).
+        a child is spawned from a Generator, whose own stream is then not
+        advanced).
 
     Returns
     -------
@@ -1003,7 +1010,12 @@ def apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, s
 
 
 def _child_rng(rng):
-    """A generator for the backlash fit: a child spawned from a Generator (its stream untouched)."""
+    """A generator for the backlash fit: a child spawned from a Generator (its stream untouched).
+
+    A Generator whose bit generator cannot spawn (no seed sequence) seeds
+    the child from one draw of its stream instead; an int or None seeds a
+    new generator.
+    """
     if isinstance(rng, np.random.Generator):
         try:
             return rng.spawn(1)[0]
