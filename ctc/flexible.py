@@ -116,6 +116,8 @@ from .computed_torque import (
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
+           "robust_design_gains", "select_robust_design", "MAX_BANDWIDTH_FRACTION",
+           "MAX_ESTIMATOR_FRACTION",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
            "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING", "two_mass_observer_gains"]
 
@@ -509,12 +511,8 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         self.motor_inertia_reflected = np.array(jk2)
         self.backlash = np.array(backlash)
         self.link_substeps = n
-        lg = link_observer_gains(link_f, stiffness, damping, jk2, gains, link_damping)
         self.link_damping = float(link_damping)
-        self.flexible_parameters = FlexibleCTCParameters(
-            ctc=self.parameters._replace(observer_q=as_pair(lg[:, 0]), observer_w=as_pair(lg[:, 1])),
-            stiffness=stiffness, damping=damping, motor_inertia=jk2, link_substeps=n,
-            link_gain_q=as_pair(lg[:, 2]), link_gain_w=as_pair(lg[:, 3]), backlash=backlash)
+        self.flexible_parameters = self._parameters_for(link_f)
         self._state = np.zeros((S_FLEX_LEN, 1))
         #: Estimator restarts after a non-finite current (the link model diverged).
         self.n_estimator_resets = 0
@@ -529,7 +527,9 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
     def set_model_f(self, f) -> np.ndarray:
         """Switch the controller's model to the rigid-equivalent ``f`` (its link model follows).
 
-        The link observer keeps its gains.
+        The motor-and-link observer's gains are placed anew for the new link
+        inertia (:func:`link_observer_gains`; a payload lowers the link mode
+        the observer's link poles sit at); the motor loop keeps its gains.
 
         Parameters
         ----------
@@ -542,7 +542,20 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         """
         f = super().set_model_f(f)
         self.link_f = np.ascontiguousarray(link_model_f(f, self.motor_inertia_reflected))
+        self.flexible_parameters = self._parameters_for(self.link_f)
         return f
+
+    def _parameters_for(self, link_f) -> FlexibleCTCParameters:
+        """The compiled law's constants for the link model ``link_f``: the motor-and-link
+        observer's gains are placed for its link inertia (:func:`link_observer_gains`)."""
+        lg = link_observer_gains(link_f, self.stiffness, self.damping,
+                                 self.motor_inertia_reflected, self.gains, self.link_damping)
+        return FlexibleCTCParameters(
+            ctc=self.parameters._replace(observer_q=as_pair(lg[:, 0]), observer_w=as_pair(lg[:, 1])),
+            stiffness=as_pair(self.stiffness), damping=as_pair(self.damping),
+            motor_inertia=as_pair(self.motor_inertia_reflected), link_substeps=self.link_substeps,
+            link_gain_q=as_pair(lg[:, 2]), link_gain_w=as_pair(lg[:, 3]),
+            backlash=as_pair(self.backlash))
 
     def logged_law_with(self, log, state, f):
         """:meth:`logged_controller` with the model ``f`` (rigid-equivalent) in the law.
@@ -561,7 +574,8 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
 
         law = self.logged_controller(log, state=state)
         link = np.ascontiguousarray(link_model_f(f, self.motor_inertia_reflected))
-        return dataclasses.replace(law, parameters=law.parameters._replace(link_f=link))
+        return dataclasses.replace(law, parameters=law.parameters._replace(
+            parameters=self._parameters_for(link), link_f=link))
 
     @classmethod
     def from_log(cls, f, log, *, stiffness_Nm_per_rad, damping_Nms_per_rad,
@@ -804,21 +818,11 @@ def _build_from_result(result, log, **options):
         return ctrl
     import warnings
 
-    report = robustness_check(ctrl, d, target)
-    ctrl.robustness = report
     if robust == "fallback" and not (_DESIGN_KEYS & set(options)):
-        # the robust design: the candidate designs over the same uncertainty set,
-        # the smallest worst case wins (minimax; the default design on a tie)
-        from .design import default_bandwidth_hz, design_gains
-
-        for factor, link_damping in ROBUST_DESIGNS:
-            gains = design_gains(target.rig, bandwidth_hz=factor * default_bandwidth_hz(target.rig))
-            cand = FlexibleJointComputedTorqueController.from_log(
-                f, target, **d.joints(), gains=gains, link_damping=link_damping, **options)
-            rep = robustness_check(cand, d, target)
-            cand.robustness = rep
-            if _worst(rep) < _worst(report):
-                ctrl, report = cand, rep
+        ctrl, report = select_robust_design(ctrl, d, target, **options)
+    else:
+        report = robustness_check(ctrl, d, target)
+        ctrl.robustness = report
     if report["robust"]:
         return ctrl
     if robust == "check":
@@ -856,18 +860,97 @@ def _build_from_result(result, log, **options):
     return chosen
 
 
+def select_robust_design(first, model, log, **options):
+    """The robust flexible-joint CTC design: the smallest worst case over the model-error set.
+
+    The first design and each of :data:`ROBUST_DESIGNS`
+    (:func:`robust_design_gains`) run :func:`robustness_check` over
+    :data:`ROBUSTNESS_SCENARIOS`; the one with the smallest worst case is kept
+    (minimax; the first design on a tie).  Each candidate's report is its
+    ``.robustness``.
+
+    Parameters
+    ----------
+    first : FlexibleJointComputedTorqueController
+        The first design (the default gains), built for ``model.f``.
+    model : ctc.contract.IdentifiedModel
+        The flexible model (f, joints, backlash) the check perturbs.
+    log : plant.ExperimentLog
+        Rig and reference.
+    **options
+        Further keyword arguments of :meth:`FlexibleJointComputedTorqueController.from_log`
+        (``trajectory``, ``link_substeps``, ...; no design keywords).
+
+    Returns
+    -------
+    (FlexibleJointComputedTorqueController, dict)
+        The chosen controller and its report.
+    """
+    ctrl, report = first, robustness_check(first, model, log)
+    first.robustness = report
+    for factor, link_damping in ROBUST_DESIGNS:
+        cand = FlexibleJointComputedTorqueController.from_log(
+            model.f, log, **model.joints(), gains=robust_design_gains(log.rig, factor),
+            link_damping=link_damping, **options)
+        rep = robustness_check(cand, model, log)
+        cand.robustness = rep
+        if _worst(rep) < _worst(report):
+            ctrl, report = cand, rep
+    return ctrl, report
+
+
 #: Options that fix the flexible CTC's design (no design search with them).
 _DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_bandwidth_hz",
                 "delay_samples", "link_damping"}
 
 #: Candidate designs of the robust flexible-joint CTC, besides the default:
 #: (loop bandwidth as a multiple of the default :func:`ctc.design.default_bandwidth_hz`,
-#: link-observer damping).
+#: link-observer damping); :func:`robust_design_gains` caps each at the sample rate.
 #: Measured on the drill robot (``docs/tutorial_real_rigs.rst``): a faster
 #: motor loop keeps the link within a few pulses at stiffness x0.7 and +2 kg
-#: where the default design lets it swing by hundreds.
+#: where the default design lets it swing by hundreds.  The 2.5x and 3x designs
+#: serve gearboxes with backlash: the link crossing its gap is a torque step on
+#: the motor that the link model places only within the identified width, and
+#: a stiffer motor loop keeps the encoder within its pulse through it.
 ROBUST_DESIGNS = ((1.4, DEFAULT_LINK_OBSERVER_DAMPING), (2.0, DEFAULT_LINK_OBSERVER_DAMPING),
-                  (2.0, 0.7))
+                  (2.0, 0.7), (2.5, 0.7), (3.0, 0.7))
+
+#: Upper limit of a candidate design's loop bandwidth, as a fraction of the sample
+#: rate (:func:`ctc.design.design_gains` refuses ``fs / 6`` and above).
+MAX_BANDWIDTH_FRACTION = 0.125
+
+#: Upper limit of a candidate design's observer bandwidth, as a fraction of the
+#: sample rate (:func:`ctc.design.design_gains` refuses ``fs / 3`` and above).
+MAX_ESTIMATOR_FRACTION = 0.3
+
+
+def robust_design_gains(rig, factor):
+    """Gains of a candidate robust design: ``factor`` times the default bandwidth, capped.
+
+    The loop bandwidth of each joint is ``factor`` times
+    :func:`ctc.design.default_bandwidth_hz`, at most
+    :data:`MAX_BANDWIDTH_FRACTION` of the sample rate; the observer's is the
+    design's usual three times that, at most :data:`MAX_ESTIMATOR_FRACTION`
+    of the sample rate.
+
+    Parameters
+    ----------
+    rig : plant.logs.rig.Rig
+        The rig (sample time, encoders).
+    factor : float
+        Multiple of the default bandwidth, > 0.
+
+    Returns
+    -------
+    ctc.design.GainDesign
+    """
+    from .design import OBSERVER_FACTOR, default_bandwidth_hz, design_gains
+
+    fs = 1.0 / float(rig.sample_time_s)
+    bw = np.minimum(float(factor) * default_bandwidth_hz(rig), MAX_BANDWIDTH_FRACTION * fs)
+    return design_gains(rig, bandwidth_hz=bw,
+                        estimator_bandwidth_hz=np.minimum(OBSERVER_FACTOR * bw,
+                                                          MAX_ESTIMATOR_FRACTION * fs))
 
 
 #: A rigid fallback must track the identified robot (the nominal scenario) within

@@ -139,6 +139,21 @@ def main(argv=None):
         ctl = ComputedTorqueController.from_result(args.out / "drill_result.json", drill)
         print(f"  controller: {ctl}")
         if res.model == "flexible":
+            # the robust design's scenario check (ctc.flexible.robustness_check): the
+            # first design's report and the chosen one's
+            first = ComputedTorqueController.from_result(args.out / "drill_result.json", drill,
+                                                         robust=None)
+            from ctc.flexible import robustness_check
+
+            for name, c, rep in (("first design", first, robustness_check(first, res, drill)),
+                                 ("chosen design", ctl, getattr(ctl, "robustness", None))):
+                if rep is None:
+                    continue
+                rows = ", ".join(f"{sc['name']} {sc['max_abs_e'][0]} / {sc['max_abs_e'][1]}"
+                                 for sc in rep["scenarios"])
+                bw = " / ".join(f"{v:.0f}" for v in c.gains.bandwidth_hz)
+                print(f"  {name} ({bw} Hz): {rows} pulses")
+                out[f"robustness_{name.split()[0]}"] = rep
             # the robot: the truth's emulator constants if given, else the identified ones
             robot_f, robot = res.f, None
             if args.truth is not None:

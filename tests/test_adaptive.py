@@ -206,6 +206,23 @@ def test_flexible_prior_flexible_inner_loop_and_payload(drill_log, drill_result)
     assert adaptive.payload_history, adaptive.identifications
     assert adaptive.payload_mass_kg == pytest.approx(2.0, rel=0.05)
     assert np.all(np.isfinite(r.i_A)) and np.abs(r.i_A).max() <= drill_log.rig.current_full_scale_A
+    # the robust (fast) design keeps this pick-up's residual near the baseline: the update
+    # comes from successive significant windows agreeing on the mass (PERSISTENCE_WINDOWS)
+    after = np.abs(r.e_pulses[int(1.5 / ts):]).max(axis=0)
+    assert np.all(after <= 1), after
+
+
+def test_two_agreeing_estimates_away_from_the_model_are_evidence():
+    """The persistence rule of the supervisor's step 3: successive estimates on one
+    side of the model's mass, closer to each other than to it, agree; the scatter of
+    estimates around the model in use (quiet windows) does not."""
+    from ctc.adaptive import _agree_off_model
+
+    assert _agree_off_model(1.96, 1.40, 0.0)         # a pick-up the loop hides
+    assert _agree_off_model(0.1, 0.12, 2.0) is True  # a put-down
+    assert not _agree_off_model(3.84, 2.84, 3.98)    # scatter around a 4 kg model
+    assert not _agree_off_model(4.08, 3.9, 3.98)     # on both sides of it
+    assert not _agree_off_model(0.03, 0.04, 0.0)     # within 50 g of it
 
 
 def test_supervisor_keeps_the_model_without_a_change(paper_log, prior):

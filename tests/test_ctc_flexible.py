@@ -138,7 +138,7 @@ def test_link_observer_places_the_error_poles(held_out):
                                                flex.reflected_inertia(log.rig))), log)
     L = link_observer_gains(c.link_f, c.flexible_parameters.stiffness,
                             c.flexible_parameters.damping, c.flexible_parameters.motor_inertia,
-                            c.gains, 0.5)
+                            c.gains, c.link_damping)  # the robust design's choice
     ts = log.rig.sample_time_s
     jl = np.diag(inertia_matrix(c.link_f, np.zeros(2)))
     for j in range(2):
@@ -152,7 +152,7 @@ def test_link_observer_places_the_error_poles(held_out):
         wl = np.sqrt(K / jl[j])
         link = s[np.argsort(np.abs(np.abs(s) - wl))[:2]]
         np.testing.assert_allclose(np.abs(link), wl, rtol=1e-3)
-        np.testing.assert_allclose(-link.real / np.abs(link), 0.5, rtol=1e-3)
+        np.testing.assert_allclose(-link.real / np.abs(link), c.link_damping, rtol=1e-3)
     assert c.flexible_parameters.link_gain_q == (L[0, 2], L[1, 2])
 
 
@@ -299,3 +299,50 @@ def test_a_result_that_says_its_model_is_off_makes_a_controller_that_says_so(pap
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         ComputedTorqueController.from_result(d, paper_log)
+
+
+@pytest.mark.parametrize("ppr, ts", [((4096, 4096), 5e-4), ((250, 2000), 1e-3)])
+def test_robust_design_candidates_stay_within_the_sample_rate(paper_log, ppr, ts):
+    """Every candidate of the robust design is a valid design on any rig: the fast
+    candidates (for gearboxes with backlash) are capped below fs/6 and fs/3, and a
+    larger factor never gives a slower loop."""
+    from ctc.design import default_bandwidth_hz
+    from ctc.flexible import (MAX_BANDWIDTH_FRACTION, MAX_ESTIMATOR_FRACTION, ROBUST_DESIGNS,
+                              robust_design_gains)
+
+    rig = dataclasses.replace(paper_log.rig, encoder_ppr=ppr, sample_time_s=ts)
+    fs = 1.0 / ts
+    last = np.zeros(2)
+    for factor in sorted({f for f, _ in ROBUST_DESIGNS}):
+        g = robust_design_gains(rig, factor)
+        assert np.all(g.bandwidth_hz <= MAX_BANDWIDTH_FRACTION * fs + 1e-9)
+        assert np.all(g.estimator_bandwidth_hz <= MAX_ESTIMATOR_FRACTION * fs + 1e-9)
+        assert np.all(g.bandwidth_hz >= last) and g.stable
+        np.testing.assert_allclose(g.bandwidth_hz, np.minimum(factor * default_bandwidth_hz(rig),
+                                                              MAX_BANDWIDTH_FRACTION * fs))
+        last = g.bandwidth_hz
+
+
+def test_a_model_switch_places_the_link_observer_for_the_new_link(held_out):
+    """A payload lowers the link mode: set_model_f re-places the motor-and-link observer
+    for the new link inertia (as a controller built for that f would have it), the motor
+    loop keeps its gains, and a window's law under a model carries that model's observer."""
+    from ctc.flexible import link_observer_gains
+
+    log, f, flex = held_out
+    joints = dict(stiffness_Nm_per_rad=flex.stiffness_Nm_per_rad,
+                  damping_Nms_per_rad=flex.damping_Nms_per_rad,
+                  motor_inertia_reflected_kgm2=flex.reflected_inertia(log.rig))
+    c = FlexibleJointComputedTorqueController.from_log(f, log, **joints)
+    before = c.flexible_parameters
+    loaded = plant.add_payload(f, plant.Payload(2.0, (0.0, -0.4318), 0.0), log.rig.a3_m)
+    c.set_model_f(loaded)
+    fresh = FlexibleJointComputedTorqueController.from_log(loaded, log, **joints, gains=c.gains)
+    assert c.flexible_parameters == fresh.flexible_parameters
+    assert c.flexible_parameters.link_gain_q != before.link_gain_q
+    assert c.flexible_parameters.ctc.kp == before.ctc.kp
+    lg = link_observer_gains(c.link_f, c.stiffness, c.damping, c.motor_inertia_reflected,
+                             c.gains, c.link_damping)
+    np.testing.assert_array_equal(c.flexible_parameters.link_gain_w, lg[:, 3])
+    law = c.logged_law_with(log, None, f)  # a window run under the unloaded model
+    assert law.parameters.parameters == before
