@@ -931,6 +931,22 @@ def _diverged(result) -> bool:
     return not np.isfinite(float(result.get("fun", np.inf)))
 
 
+def _physical_link(result) -> bool:
+    """True when a flexible result's link model (f minus ``Jm k^2`` in f7 and f1) has a
+    positive definite D_link(q): the model a flexible-joint controller is built on."""
+    from plant.robot.model import is_positive_definite
+    from plant.simulation.plants import link_f
+
+    jk2 = result.get("motor_inertia_reflected_kgm2")
+    if jk2 is None:
+        return True
+    try:
+        return bool(is_positive_definite(link_f(np.asarray(result["f"], dtype=float),
+                                                np.asarray(jk2, dtype=float))))
+    except ValueError:
+        return False
+
+
 class _Stopped(Exception):
     """The caller asked the model choice to stop (a Ctrl-C in the command line)."""
 
@@ -1084,8 +1100,11 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
                             grid=False)
     res = _flexible_result(rigid, log, fit, choice, workers)
     allowance = quantisation_floor(2 * log.n_samples)
-    if _diverged(res) or res["fun"] > float(rigid["fun"]) + allowance:
+    if (_diverged(res) or not _physical_link(res)
+            or res["fun"] > float(rigid["fun"]) + allowance):
         why = ("its simulated closed loop diverges" if _diverged(res) else
+               "its link model (f minus Jm k^2 in f7 and f1) is not positive definite, "
+               "no physical inertia" if not _physical_link(res) else
                f"its output error {res['fun']:.4g} pulses^2 exceeds the rigid model's "
                f"{float(rigid['fun']):.4g} by more than the quantisation floor {allowance:.4g}")
         if model == "flexible":

@@ -134,3 +134,17 @@ def test_failed_search_is_restarted(short_flexible_log, monkeypatch):
     assert r.stage_times_s["restarts"] > 0.0
     r2 = identify(log, rng=0, progress=False)
     np.testing.assert_array_equal(r2.f, r.f)
+
+
+def test_a_flexible_result_without_a_physical_link_model_is_not_kept():
+    """A flexible fit whose link model (f minus Jm k^2 in f7 and f1) is not positive
+    definite has no controller (the flexible-joint CTC refuses it): the model choice
+    rejects it (found on a rigid robot of the independent suite, seed 20261123, whose
+    backlash fit put Jm3 k3^2 above f1)."""
+    from identification.flexible import _physical_link
+
+    f = np.array([1.505, 2.185, -0.033, -1.098, 0.171, -3.304, 5.113, -0.198, 6.276])
+    assert _physical_link(dict(f=f, motor_inertia_reflected_kgm2=None))  # rigid: nothing to check
+    assert not _physical_link(dict(f=f, motor_inertia_reflected_kgm2=[1.0, 1.0]))  # f1 - 1 < f2
+    f_ok = np.array([2.47, 1.32, 0.027, -1.28, 0.06, -2.96, 6.34, -0.10, 5.74])
+    assert _physical_link(dict(f=f_ok, motor_inertia_reflected_kgm2=[2.0, 0.5]))
