@@ -242,3 +242,28 @@ def test_consistent_mode_enforces_eq3_structure(paper_log, truth):
     err = np.abs(res.f - f_true) / np.abs(f_true)
     assert np.all(err[[0, 1, 3, 5, 6, 8]] < 0.01)
     assert res.bounds.shape == (7, 2)
+
+
+def test_a_restart_at_the_quantisation_floor_is_kept(monkeypatch):
+    """A restarted search whose rigid model predicts the whole log to the quantisation
+    floor has no held-back costs (unexplained fraction None): it explains everything and
+    is kept over a first attempt that explained little (found on a rigid robot of the
+    independent suite, seed 20261123, whose restarts reached the floor and were dropped)."""
+    import identification.api as api
+    import identification.flexible as fl
+
+    first = dict(model_choice=dict(model="rigid"), nfev=10, message="first")
+    floor = dict(model_choice=dict(model="rigid", floor_ratio=1.1, adequate=True), nfev=5,
+                 message="at the floor", interrupted=False)
+
+    class R(dict):
+        interrupted = False
+
+    monkeypatch.setattr(fl, "unexplained_fraction",
+                        lambda res, log: 16.7 if res is first else None)
+    monkeypatch.setattr(api, "_search", lambda log, space, **kw: R(floor))
+    monkeypatch.setattr(api, "apply_model", lambda res, *a, **k: res)
+    out = api._restart_failed_search(first, None, None, "auto", dict(workers=1, rng=None), None)
+    assert out["message"].startswith("search restarted 1 time(s)")
+    assert out["model_choice"]["restarts"][1]["unexplained_fraction"] == 0.0
+    assert "attempt 1 kept" in out["message"] and out["nfev"] == 15
