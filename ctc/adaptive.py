@@ -776,11 +776,11 @@ class AdaptiveComputedTorqueController:
         # no-change baseline, or PERSISTENCE_WINDOWS successive windows find the same
         # payload, another than the model's, significant (a change a fast loop keeps
         # near the baseline)
-        run = (self._significant_run + [mass]) if (significant and not first) else []
-        self._significant_run = run[-PERSISTENCE_WINDOWS:]
-        persistent = bool(len(run) >= PERSISTENCE_WINDOWS and all(
-            _agree_off_model(a, b, self.payload_mass_kg)
-            for a, b in zip(run[-PERSISTENCE_WINDOWS:-1], run[1 - PERSISTENCE_WINDOWS:])))
+        run = (self._significant_run + [mass])[-PERSISTENCE_WINDOWS:] if (
+            significant and not first) else []
+        self._significant_run = run
+        persistent = len(run) == PERSISTENCE_WINDOWS and all(
+            _agree_off_model(a, b, self.payload_mass_kg) for a, b in zip(run, run[1:]))
         misfit = not first and (per_value_now > self.explain_factor * baseline or persistent)
         reason = None
         decision = "baseline" if first else "no change"

@@ -336,8 +336,8 @@ def _restart_failed_search(res, log, space, model, search_options, stop):
     :data:`~identification.flexible.MAX_RESTARTS` further searches and model
     choices (the random stream continued), the attempt with the smallest
     unexplained fraction kept (an attempt whose rigid model predicts the whole log
-    to the quantisation floor fits no held-back blocks and counts as 0); every
-    attempt is listed in ``model_choice['restarts']``.
+    to the quantisation floor counts as 0, :func:`~identification.flexible.unexplained_fraction`);
+    every attempt is listed in ``model_choice['restarts']``.
     """
     from .flexible import MAX_RESTARTS, RESTART_FRACTION, unexplained_fraction
 
@@ -354,12 +354,7 @@ def _restart_failed_search(res, log, space, model, search_options, stop):
         nxt = apply_model(nxt, log, model, workers=search_options["workers"], eligible=True,
                           space=space, stop=stop, rng=search_options["rng"])
         f_i = unexplained_fraction(nxt, log)
-        choice = nxt.get("model_choice") or {}
-        if f_i is None and choice.get("adequate") and "floor_ratio" in choice:
-            # the rigid model predicts the whole log to the quantisation floor: no
-            # held-back blocks were needed, nothing is left unexplained
-            f_i = 0.0
-        attempts.append(dict(attempt=i, model=choice.get("model"),
+        attempts.append(dict(attempt=i, model=(nxt.get("model_choice") or {}).get("model"),
                              unexplained_fraction=f_i, nfev=int(nxt.get("nfev") or 0)))
         if f_i is not None and f_i < best_frac:
             best, best_frac = nxt, f_i

@@ -938,13 +938,21 @@ def _physical_link(result) -> bool:
     from plant.simulation.plants import link_f
 
     jk2 = result.get("motor_inertia_reflected_kgm2")
-    if jk2 is None:
-        return True
-    try:
-        return bool(is_positive_definite(link_f(np.asarray(result["f"], dtype=float),
-                                                np.asarray(jk2, dtype=float))))
-    except ValueError:
-        return False
+    return jk2 is None or bool(is_positive_definite(
+        link_f(np.asarray(result["f"], dtype=float), np.asarray(jk2, dtype=float))))
+
+
+def _rejection(res, rigid, allowance):
+    """Why the full flexible fit ``res`` is not kept over ``rigid`` (None: it is kept)."""
+    if _diverged(res):
+        return "its simulated closed loop diverges"
+    if not _physical_link(res):
+        return ("its link model (f minus Jm k^2 in f7 and f1) is not positive definite, "
+                "no physical inertia")
+    if res["fun"] > float(rigid["fun"]) + allowance:
+        return (f"its output error {res['fun']:.4g} pulses^2 exceeds the rigid model's "
+                f"{float(rigid['fun']):.4g} by more than the quantisation floor {allowance:.4g}")
+    return None
 
 
 class _Stopped(Exception):
@@ -1100,13 +1108,8 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
                             grid=False)
     res = _flexible_result(rigid, log, fit, choice, workers)
     allowance = quantisation_floor(2 * log.n_samples)
-    if (_diverged(res) or not _physical_link(res)
-            or res["fun"] > float(rigid["fun"]) + allowance):
-        why = ("its simulated closed loop diverges" if _diverged(res) else
-               "its link model (f minus Jm k^2 in f7 and f1) is not positive definite, "
-               "no physical inertia" if not _physical_link(res) else
-               f"its output error {res['fun']:.4g} pulses^2 exceeds the rigid model's "
-               f"{float(rigid['fun']):.4g} by more than the quantisation floor {allowance:.4g}")
+    why = _rejection(res, rigid, allowance)
+    if why is not None:
         if model == "flexible":
             res["success"] = False
             res["message"] = f"flexible fit rejected: {why}; " + res["message"]
@@ -1151,15 +1154,17 @@ def unexplained_fraction(res, log):
     Returns
     -------
     float or None
-        None when the model choice did not fit held-back blocks (a rigid
-        result at the quantisation floor, options outside the default).
+        0 for a rigid result that predicts the whole log to the quantisation
+        floor (the model choice needed no held-back blocks: nothing is left
+        unexplained); None when the model choice did not run (options outside
+        the default).
     """
     choice = res.get("model_choice") or {}
     key = ("held_back_cost_rigid_pulses2" if choice.get("model") == "rigid"
            else "held_back_cost_flexible_pulses2")
     cost = choice.get(key)
     if cost is None:
-        return None
+        return 0.0 if (choice.get("adequate") and "floor_ratio" in choice) else None
     held = _hold_mask(log)[1]
     energy = float(np.sum(np.asarray(log.e_pulses, dtype=float).reshape(-1)[held] ** 2))
     if energy <= 0.0:
