@@ -75,7 +75,13 @@ change in a linear-Gaussian regression):
    and the repetition is its evidence (three windows in a row at
    ``false_alarm`` each; on the changes benchmark two in a row once
    turned the scatter of a rigid arm's quiet-window estimates, 0.24 then
-   0.35 kg, into an update).  An estimate that is significant but shows no change
+   0.35 kg, into an update), or when one window is *evident*: the current
+   model's residual per value beyond :data:`EVIDENT_FACTOR` (2) times the
+   larger of the baseline and the quantisation level, and a significant
+   estimate of another mass (not within 25 % + 50 g of the model's) that
+   removes at least :data:`EVIDENT_IMPROVEMENT` (half) of the output error
+   (a pick-up on a flexible arm is caught while its error is still
+   building, not three windows later).  An estimate that is significant but shows no change
    is not material and leaves the model alone.  A payload explains the
    change when the estimate's residual per value is back within
    ``explain_factor`` times the larger of the baseline and 1/6 pulse^2 (the
@@ -90,10 +96,14 @@ change in a linear-Gaussian regression):
    recorded in the controller's ``events`` and an
    :class:`UnmodelledChangeWarning` is issued (once per episode).
 4. **Rollback.**  The first whole window after an update is a probation:
-   when its mean squared tracking error exceeds ``explain_factor`` times
+   when the mean squared tracking error of its second half (the switch's own
+   transient, or an error still building from the change the update
+   answers, has decayed by then) exceeds ``explain_factor`` times
    that of the window that triggered the update (and of one pulse^2), the
    update made the arm track clearly worse and the controller returns to the
-   last good model (event ``'rollback'``).  On every window, tracking that
+   last good model (event ``'rollback'``); single windows misled here, so
+   until a window shows no change only :data:`PERSISTENCE_WINDOWS` agreeing
+   estimates update.  On every window, tracking that
    grows from one whole window to the next under a model other than the last
    good one, beyond :data:`DIVERGE_FACTOR` times the largest mean square of
    any window without change and beyond the window that brought the model
@@ -133,7 +143,9 @@ model at the first sample after the post.  In simulation the identification
 runs synchronously at the window's end and its latency (fixed, or the
 measured wall time) delays the switch by as many samples -- the same timing
 as the worker, and the worker is busy for that time (a window completed
-while it is busy is skipped).
+while it is busy is skipped).  A window is ``window_s`` rounded *up* to
+whole samples, so a worker whose latency is one window keeps up with every
+window.
 """
 from __future__ import annotations
 
@@ -148,7 +160,8 @@ from .computed_torque import ComputedTorqueController, reference_of
 from .guard import as_limit
 
 __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledChangeWarning",
-           "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "PERSISTENCE_WINDOWS", "DIVERGE_FACTOR",
+           "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "PERSISTENCE_WINDOWS", "EVIDENT_FACTOR",
+           "EVIDENT_IMPROVEMENT", "DIVERGE_FACTOR",
            "SMALL_MASS_FRACTION",
            "window_statistics"]
 
@@ -175,6 +188,17 @@ CALIBRATION_WINDOWS = 3
 #: (supervisor step 3).
 PERSISTENCE_WINDOWS = 3
 
+#: A window shows a change on its own, without :data:`PERSISTENCE_WINDOWS`, when
+#: the current model's residual per value exceeds this multiple of the larger of
+#: the baseline and :data:`QUANTISATION_VARIANCE`, and a
+#: significant estimate of another mass removes at least
+#: :data:`EVIDENT_IMPROVEMENT` of it (supervisor step 3).
+EVIDENT_FACTOR = 2.0
+
+#: Fraction of the current model's output error an estimate must remove for the
+#: evident-change rule (:data:`EVIDENT_FACTOR`).
+EVIDENT_IMPROVEMENT = 0.5
+
 #: An estimated mass below this fraction of the mass box is below the window's
 #: resolution: its centre of mass is not identifiable, and the empty gripper (no
 #: payload) is tried in its place (step 3).
@@ -182,6 +206,12 @@ SMALL_MASS_FRACTION = 0.05
 
 #: Number of payload parameters (m, xp, yp, Jc): the test's degrees of freedom.
 _N_PAYLOAD = 4
+
+
+# why updates are paused (``_frozen``), for the decision's reason
+FROZEN_REASONS = {"diverging": "tracking diverged under an update",
+                  "inconsistent": "the robot changed in a way no payload explained",
+                  "rolled back": "an update made tracking worse"}
 
 
 class UnmodelledChangeWarning(UserWarning):
@@ -299,7 +329,8 @@ class AdaptiveComputedTorqueController:
         Rig and reference (as :meth:`ctc.ComputedTorqueController.from_log`).
     window_s : float
         Length of the identification window (s), default 0.1 (at least
-        :data:`plant.logs.sanity.MIN_SAMPLES` samples).
+        :data:`plant.logs.sanity.MIN_SAMPLES` samples; rounded up to whole
+        samples).
     improvement : float
         An estimate must also bring its windowed output error below
         ``(1 - improvement)`` times the current model's.
@@ -422,7 +453,9 @@ class AdaptiveComputedTorqueController:
         self.latency_s = latency_s if latency_s == "measured" else float(latency_s)
         self.identify_options = dict(identify_options or {})
         self._ts = ts
-        self._n_window = int(round(self.window_s / ts))
+        # at least window_s long: a worker whose latency is one window keeps up with
+        # every window (rounded down, it finished a sample late and skipped every other)
+        self._n_window = int(math.ceil(self.window_s / ts - 1e-9))
         self.trajectory = reference_of(log, trajectory)
         #: ``(joints (6,), backlash (2,))`` of a flexible prior, else None
         self.flexible_joints = flex
@@ -545,7 +578,7 @@ class AdaptiveComputedTorqueController:
         self._good = (self.f, None)  # last good model: (f, payload)
         self._validating = None  # (f, mass) of the update the next identified window checks
         self._strikes = 0
-        self._frozen = False
+        self._frozen = False  # False, or why updates are paused: a key of FROZEN_REASONS
         self._probation = None  # (f of the update, tracking mse of the window that triggered it)
         self._pending_trigger_mse = None
         self._suspect = False  # the last identified window was significant but unexplained
@@ -644,7 +677,7 @@ class AdaptiveComputedTorqueController:
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
             self._probation = None
-            self._frozen = True
+            self._frozen = "diverging"
             mass = 0.0 if payload_good is None else payload_good["mass_kg"]
             self._event(k_end + 1, "rollback",
                         f"tracking diverging ({mse:.3g} pulses^2 mean square, {DIVERGE_FACTOR:g} x "
@@ -658,15 +691,23 @@ class AdaptiveComputedTorqueController:
             return False
         f_new, trigger_mse = self._probation
         self._probation = None
-        if mse > self.explain_factor * max(trigger_mse, 1.0):
+        # its second half: the switch's own transient has decayed by then (the loop's
+        # time constants are a few ms); a wrong model keeps the error up
+        late = e[len(e) // 2:]
+        mse_late = float(np.mean(late * late))
+        if mse_late > self.explain_factor * max(trigger_mse, 1.0):
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
             self._pending_trigger_mse = None
+            # single windows misled here: until a window shows no change, only
+            # PERSISTENCE_WINDOWS agreeing estimates update (step 5)
+            self._frozen = self._frozen or "rolled back"
             mass = 0.0 if payload_good is None else payload_good["mass_kg"]
             self._event(k_end + 1, "rollback",
-                        f"tracking after the update ({mse:.3g} pulses^2 mean square) is worse than "
+                        f"tracking after the update ({mse_late:.3g} pulses^2 mean square, second "
+                        f"half of its first window) is worse than "
                         f"before it ({trigger_mse:.3g}): back to the last good model "
-                        f"({mass:.3g} kg)", mse_after=mse, mse_before=trigger_mse)
+                        f"({mass:.3g} kg)", mse_after=mse_late, mse_before=trigger_mse)
             return True
         return False
 
@@ -781,7 +822,15 @@ class AdaptiveComputedTorqueController:
         self._significant_run = run
         persistent = len(run) == PERSISTENCE_WINDOWS and all(
             _agree_off_model(a, b, self.payload_mass_kg) for a, b in zip(run, run[1:]))
-        misfit = not first and (per_value_now > self.explain_factor * baseline or persistent)
+        # or the window alone is evident: its residual beyond EVIDENT_FACTOR x the
+        # baseline (at least the quantisation level) and a significant estimate of
+        # another mass that removes most of it
+        evident = significant and (
+            per_value_now > EVIDENT_FACTOR * max(baseline, QUANTISATION_VARIANCE)
+            and stats["y_new"] <= (1.0 - EVIDENT_IMPROVEMENT) * stats["y_now"]
+            and not _same_mass(mass, self.payload_mass_kg))
+        misfit = not first and (per_value_now > self.explain_factor * baseline or persistent
+                                or evident)
         reason = None
         decision = "baseline" if first else "no change"
         if misfit and significant and empty is not None:
@@ -831,9 +880,16 @@ class AdaptiveComputedTorqueController:
                     decision = "inconsistent"
                     reason = (f"successive payload estimates disagree ({m_applied:.3g} kg, then "
                               f"{mass:.3g} kg): not a constant payload")
+        if self._frozen == "rolled back" and decision == "update" and persistent:
+            # after an update that tracked worse, estimates that settle on one payload
+            # are evidence again (a change no payload explained, or a model that made
+            # tracking diverge, waits for a window without change)
+            self._frozen = False
         if self._frozen and decision == "update":
             decision = "unexplained"
-            reason = "the robot changed in a way no payload explained; updates resume after a window the model describes"
+            reason = (FROZEN_REASONS[self._frozen] + "; updates resume after a window the model "
+                      "describes" + (f" or {PERSISTENCE_WINDOWS} agreeing estimates"
+                                     if self._frozen == "rolled back" else ""))
         if self._validating is not None and f_used is self._validating[0]:
             self._validating = None
         if decision in ("baseline", "no change"):
@@ -856,7 +912,7 @@ class AdaptiveComputedTorqueController:
         if decision == "inconsistent":
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
-            self._frozen = True
+            self._frozen = "inconsistent"
             self._strikes = 0
             m_good = 0.0 if payload_good is None else payload_good["mass_kg"]
             msg = (f"a change the payload model does not explain at t = {k_end * self._ts:.3f} s "

@@ -312,3 +312,45 @@ def test_window_statistics():
     s = ctc.adaptive.window_statistics(e_log, np.zeros_like(e_log), e_log)
     assert s["y_now"] == float(np.sum(e_log ** 2)) and s["lr"] > 100
     assert s["variance"] == ctc.adaptive.QUANTISATION_VARIANCE
+
+
+def test_probation_judges_the_update_after_its_switching_transient(paper_log, prior):
+    """Supervisor step 4: the first window under an update is judged on its second half.
+
+    A model switch starts a transient that decays within the loop's time
+    constants (a flexible arm's error still building from the pick-up the
+    update answers); an update that is wrong keeps the error up.
+    """
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    n = adaptive._n_window
+    state = adaptive._ctc.estimator_state()
+
+    def window(first, second):
+        return [(k, e, -e, 0.0, 0.0, state, adaptive.f)
+                for k, e in enumerate([first] * (n // 2) + [second] * (n - n // 2))]
+
+    adaptive._probation = (adaptive.f, 1.0)
+    assert adaptive._supervise_tracking(window(6, 0), n - 1) is False  # transient, decayed
+    assert adaptive.events == []
+    adaptive._probation = (adaptive.f, 1.0)
+    assert adaptive._supervise_tracking(window(0, 6), n - 1) is True   # the update tracks worse
+    assert [e["kind"] for e in adaptive.events] == ["rollback"]
+    assert adaptive.events[0]["mse_after"] == 36.0
+    # single windows misled: until a window shows no change, only persistent estimates update
+    assert adaptive._frozen == "rolled back"
+
+
+def test_a_worker_as_fast_as_the_window_identifies_every_window(paper_log, prior):
+    """The window is at least ``window_s`` long, so a latency of one window keeps up
+    with every window (a window rounded down to whole samples made the worker finish
+    a sample late and skip every other one)."""
+    ts = paper_log.rig.sample_time_s
+    window_s = 143.3 * ts  # rounds down to 143 samples, up to 144
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log, window_s=window_s,
+                                                             latency_s=window_s)
+    assert adaptive._n_window * ts >= window_s
+    n_samples = int(1.2 / ts)
+    resp = plant.simulate_closed_loop(paper_log, prior, adaptive, substeps=SUBSTEPS,
+                                      n_samples=n_samples)
+    assert resp.success
+    assert len(adaptive.identifications) == n_samples // adaptive._n_window
