@@ -205,9 +205,11 @@ class _Oracle:
 
     def __init__(self, inner, switches):
         self.inner, self.switches = inner, dict(switches)
+        self.prior_f = np.array(inner.f, dtype=float)
 
     def reset(self):
         self.inner.reset()
+        self.inner.set_model_f(self.prior_f)
 
     def __call__(self, k, t, q_meas, e_pulses):
         if k in self.switches:
@@ -247,11 +249,10 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
         }
         if ch["kind"] in PAYLOAD_KINDS:
             f_unloaded = ir.rigid_equivalent_truth(s)["f"]
-            prior_f = np.asarray(controllers["static"].f, dtype=float).copy()
-            switches = [(k, prior_f + ir.rigid_equivalent_truth(c)["f"] - f_unloaded)
+            inner = ctc.ComputedTorqueController.from_result(prior, log)
+            switches = [(k, inner.f + ir.rigid_equivalent_truth(c)["f"] - f_unloaded)
                         for (k, _), c in zip(changes, changed_settings(s, ch))]
-            controllers["oracle"] = _Oracle(ctc.ComputedTorqueController.from_result(prior, log),
-                                            switches)
+            controllers["oracle"] = _Oracle(inner, switches)
     row["build_warnings"] = [str(w.message)[:160] for w in caught]
     for name, c in controllers.items():
         rob = ir.IndependentRobot(s)

@@ -209,7 +209,7 @@ _N_PAYLOAD = 4
 
 
 # why updates are paused (``_frozen``), for the decision's reason
-FROZEN_REASONS = {"diverging": "tracking diverged under an update",
+_FROZEN_REASONS = {"diverging": "tracking diverged under an update",
                   "inconsistent": "the robot changed in a way no payload explained",
                   "rolled back": "an update made tracking worse"}
 
@@ -578,7 +578,7 @@ class AdaptiveComputedTorqueController:
         self._good = (self.f, None)  # last good model: (f, payload)
         self._validating = None  # (f, mass) of the update the next identified window checks
         self._strikes = 0
-        self._frozen = False  # False, or why updates are paused: a key of FROZEN_REASONS
+        self._frozen = False  # False, or why updates are paused: a key of _FROZEN_REASONS
         self._probation = None  # (f of the update, tracking mse of the window that triggered it)
         self._pending_trigger_mse = None
         self._suspect = False  # the last identified window was significant but unexplained
@@ -813,6 +813,9 @@ class AdaptiveComputedTorqueController:
                            and stats["y_new"] < (1.0 - self.improvement) * stats["y_now"])
         first = len(self._calibration) < CALIBRATION_WINDOWS
         baseline = QUANTISATION_VARIANCE if self.baseline is None else self.baseline
+        # the no-change level a payload must bring the residual back to (never below
+        # the quantisation level)
+        floor = max(baseline, QUANTISATION_VARIANCE)
         # the current model no longer describes the window: its residual is beyond the
         # no-change baseline, or PERSISTENCE_WINDOWS successive windows find the same
         # payload, another than the model's, significant (a change a fast loop keeps
@@ -823,10 +826,9 @@ class AdaptiveComputedTorqueController:
         persistent = len(run) == PERSISTENCE_WINDOWS and all(
             _agree_off_model(a, b, self.payload_mass_kg) for a, b in zip(run, run[1:]))
         # or the window alone is evident: its residual beyond EVIDENT_FACTOR x the
-        # baseline (at least the quantisation level) and a significant estimate of
-        # another mass that removes most of it
+        # floor and a significant estimate of another mass that removes most of it
         evident = significant and (
-            per_value_now > EVIDENT_FACTOR * max(baseline, QUANTISATION_VARIANCE)
+            per_value_now > EVIDENT_FACTOR * floor
             and stats["y_new"] <= (1.0 - EVIDENT_IMPROVEMENT) * stats["y_now"]
             and not _same_mass(mass, self.payload_mass_kg))
         misfit = not first and (per_value_now > self.explain_factor * baseline or persistent
@@ -838,7 +840,7 @@ class AdaptiveComputedTorqueController:
             # well (to the quantisation level), the robot carries none -- the estimate's
             # centre of mass, wherever the optimiser left it, is not applied
             per_value_empty = empty["y_new"] / empty["n_values"]
-            if (per_value_empty <= self.explain_factor * max(baseline, QUANTISATION_VARIANCE)
+            if (per_value_empty <= self.explain_factor * floor
                     and empty["lr"] > self._lr_threshold
                     and empty["y_new"] < (1.0 - self.improvement) * empty["y_now"]):
                 f_est, payload_est, mass = np.array(self.prior_f, dtype=float), None, 0.0
@@ -847,7 +849,7 @@ class AdaptiveComputedTorqueController:
             reason = None if payload_est is None else self._plausible(res)
             if reason is not None:
                 decision = "implausible"
-            elif per_value_new > self.explain_factor * max(baseline, QUANTISATION_VARIANCE):
+            elif per_value_new > self.explain_factor * floor:
                 decision = "unexplained"
                 reason = (f"the payload estimate leaves {per_value_new:.3g} pulses^2 per value, "
                           f"more than {self.explain_factor:g} x max(no-change baseline "
@@ -887,7 +889,7 @@ class AdaptiveComputedTorqueController:
             self._frozen = False
         if self._frozen and decision == "update":
             decision = "unexplained"
-            reason = (FROZEN_REASONS[self._frozen] + "; updates resume after a window the model "
+            reason = (_FROZEN_REASONS[self._frozen] + "; updates resume after a window the model "
                       "describes" + (f" or {PERSISTENCE_WINDOWS} agreeing estimates"
                                      if self._frozen == "rolled back" else ""))
         if self._validating is not None and f_used is self._validating[0]:

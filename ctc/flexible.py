@@ -575,7 +575,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         law = self.logged_controller(log, state=state)
         link = np.ascontiguousarray(link_model_f(f, self.motor_inertia_reflected))
         if np.array_equal(link, self.link_f):  # the model in use: its law as it is
-            return dataclasses.replace(law, parameters=law.parameters._replace(link_f=link))
+            return law
         return dataclasses.replace(law, parameters=law.parameters._replace(
             parameters=self._parameters_for(link), link_f=link))
 
