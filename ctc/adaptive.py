@@ -108,7 +108,11 @@ change in a linear-Gaussian regression):
    good one, beyond :data:`DIVERGE_FACTOR` times the largest mean square of
    any window without change and beyond the window that brought the model
    in, rolls back at once and pauses updates until a window shows no change
-   (a wrong payload can destabilise a lightly damped flexible-joint loop).
+   (a wrong payload can destabilise a lightly damped flexible-joint loop);
+   tracking that diverges so under the last good model itself, when that is
+   not the prior, returns to the prior -- the static CTC's model -- since a
+   window can call a wrong model good (its estimate significant but not
+   material).
 5. **Persistence and consistency.**  A change that is neither explained nor
    plausible in one window is reported only when the next identified window
    says the same (a window that spans a pick-up is half old robot, half
@@ -396,7 +400,11 @@ class AdaptiveComputedTorqueController:
     two-mass plant with that controller in the loop
     (:class:`identification.flexible.FlexiblePayloadParameters`; the link's
     start state is the motor's plus the deflection of the controller's own
-    link model).  A model switch replaces the link model's f, and the link
+    link model, refined as a nuisance in a box that, for the estimate, also
+    holds the deflection any payload of the search box adds -- twice its
+    torque over the stiffness, a pick-up's ringing included -- and, for the
+    model in use, does not: the controller's link estimate was made with
+    that model).  A model switch replaces the link model's f, and the link
     observer's gains are placed anew for its link inertia; the motor loop
     keeps its gains.
     """
@@ -670,10 +678,18 @@ class AdaptiveComputedTorqueController:
         self._last_window = (self.f, mse) if one_model else None
         # diverging: two whole windows under this model, the second worse than the first,
         # than the window that brought the model in, and DIVERGE_FACTOR x the normal level
+        # (under the last good model itself, when that is not the prior: back to the prior,
+        # the static CTC's model -- a window can call a wrong model good)
+        on_prior = np.array_equal(self.f, self.prior_f)
         if (one_model and prev is not None and prev[0] is self.f and mse > prev[1]
-                and self._mse_normal is not None and self.f is not self._good[0]
+                and self._mse_normal is not None and not on_prior
                 and self._pending is None and mse > (self._model_trigger_mse or 0.0)
                 and mse > DIVERGE_FACTOR * max(self._mse_normal, 1.0)):
+            if self.f is self._good[0]:
+                self._good = (np.ascontiguousarray(self.prior_f, dtype=float), None)
+                what = "the prior (the last good model diverges too)"
+            else:
+                what = "the last good model"
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
             self._probation = None
@@ -681,8 +697,8 @@ class AdaptiveComputedTorqueController:
             mass = 0.0 if payload_good is None else payload_good["mass_kg"]
             self._event(k_end + 1, "rollback",
                         f"tracking diverging ({mse:.3g} pulses^2 mean square, {DIVERGE_FACTOR:g} x "
-                        f"the largest without change, {self._mse_normal:.3g}): back to the last "
-                        f"good model ({mass:.3g} kg), updates paused", mse_after=mse,
+                        f"the largest without change, {self._mse_normal:.3g}): back to {what} "
+                        f"({mass:.3g} kg), updates paused", mse_after=mse,
                         mse_before=self._mse_normal)
             return True
         if self._probation is None or rows[0][6] is not self._probation[0]:
@@ -953,17 +969,16 @@ class AdaptiveComputedTorqueController:
         from identification.refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
         f_now = np.asarray(self.f, dtype=float)
-        trend, box = space.initial_state(window)
+        # the model in use: the controller's own link estimate, no payload's deflection
+        trend, box = space.model_initial_state(window)
         problem = PredictionErrorProblem(window, to_f=lambda X: np.tile(f_now, (len(X), 1)),
                                          to_state=lambda X: X, gain=DEFAULT_GAIN,
                                          substeps=substeps, workers=1, controller=law,
                                          plant=space.plant(window),
                                          to_plant_parameters=lambda X: space.plant_parameters(
                                              X, window))
-        lo = np.minimum(box[:, 0], guess)
-        hi = np.maximum(box[:, 1], guess)
-        ref = refine(problem, np.stack([guess, trend]), np.column_stack([lo, hi]), max_iter=20,
-                     ftol=1e-6)
+        ref = refine(problem, np.stack([np.clip(guess, box[:, 0], box[:, 1]), trend]), box,
+                     max_iter=20, ftol=1e-6)
         return np.asarray(ref.x, dtype=float)
 
     @property

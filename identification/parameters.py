@@ -488,5 +488,15 @@ class PayloadParameters(Parameterisation):
 
         return estimate_initial_state(log)
 
+    def model_initial_state(self, log):
+        """Guess and box of the start state for the model in use (the rigid plant's:
+        :meth:`initial_state`).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return self.initial_state(log)
+
     def __repr__(self) -> str:
         return f"PayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()})"

@@ -354,3 +354,79 @@ def test_a_worker_as_fast_as_the_window_identifies_every_window(paper_log, prior
                                       n_samples=n_samples)
     assert resp.success
     assert len(adaptive.identifications) == n_samples // adaptive._n_window
+
+
+def test_tracking_that_diverges_under_the_last_good_model_returns_to_the_prior(paper_log, prior):
+    """Supervisor step 4: a window can call a wrong model good; when tracking then diverges
+    under it, the controller returns to the prior (the static CTC's model), not to it."""
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    wrong = plant.add_payload(prior, plant.Payload(3.0, (0.1, 0.0), 0.01), paper_log.rig.a3_m)
+    adaptive._install(wrong)
+    adaptive.payload = {"mass_kg": 3.0}
+    adaptive._good = (adaptive.f, adaptive.payload)  # as if a window had found no change
+    adaptive._mse_normal = 0.5
+    n = adaptive._n_window
+    state = adaptive._ctc.estimator_state()
+
+    def window(e):
+        return [(k, e, -e, 0.0, 0.0, state, adaptive.f) for k in range(n)]
+
+    assert adaptive._supervise_tracking(window(5), n - 1) is False  # one whole window: no trend
+    assert adaptive._supervise_tracking(window(8), 2 * n - 1) is True  # growing, 64 > 16 x 1
+    assert [e["kind"] for e in adaptive.events] == ["rollback"]
+    assert "the prior" in adaptive.events[0]["message"]
+    k, f_back, payload_back, kind = adaptive._pending
+    np.testing.assert_array_equal(f_back, prior)
+    assert payload_back is None and kind == "rollback" and adaptive._frozen == "diverging"
+
+
+def test_growing_tracking_error_under_the_prior_is_left_to_the_guard(paper_log, prior):
+    """The prior is the static CTC: nothing to return to (the following-error limit,
+    :mod:`ctc.guard`, is the last resort there)."""
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    adaptive._mse_normal = 0.5
+    n = adaptive._n_window
+    state = adaptive._ctc.estimator_state()
+    rows = [[(k, e, -e, 0.0, 0.0, state, adaptive.f) for k in range(n)] for e in (5, 8)]
+    assert adaptive._supervise_tracking(rows[0], n - 1) is False
+    assert adaptive._supervise_tracking(rows[1], 2 * n - 1) is False
+    assert adaptive.events == [] and adaptive._pending is None
+
+
+def test_the_window_link_box_holds_any_payload_deflection(drill_log):
+    """A payload changes the spring deflection at a flexible window's start by its torque
+    over the stiffness: the candidates' link box is widened by twice the interval bound of
+    that torque, the model's own (the controller's link estimate) is not."""
+    from identification.flexible import FlexiblePayloadParameters
+    from identification.parameters import DEFAULT_PAYLOAD_BOUNDS, PayloadParameters
+    from plant.robot.model import regressor
+    from plant.robot.payload import payload_delta_matrix
+
+    import dataclasses
+
+    k = slice(1000, 1150)
+    window = drill_log.replace(
+        t=drill_log.t[k], q_ref=drill_log.q_ref[k], e_pulses=drill_log.e_pulses[k],
+        i_A=drill_log.i_A[k], start_index=1000,
+        window_s=(float(drill_log.t[1000]), float(drill_log.t[1150])),
+        rig=dataclasses.replace(drill_log.rig, q0_rad=None, qd0_rad_per_s=None))
+    joints = np.array([2.0e4, 1.5e4, 2.0, 1.0, 0.5, 0.3])
+    space = FlexiblePayloadParameters(np.zeros(9), joints)
+    g, box = space.initial_state(window)
+    g0, box0 = space.model_initial_state(window)
+    np.testing.assert_array_equal(g, g0)
+    np.testing.assert_array_equal(box[4:], box0[4:])  # the motor's: the same
+    bound = space.payload_torque_bound(window, g[4:])
+    grown = (box[:2, 1] - box[:2, 0]) - (box0[:2, 1] - box0[:2, 0])
+    np.testing.assert_allclose(grown, 2 * 2 * bound / joints[:2])
+    np.testing.assert_array_equal(box[2:4], box0[2:4])  # velocities not widened
+    # the bound holds every payload in the box, and is not loose by more than 2
+    rng = np.random.default_rng(1)
+    lo, hi = DEFAULT_PAYLOAD_BOUNDS.T
+    x = lo + (hi - lo) * rng.random((4000, 4))
+    x[:8, :3] = [[hi[0], s1 * hi[1], s2 * hi[2]] for s1 in (-1, 1) for s2 in (-1, 1)] * 2
+    _, _, qdd = window.trajectory.evaluate(window.t[:1])
+    Y = regressor(g[4:6], g[6:8], qdd[0], window.rig.gravity_m_s2) @ payload_delta_matrix(
+        window.rig.a3_m)
+    tau = np.abs(PayloadParameters.linear(x) @ Y.T).max(axis=0)
+    assert np.all(tau <= bound * (1 + 1e-12)) and np.all(tau >= 0.5 * bound), (tau, bound)
