@@ -1326,9 +1326,9 @@ class FlexiblePayloadParameters(PayloadParameters):
 
         Interval arithmetic on ``tau = Y(q, qd, qdd) A(a3) p`` (paper eq. 2 and
         the payload vector ``p = [m, m xp, m yp, Jc + m (xp^2 + yp^2)]`` of
-        :meth:`linear`), each component of ``p`` at its largest magnitude over
-        the search box; ``q, qd`` the window's start-state guess, ``qdd`` the
-        reference's.
+        :meth:`linear`): each component of ``p`` at its largest magnitude over
+        the search box is ``linear`` of the box's largest magnitudes; ``q, qd``
+        the window's start-state guess, ``qdd`` the reference's.
 
         Parameters
         ----------
@@ -1348,10 +1348,7 @@ class FlexiblePayloadParameters(PayloadParameters):
         _, _, qdd = log.trajectory.evaluate(log.t[:1])
         Y = np.asarray(regressor(s[:2], s[2:4], qdd[0], log.rig.gravity_m_s2), dtype=float)
         Y = Y.reshape(2, 9) @ payload_delta_matrix(log.rig.a3_m)
-        big = np.max(np.abs(self._bounds), axis=1)
-        p_max = np.array([big[0], big[0] * big[1], big[0] * big[2],
-                          big[3] + big[0] * (big[1] ** 2 + big[2] ** 2)])
-        return np.abs(Y) @ p_max
+        return np.abs(Y) @ self.linear(np.max(np.abs(self._bounds), axis=1))
 
     def __repr__(self) -> str:
         return (f"FlexiblePayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()}, "
