@@ -82,20 +82,29 @@ change in a linear-Gaussian regression):
    removes at least :data:`EVIDENT_IMPROVEMENT` (half) of the output error
    (a pick-up on a flexible arm is caught while its error is still
    building, not three windows later).  An estimate that is significant but shows no change
-   is not material and leaves the model alone.  A payload explains the
+   is not material and leaves the model alone (it is kept, below).  A payload explains the
    change when the estimate's residual per value is back within
    ``explain_factor`` times the larger of the baseline and 1/6 pulse^2 (the
    quantisation level).  An estimated mass below :data:`SMALL_MASS_FRACTION`
    of the box (a put-down) has no identifiable centre of mass: when the
    empty gripper (no payload) explains the window as well, the update is to
    no payload; a small mass whose first moment at the box edge is material
-   is not plausible.  A change that no plausible payload explains, or a
+   is not plausible.  An update whose mass is the model's own (within 25 % +
+   50 g) refines the payload in use: it installs the mean of every
+   significant, plausible and explaining estimate of that mass from the
+   windows since the payload took effect -- not the update's own window,
+   which may span the change -- (the model is affine in the linear payload vector
+   ``[m, m xp, m yp, J]``, so the mean model is the mean payload's), not the
+   last window's alone -- single windows' centre-of-mass estimates scatter by
+   tens of per cent.  A change that no plausible payload explains, or a
    change with no significant payload estimate --
    friction, damping, stiffness, a collision -- is **not**
    turned into a payload: the model is kept, and (step 5) an event ``'unexplained'`` is
    recorded in the controller's ``events`` and an
    :class:`UnmodelledChangeWarning` is issued (once per episode).
-4. **Rollback.**  The first whole window after an update is a probation:
+4. **Rollback.**  The first whole window after an update (not a refinement's:
+   its first window judges a change of the robot, if any, more than the
+   refinement) is a probation:
    when the mean squared tracking error of its second half (the switch's own
    transient, or an error still building from the change the update
    answers, has decayed by then) exceeds ``explain_factor`` times
@@ -106,7 +115,9 @@ change in a linear-Gaussian regression):
    estimates update.  On every window, tracking that
    grows from one whole window to the next under a model other than the last
    good one, beyond :data:`DIVERGE_FACTOR` times the largest mean square of
-   any window without change and beyond the window that brought the model
+   any window without change under the prior (the static CTC's normal
+   tracking: a wrong model that a loose window calls good must not raise
+   it) and beyond the window that brought the model
    in, rolls back at once and pauses updates until a window shows no change
    (a wrong payload can destabilise a lightly damped flexible-joint loop);
    tracking that diverges so under the last good model itself, when that is
@@ -119,9 +130,16 @@ change in a linear-Gaussian regression):
    new).  The first identified window under an update must confirm it: when
    it shows a change again and its estimate's mass differs from the update's
    by more than 25 % + 50 g, twice in a row, the estimates are not one
-   constant payload -- the controller returns to the last good model (the
-   last one a window found without change), reports the change
-   (``'unexplained'``) and makes no update until a window shows no change.
+   constant payload; nor are three successive updates of which no two are
+   one mass (25 % + 50 g) and none is to the empty gripper (a pick-up gives
+   at most one estimate from a window spanning it, then agreeing ones; a
+   put-down is an update to no payload).  Then the controller returns, after the
+   identification's latency, to the prior -- the static CTC's model: the
+   episode's estimates are no evidence of a payload, nor is a last good model
+   one of its windows found (a friction change mimics a payload for a window
+   or two; and a last good model goes stale across a put-down) -- reports
+   the change (``'unexplained'``) and makes no update until a window shows
+   no change.
 
 6. **Following-error limit** (:mod:`ctc.guard`).  Whatever the model, a
    joint whose pulse error passes its limit -- by default twice the largest
@@ -180,7 +198,7 @@ DEFAULT_LATENCY_S = 0.1
 QUANTISATION_VARIANCE = 1.0 / 6.0
 
 #: A window whose tracking mean square exceeds this multiple of the largest one seen
-#: without change (and 1 pulse^2), under a model other than the last good one, rolls
+#: without change under the prior (and 1 pulse^2), under a model other than the last good one, rolls
 #: the model back at once (RMS 4 x the normal).
 DIVERGE_FACTOR = 16.0
 
@@ -251,6 +269,35 @@ def _integrated_autocorrelation_time(r) -> float:
 def _same_mass(a, b) -> bool:
     """Two payload masses (kg) that are one payload: within 25 % of the larger + 50 g."""
     return abs(a - b) <= 0.25 * max(abs(a), abs(b)) + 0.05
+
+
+def _one_payload(masses) -> bool:
+    """False for three payload masses (kg), none zero (the empty gripper), of which no two
+    are one payload (:func:`_same_mass`); True otherwise (fewer than three included)."""
+    if len(masses) < 3 or min(masses) <= 0.0:
+        return True
+    a, b, c = masses
+    return _same_mass(a, b) or _same_mass(b, c) or _same_mass(a, c)
+
+
+def _pooled(estimates):
+    """``(f, payload)`` of the mean of payload estimates ``[(f, payload), ...]``.
+
+    The base parameters are affine in the linear payload vector
+    ``p = [m, m xp, m yp, J]`` (:meth:`identification.parameters.PayloadParameters.to_f`),
+    so the mean f is the mean vector's: the least-squares pooling of independent,
+    equally informative windows.
+    """
+    from plant.robot.payload import payload_from_vector
+
+    if len(estimates) == 1:
+        return estimates[0]
+    f = np.mean([np.asarray(e[0], dtype=float) for e in estimates], axis=0)
+    p = np.mean([np.asarray(e[1]["vector"], dtype=float) for e in estimates], axis=0)
+    pl = payload_from_vector(p, clip_negative_inertia=True)
+    payload = dict(estimates[-1][1], mass_kg=pl.mass_kg, com_m=list(pl.com_m),
+                   izz_kgm2=pl.izz_kgm2, vector=[float(v) for v in p], pooled=len(estimates))
+    return f, payload
 
 
 def _agree_off_model(a, b, model) -> bool:
@@ -579,7 +626,7 @@ class AdaptiveComputedTorqueController:
         self.events = []
         self.baseline = None
         self._calibration = []  # residual per value of the first CALIBRATION_WINDOWS windows
-        self._mse_normal = None  # largest tracking mean square of a window without change
+        self._mse_normal = None  # largest tracking mean square of a no-change window under the prior
         self._last_window = None  # (f, tracking mean square) of the last whole window
         self._model_trigger_mse = None  # tracking mean square of the window that brought f in
         self._quiet = []  # residual per value of the no-change windows
@@ -591,8 +638,10 @@ class AdaptiveComputedTorqueController:
         self._pending_trigger_mse = None
         self._suspect = False  # the last identified window was significant but unexplained
         self._significant_run = []  # masses (kg) of the latest successive significant estimates
+        self._update_masses = []  # masses (kg) of the accepted updates since the last isolation
+        self._pool = []  # (f, payload) of the estimates since the payload in use took effect
         self._warned = False
-        self._pending = None  # (k_effective, f, payload dict, kind)
+        self._pending = None  # (k_effective, f, payload dict, 'update'|'refinement'|'rollback')
         self._busy_until = -1
         self._rows = []
         self._window_start = 0
@@ -630,7 +679,13 @@ class AdaptiveComputedTorqueController:
             mass = 0.0 if payload is None else payload["mass_kg"]
             self.payload_history.append((k * self._ts, mass))
             if kind == "update":
-                self._probation = (self.f, self._pending_trigger_mse)
+                # the estimates of the payload now in use start here: the update's own
+                # window may span the change (half old robot, half new)
+                self._pool = []
+            if kind in ("update", "refinement"):
+                # a refinement (the pooled payload in use) is on no probation: its first
+                # window judges a change of the robot, if any, not the refinement's
+                self._probation = (self.f, self._pending_trigger_mse) if kind == "update" else None
                 self._validating = (self.f, mass)
                 self._model_trigger_mse = self._pending_trigger_mse
             else:
@@ -692,13 +747,14 @@ class AdaptiveComputedTorqueController:
                 what = "the last good model"
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
+            self._pool = []
             self._probation = None
             self._frozen = "diverging"
             mass = 0.0 if payload_good is None else payload_good["mass_kg"]
             self._event(k_end + 1, "rollback",
                         f"tracking diverging ({mse:.3g} pulses^2 mean square, {DIVERGE_FACTOR:g} x "
-                        f"the largest without change, {self._mse_normal:.3g}): back to {what} "
-                        f"({mass:.3g} kg), updates paused", mse_after=mse,
+                        f"the largest without change under the prior, {self._mse_normal:.3g}): "
+                        f"back to {what} ({mass:.3g} kg), updates paused", mse_after=mse,
                         mse_before=self._mse_normal)
             return True
         if self._probation is None or rows[0][6] is not self._probation[0]:
@@ -714,6 +770,7 @@ class AdaptiveComputedTorqueController:
         if mse_late > self.explain_factor * max(trigger_mse, 1.0):
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
+            self._pool = []
             self._pending_trigger_mse = None
             # single windows misled here: until a window shows no change, only
             # PERSISTENCE_WINDOWS agreeing estimates update (step 5)
@@ -876,6 +933,11 @@ class AdaptiveComputedTorqueController:
             decision = "unexplained"
             reason = (f"the model leaves {per_value_now:.3g} pulses^2 per value (baseline "
                       f"{baseline:.3g}) and no payload reduces it significantly")
+        if (significant and not first and payload_est is not None
+                and per_value_new <= self.explain_factor * floor and self._plausible(res) is None):
+            # every window's significant, plausible, explaining estimate is a measurement of
+            # the payload the robot carries: pooled for refinements (step 3)
+            self._pool.append((f_est, payload_est))
         if first:
             # the first identified windows set the baseline: how well the prior describes
             # this robot under this controller (a prior that fits only roughly -- a rigid
@@ -908,9 +970,19 @@ class AdaptiveComputedTorqueController:
             reason = (_FROZEN_REASONS[self._frozen] + "; updates resume after a window the model "
                       "describes" + (f" or {PERSISTENCE_WINDOWS} agreeing estimates"
                                      if self._frozen == "rolled back" else ""))
+        if decision == "update" and not _one_payload(self._update_masses[-2:] + [mass]):
+            # three successive updates of which no two are one mass, none the empty
+            # gripper: no constant payload, nor a pick-up (one window spanning it, then
+            # agreeing estimates), nor a put-down (an update to no payload)
+            decision = "inconsistent"
+            reason = (f"successive payload updates disagree ("
+                      + ", ".join(f"{m:.3g}" for m in self._update_masses[-2:] + [mass])
+                      + " kg): not a constant payload")
         if self._validating is not None and f_used is self._validating[0]:
             self._validating = None
-        if decision in ("baseline", "no change"):
+        if decision in ("baseline", "no change") and np.array_equal(f_used, self.prior_f):
+            # the normal tracking level is the prior's (the static CTC's) without change: a
+            # wrong model a loose window calls good must not raise it
             self._mse_normal = mse if self._mse_normal is None else max(self._mse_normal, mse)
         if decision == "no change" and not significant:
             self._quiet.append(per_value_now)
@@ -928,15 +1000,21 @@ class AdaptiveComputedTorqueController:
         k_eff = k_end + 1 + int(math.ceil(latency / self._ts))
         self._busy_until = k_eff
         if decision == "inconsistent":
-            f_good, payload_good = self._good
-            self._pending = (k_end + 1, f_good, payload_good, "rollback")
+            self._update_masses = []
+            # back to the prior, the static CTC's model: the episode's estimates, and a last
+            # good model one of its windows found, are not evidence of a payload (and a last
+            # good model goes stale across a put-down)
+            f_good, payload_good = np.ascontiguousarray(self.prior_f, dtype=float), None
+            self._good = (f_good, None)
+            # the decision is the identification's: it takes effect after its latency
+            self._pending = (k_eff, f_good, payload_good, "rollback")
+            self._pool = []
             self._frozen = "inconsistent"
             self._strikes = 0
             m_good = 0.0 if payload_good is None else payload_good["mass_kg"]
             msg = (f"a change the payload model does not explain at t = {k_end * self._ts:.3f} s "
-                   f"(friction, damping, stiffness?): {reason}; back to the last good model "
-                   f"({m_good:.3g} kg)")
-            self._event(k_end + 1, "unexplained", msg, mass_kg=mass, lr=stats["lr"])
+                   f"(friction, damping, stiffness?): {reason}; back to the prior ({m_good:.3g} kg)")
+            self._event(k_eff, "unexplained", msg, mass_kg=mass, lr=stats["lr"])
             if not self._warned:
                 import warnings as _w
 
@@ -959,10 +1037,25 @@ class AdaptiveComputedTorqueController:
         if decision == "no change":
             self._warned = False
         if accepted:
-            self._pending = (k_eff, f_est, payload_est, "update")
+            kind = "update"
+            if payload_est is not None and self.payload is not None and _same_mass(
+                    mass, self.payload_mass_kg):
+                kind = "refinement"
+                # a refinement of the payload in use: the mean of every estimate of that
+                # payload since it was found, not the last window's alone (f is affine in the
+                # linear payload vector, so the mean f is the mean payload's)
+                f_est, payload_est = _pooled([q for q in self._pool
+                                              if _same_mass(q[1]["mass_kg"], mass)]
+                                             or [(f_est, payload_est)])
+                mass = float(payload_est["mass_kg"])
+            self._update_masses.append(mass)
+            self._pending = (k_eff, f_est, payload_est, kind)
             self._pending_trigger_mse = mse
+            n_pooled = 1 if payload_est is None else payload_est.get("pooled", 1)
+            pooled = "" if kind == "update" else "; refinement" + (
+                f", the mean of {n_pooled} estimates" if n_pooled > 1 else "")
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "
-                        f"{self._lr_threshold:.3g})", mass_kg=mass, lr=stats["lr"])
+                        f"{self._lr_threshold:.3g}{pooled})", mass_kg=mass, lr=stats["lr"])
 
     def _start_state_of(self, window, law, substeps, guess, space):
         """The current model's start state on a window, refined by prediction error (nuisances)."""

@@ -225,6 +225,38 @@ def test_two_agreeing_estimates_away_from_the_model_are_evidence():
     assert not _agree_off_model(0.03, 0.04, 0.0)     # within 50 g of it
 
 
+def test_three_updates_of_no_one_mass_are_not_a_payload():
+    """The consistency rule of the supervisor's step 5: a pick-up's updates (one window
+    spanning it, then agreeing estimates) and a put-down (an update to no payload) are
+    one payload's; three successive updates of which no two agree are not."""
+    from ctc.adaptive import _one_payload
+
+    assert _one_payload([2.37, 3.64, 3.37])      # spanning window, then a refinement
+    assert _one_payload([0.93, 1.84, 0.0])       # pick-up, then put down
+    assert _one_payload([4.12, 2.49])            # fewer than three: no verdict
+    assert not _one_payload([4.12, 2.49, 0.73])  # a friction change read as payloads
+    assert not _one_payload([2.09, 1.43, 0.71])
+
+
+def test_a_refinement_pools_the_estimates_of_the_payload(paper_log, prior):
+    """Step 3: a refinement installs the mean payload of its estimates; f is affine in the
+    linear payload vector, so the mean f is the model of the mean payload."""
+    from ctc.adaptive import _pooled
+    from identification.parameters import PayloadParameters
+
+    space = PayloadParameters(prior)
+    X = np.array([[3.64, 0.10, 0.02, 0.010], [3.37, 0.12, -0.01, 0.012], [3.89, 0.08, 0.03, 0.008]])
+    estimates = [(space.to_f(x, paper_log), space.extras(x, paper_log)["payload"]) for x in X]
+    f, payload = _pooled(estimates)
+    p_mean = PayloadParameters.linear(X).mean(axis=0)
+    np.testing.assert_allclose(payload["vector"], p_mean)
+    assert payload["mass_kg"] == pytest.approx(X[:, 0].mean()) and payload["pooled"] == 3
+    x_mean = np.array([payload["mass_kg"], *payload["com_m"], 0.0])
+    x_mean[3] = p_mean[3] - x_mean[0] * (x_mean[1] ** 2 + x_mean[2] ** 2)  # Jc of the mean
+    np.testing.assert_allclose(f, space.to_f(x_mean, paper_log), rtol=1e-12, atol=1e-12)
+    assert _pooled(estimates[:1]) is estimates[0]
+
+
 def test_supervisor_keeps_the_model_without_a_change(paper_log, prior):
     """Issue 21 item 1: windows without a change never move the mass (likelihood-ratio test)."""
     adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
