@@ -17,11 +17,14 @@ steps:
 2. **Output-error refinement** on the logged-input predictor
    (:mod:`identification.refinement`'s bounded Levenberg--Marquardt, all
    Jacobian columns of an iteration as one batch of SIMD lanes): the arm,
-   driven by the logged current plus a weak output injection
+   driven by the current the drive applied plus a weak output injection
    (:func:`plant.simulation.arm.replay_arm`), must keep its continuous encoder count in
-   the count cells the log allows.  The residuals are smooth in beta (the
-   quantised feedback is replaced by the logged current), so a local method
-   converges; their sum of squares is in pulses^2.
+   the count cells the log allows.  The applied current is the P law's on
+   the logged integer error, clipped at the drive's full scale -- known
+   exactly, where the logged current carries the current sensor's noise
+   (the PUMA 560 path's replay does the same).  The residuals are smooth in
+   beta (the quantised feedback is replaced by the applied current), so a
+   local method converges; their sum of squares is in pulses^2.
 
 Standard errors: Gauss--Newton sandwich with a Newey--West long-run
 covariance of the scores (:func:`identification.uncertainty.sandwich_covariance`),
@@ -48,20 +51,20 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import OptimizeResult
 
-from plant.simulation.arm import ARM_SUBSTEPS as ARM_SUBSTEPS_SIM
 from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
 from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
-from plant.logs.rig import rig_constants
+from plant.logs.rig import F_NAMES, rig_constants
 
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
 from .result_schema import jsonable
 from .uncertainty import RSE_WARN, sandwich_covariance
 
-__all__ = ["identify_arm", "arm_idim_ls", "ArmIdentificationResult", "ArmPredictionErrorProblem",
-           "ARM_REFINE_SUBSTEPS", "ARM_FTOL", "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout",
-           "motor_side_friction", "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
+__all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationResult",
+           "ArmPredictionErrorProblem", "ARM_REFINE_SUBSTEPS", "ARM_OUTPUT_ERROR_SUBSTEPS", "ARM_FTOL",
+           "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout", "motor_side_friction",
+           "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper")
@@ -73,12 +76,46 @@ ARM_DEFAULT_METHOD = "idim+pem"
 ARM_FTOL = 1e-6
 
 #: RK4 substeps per sample of the refinement's replay (the predictor's
-#: dynamics are the slow arm's: the logged current carries the fast P loop).
+#: dynamics are the slow arm's: the applied current carries the fast P loop).
 ARM_REFINE_SUBSTEPS = 2
+
+#: RK4 substeps per sample of the identification's output error (eq. 4): the
+#: GA's objective (methods ``"ga+pem"`` and ``"paper"``) and the result's
+#: ``output_error`` (a flexible result's: at least its fit's substeps).
+#: Coarser than a log's exact reproduction (``plant.simulation.arm.ARM_SUBSTEPS``,
+#: 48), as the PUMA path's GA and ``fun`` are
+#: (``identification.objective.IDENTIFICATION_SUBSTEPS``).
+ARM_OUTPUT_ERROR_SUBSTEPS = 8
 
 
 #: :func:`plant.simulation.core.cell_centre` element by element (the one definition of a cell's centre).
 _cell_centres = np.vectorize(cell_centre, otypes=[float])
+
+
+def rig_search_box(rig, base):
+    """The sidecar's search ranges of the base parameters, or None (shape (r, 2)).
+
+    A rig that gives search ranges (``rig.f_bounds``, the sidecar's
+    ``f_search_ranges`` of f1..f9) gives them for parameters with those
+    names; they are the default box of :func:`identify_arm` when the
+    model's base parameters are exactly those (same count and names: the
+    PUMA 560 links 2-3 instance), as :func:`identification.identify` takes
+    them.
+
+    Parameters
+    ----------
+    rig : plant.Rig
+    base : plant.robot.robot_model.BaseParameterSet
+        The model's base parameters.
+
+    Returns
+    -------
+    ndarray, shape (r, 2), or None
+    """
+    names = tuple(base.names)
+    if not rig.f_bounds or len(rig.f_bounds) != len(names) or names != F_NAMES[:len(names)]:
+        return None
+    return np.array(rig.f_bounds, dtype=float).reshape(len(names), 2)
 
 
 def _plant_of(log, plant):
@@ -264,6 +301,10 @@ def motor_side_friction(rig, X, r) -> dict:
 class ArmPredictionErrorProblem:
     """Residuals of the arm's logged-input predictor, in batches (:func:`identification.refinement.refine`).
 
+    The input is the current the drive applied during the log: the rig's P
+    law ``i = P e`` on the logged integer errors, clipped at the drive's full
+    scale (exact; the logged current ``i_A`` may carry sensor noise).
+
     Parameters
     ----------
     log : plant.logs.arm_log.ArmLog
@@ -303,7 +344,12 @@ class ArmPredictionErrorProblem:
         self.k_start = int(k_start)
         self.ref = log.reference_counts()
         self.e = np.asarray(log.e_pulses, dtype=float)
-        self.i = np.asarray(log.i_A, dtype=float)
+        # the current the drive applied: the P law's on the logged integer error, clipped at
+        # the drive's full scale -- known exactly, where the logged current carries the
+        # current sensor's noise (the PUMA path's replay, plant.simulation.simulate.log_chunk)
+        c = rig_constants(log.rig)
+        self.i = np.clip(self.e * np.asarray(c.p_gain, dtype=float), -c.current_limit,
+                         c.current_limit)
         self.nfev = 0
         # a failed candidate's residuals: a bound far beyond any prediction error
         self.bound = 1e6
@@ -358,7 +404,8 @@ class ArmIdentificationResult(OptimizeResult):
         Sum of squared prediction errors at x (pulses^2).
     output_error : float
         Output error of the simulated P loop with x against the log (paper
-        eq. 4, pulses^2).
+        eq. 4, pulses^2), at :data:`ARM_OUTPUT_ERROR_SUBSTEPS` RK4 steps per
+        sample (a flexible result: at least its ``flexible_substeps``).
     nfev, nit : int
         Simulated candidates (GA and refinement) and refinement iterations
         (GA generations for ``method="paper"``).
@@ -497,7 +544,7 @@ class ArmIdentificationResult(OptimizeResult):
         return "\n".join(lines)
 
     def plot(self, log, ax=None):
-        """Logged and simulated tracking errors per joint (P loop with x).
+        """Logged and simulated tracking errors per joint (P loop with x, as ``output_error``).
 
         Parameters
         ----------
@@ -523,9 +570,12 @@ class ArmIdentificationResult(OptimizeResult):
             fig = axes[0].figure
         if self.get("flexible_plant") is not None:
             sim = simulate_arm(self.flexible_plant, np.asarray(self.plant_row)[None], log.rig,
-                               log.trajectory, log.n_samples)
+                               log.trajectory, log.n_samples,
+                               substeps=max(ARM_OUTPUT_ERROR_SUBSTEPS,
+                                            int(self.get("flexible_substeps") or 0)))
         else:
-            sim = simulate_arm(self.plant, self.beta[None], self.rig, log.trajectory, log.n_samples)
+            sim = simulate_arm(self.plant, self.beta[None], self.rig, log.trajectory, log.n_samples,
+                               substeps=ARM_OUTPUT_ERROR_SUBSTEPS)
         for j, a in enumerate(axes):
             a.step(log.t, log.e_pulses[:, j], where="post", lw=0.8, label="log")
             a.step(log.t, sim.errors[0, :, j], where="post", lw=0.8, ls="--", label="identified")
@@ -569,7 +619,10 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     cutoff_hz : float, optional
         IDIM low-pass cut-off (default: the quantisation-floor rule).
     bounds : array_like, shape (r, 2), optional
-        Box of beta.  Default: from ``ranges`` if given, else the IDIM
+        Box of beta.  Default: from ``ranges`` if given; else the
+        sidecar's search ranges when they name the model's base parameters
+        (:func:`rig_search_box`: the PUMA 560 links 2-3 instance's f1..f9,
+        the box of :func:`identification.identify`); else the IDIM
         estimate +- (50 % + 10 standard errors).
     ranges : dict, optional
         Physical ranges of the links (masses, centres of mass, inertias,
@@ -645,6 +698,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         pad = 1e-6 * np.maximum(np.abs(bounds[:, 0]), 1e-9)
         bounds[wide, 0] -= pad[wide]
         bounds[wide, 1] += pad[wide]
+    if bounds is None and ranges is None:
+        bounds = rig_search_box(rig, pl.base)  # None when the sidecar names none of beta
     hw = 0.5 * np.abs(x0) + 10.0 * idim["x_std"]
     hw = np.maximum(hw, 1e-9 * max(1.0, float(np.max(np.abs(x0)))))
     around = np.column_stack([x0 - hw, x0 + hw])
@@ -665,7 +720,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
 
         def output_error(X):
             return simulate_arm(sim_plant, lane(X), rig, log.trajectory, log.n_samples,
-                                e_log=e_log, errors=False, workers=workers).objective
+                                e_log=e_log, errors=False, substeps=ARM_OUTPUT_ERROR_SUBSTEPS,
+                                workers=workers).objective
 
         ga = run_ga(output_error, bounds, rng=np.random.default_rng(rng), **settings)
         ga_info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
@@ -689,7 +745,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     with np.errstate(divide="ignore", invalid="ignore"):
         rse = x_std / np.abs(x)
     sim = simulate_arm(sim_plant, lane(x), rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
-                       errors=False)
+                       errors=False, substeps=ARM_OUTPUT_ERROR_SUBSTEPS)
     nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and method != "paper" else 0)
     friction = motor_side_friction(rig, x, nb)
     names = tuple(pl.base.names) + tuple(
@@ -907,8 +963,8 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers):
         rse = x_std / np.abs(x)
     row = space.to_lanes(x)
     sim = simulate_arm(space.plant, row, log.rig, log.trajectory, log.n_samples,
-                       e_log=log.e_pulses, errors=False, substeps=max(ARM_SUBSTEPS_SIM, space.substeps(box)),
-                       workers=workers)
+                       e_log=log.e_pulses, errors=False,
+                       substeps=max(ARM_OUTPUT_ERROR_SUBSTEPS, space.substeps(box)), workers=workers)
     ok = ok and sim.status[0] == 0
     o = nb + (4 if space.backlash else 3) * n
     fr_x = np.concatenate([x[:nb], x[o:]])

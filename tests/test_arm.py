@@ -123,9 +123,8 @@ def test_arm_log_round_trip_and_errors(arm, tmp_path):
     assert np.array_equal(back.e_pulses, log.e_pulses) and np.array_equal(back.i_A, log.i_A)
     assert back.model.joint_names == ("q1", "q2") and back.rig.gear_ratio == rig.gear_ratio
     assert np.allclose(arm_plant(back.model).beta(), arm.beta(), rtol=1e-12)
-    # the PUMA development logs stay PUMA logs
-    with pytest.raises(plant.LogError, match="plant.load_log"):
-        load_arm_log(plant.example_log_path())
+    # a PUMA log (no robot object in its sidecar) is the PUMA 560 links 2-3 instance's
+    assert load_arm_log(plant.example_log_path()).model.name == "PUMA 560 links 2-3"
     # a broken robot section: one line naming the key
     side = json.loads(path.with_suffix(".json").read_text())
     side["robot"]["links"][0]["mass"] = -1.0
@@ -341,3 +340,63 @@ def test_generated_anchor_code_matches_its_reference():
         assert near and np.allclose(sc[0::2], np.sin(x[:m]), atol=1e-15)
         ref, near_ref = lane_sincos(x, a, True)
         assert np.array_equal(sc, ref) and near == near_ref
+
+
+# ------------------------------------------ PUMA 560 links 2-3 logs: the paper's instance
+@pytest.mark.parametrize("stem", ["puma560_paper_rigid", "puma560_validation_rigid",
+                                  "puma560_paper_drill_flex"])
+def test_load_arm_log_reads_a_puma_log_as_the_links23_instance(stem, dev_log_paths, truth):
+    """A sidecar without a robot object: the arrays, rig and reference of plant.load_log, and
+    RobotModel.puma560_links23 with the log's gear ratios and g -- whose f (plus the truth's
+    payload, fixed to link 6) is the truth file's f, computed with Robotics Toolbox's rne."""
+    import dataclasses
+
+    from plant.logs.arm_log import column_names
+    from plant.robot.robot_model import BasisModel
+
+    path = dev_log_paths[stem]
+    log, ref = load_arm_log(path), plant.load_log(path)
+    assert isinstance(log, ArmLog) and log.path == ref.path and log.name == stem
+    for key in ("t", "q_ref", "e_pulses", "i_A"):
+        a, b = getattr(log, key), getattr(ref, key)
+        assert a.dtype == b.dtype and np.array_equal(a, b), key
+    for fld in dataclasses.fields(ref.rig):
+        assert getattr(log.rig, fld.name) == getattr(ref.rig, fld.name), fld.name
+    assert np.array_equal(log.trajectory.position(log.t), ref.trajectory.position(ref.t))
+    assert log.sidecar == ref.sidecar
+    model = log.model
+    assert isinstance(model, BasisModel) and model.name == "PUMA 560 links 2-3"
+    assert log.joint_names == ("q2", "q3") and log.n_joints == 2
+    header = path.read_text().splitlines()[0].split(",")
+    assert column_names(log.joint_names) == header
+    assert tuple(model.gear_ratios) == log.rig.gear_ratio
+    assert np.allclose(model.gravity, (0.0, 0.0, -log.rig.gravity_m_s2))
+    t = truth(stem)
+    f = model.standard_parameters()
+    tool = t.get("payload")
+    if tool:
+        f = f + model.payload_delta(tool["mass_kg"], tool["com_m_rtb_frame6"],
+                                    np.diag(tool["inertia_about_com_kgm2"]))
+    np.testing.assert_allclose(f, t["f_vector"], rtol=0, atol=1e-9)
+
+
+def test_the_links23_instance_in_the_arm_plant_reproduces_the_rigid_log(dev_log_paths, truth):
+    """The generic arm plant generated from the instance (its base parameters f1..f9) runs
+    the logged P experiment at the true f and gives the log's pulses, sample for sample, at
+    its default substeps (the PUMA path's rule, plant.simulation.simulate.DEFAULT_SUBSTEPS;
+    the PUMA path's pulses: tests/test_puma_instance.py)."""
+    log = load_arm_log(dev_log_paths["puma560_paper_rigid"])
+    robot = arm_plant(log.model)
+    assert robot.parameter_names == tuple(f"f{i}" for i in range(1, 10))
+    f = np.array(truth("puma560_paper_rigid")["f_vector"])
+    sim = simulate_arm(robot, f[None], log.rig, log.trajectory, log.n_samples)
+    assert sim.status[0] == 0
+    np.testing.assert_array_equal(sim.errors[0], log.e_pulses)
+
+
+def test_a_puma_window_log_is_refused_by_load_arm_log(paper_rigid_path, tmp_path):
+    window = plant.load_log(paper_rigid_path).window(1.0, 2.0)
+    path = window.save(tmp_path / "window.csv")
+    with pytest.raises(plant.LogError, match="window") as exc:
+        load_arm_log(path)
+    assert "\n" not in str(exc.value)

@@ -329,3 +329,150 @@ def test_payload_delta_gives_the_drill_logs_truth(truth):
                             np.diag(tool["inertia_about_com_kgm2"]),
                             base=puma.express(PUMA560_LINKS23_BASIS))
     np.testing.assert_allclose(df, np.subtract(drill["f_vector"], rigid["f_vector"]), atol=1e-9)
+
+
+# ------------------------------------------------ PUMA 560 links 2-3: the paper's instance
+@pytest.fixture(scope="module")
+def links23():
+    return RobotModel.puma560_links23()
+
+
+def test_puma_links23_instance_is_the_papers_closed_form(links23):
+    """``RobotModel.puma560_links23()`` in the paper's joints: its torques in f1..f9 are
+    plant.robot.model's eq. 2 (D q'' + h + g) for any f, at random states."""
+    from plant.robot.robot_model import BasisModel
+
+    assert isinstance(links23, BasisModel) and isinstance(links23, RobotModel)
+    assert links23.name == "PUMA 560 links 2-3" and links23.joint_names == ("q2", "q3")
+    rng = np.random.default_rng(23)
+    for _ in range(10):
+        f = rng.normal(size=9)
+        q, qd, qdd = rng.uniform(-4, 4, 2), rng.normal(0, 3, 2), rng.normal(0, 10, 2)
+        tau = paper.inverse_dynamics(f, q, qd, qdd)
+        np.testing.assert_allclose(links23.inverse_dynamics(q, qd, qdd, f), tau, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(links23.regressor(q, qd, qdd) @ f, tau, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(links23.regressor(q, qd, qdd), paper.regressor(q, qd, qdd),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(links23.inertia_matrix(q, f), paper.inertia_matrix(f, q),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(links23.coriolis_centrifugal(q, qd, f),
+                                   paper.coriolis_centrifugal(f, q, qd), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(links23.gravity_vector(q, f), paper.gravity_vector(f, q),
+                                   rtol=0, atol=1e-12)
+    # another g is the paper's model at that g
+    moon = RobotModel.puma560_links23(gravity_m_s2=1.62)
+    np.testing.assert_allclose(moon.gravity_vector(q, f), paper.gravity_vector(f, q, g=1.62),
+                               rtol=0, atol=1e-12)
+
+
+def test_puma_links23_parameters_are_f1_to_f9(links23):
+    """The instance's parameter vector and named base parameters are f1..f9 (names, order,
+    signs): the nine regressor columns are independent (QR keeps all nine, K = 1), while the
+    DH chain's QR gives seven and the definition lists the two ties of eq. 3."""
+    names = tuple(f"f{i}" for i in range(1, 10))
+    assert links23.standard_parameter_names == names
+    base = links23.base_parameters()
+    assert base.names == names and base.rank == 9
+    np.testing.assert_array_equal(base.independent, np.arange(9))
+    np.testing.assert_array_equal(base.K, np.eye(9))
+    assert links23.chain.base_parameters().rank == 7
+    d = links23.definition
+    assert d.names == names and d.rank == 7
+    assert d.relations == ("f3 - 0.4318 f5 = 0", "f4 - 0.4318 f6 = 0")
+    # the same f as Robotics Toolbox's convention expressed in PUMA560_LINKS23_BASIS (eq. 3):
+    # the sign flip of the joints changes neither the standard parameters nor f
+    rtb = RobotModel.puma560()
+    ref = rtb.express(PUMA560_LINKS23_BASIS)
+    np.testing.assert_allclose(d.K, ref.K, rtol=0, atol=1e-12)
+    assert d.expressions == ref.expressions
+    # the chain is Robotics Toolbox's arm with joints 2 and 3 turned the paper's way, and its
+    # torques are the instance's at f = K p for any standard parameters p
+    rng = np.random.default_rng(5)
+    chain = links23.chain
+    for _ in range(5):
+        q, qd, qdd = rng.uniform(-3, 3, 2), rng.normal(size=2), rng.normal(size=2)
+        p = chain.standard_parameters() * rng.uniform(0.5, 1.5, len(chain.standard_parameter_names))
+        np.testing.assert_allclose(chain.inverse_dynamics(q, qd, qdd, p),
+                                   -rtb.inverse_dynamics(-q, -qd, -qdd, p), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(links23.inverse_dynamics(q, qd, qdd, d(p)),
+                                   chain.inverse_dynamics(q, qd, qdd, p), rtol=0, atol=1e-10)
+    # the default f is Corke's arm's: f1 - f2 = Jm3 k3^2, f3 = a3 f5, f4 = a3 f6
+    f = links23.standard_parameters()
+    # (K comes from least squares at random states: exact to rounding, ~1e-14 absolute)
+    np.testing.assert_allclose(f, ref(rtb.standard_parameters()), rtol=0, atol=1e-12)
+    a3, k3 = PUMA560_DH[1]["a"], PUMA560_DH[2]["gear_ratio"]
+    assert f[0] - f[1] == pytest.approx(200e-6 * k3 ** 2, abs=1e-12)
+    assert f[2] == pytest.approx(a3 * f[4], abs=1e-12) and f[3] == pytest.approx(a3 * f[5], abs=1e-12)
+
+
+def test_puma_links23_definition_is_eq3_of_the_link_parameters():
+    """Eq. 3 (plant.robot.symbolic.base_parameters_expr) of links 2 and 3 drawn at random (any
+    centre of mass and inertia, products included; massless wrist) is the instance's f = K p.
+
+    The paper's planar coordinates from Robotics Toolbox's link frames (standard DH, frame i
+    at the far end of link i): link 2's x2 = a2 + cx, y2 = -cy and Izz2 about its z axis;
+    link 3's frame is turned by alpha = -pi/2, so x3 = a3' + cx, y3 = -cz and Izz3 is about
+    its y axis; the paper's a3 is the table's a2."""
+    from plant.robot.symbolic import base_parameters_expr
+
+    rng = np.random.default_rng(31)
+    eq3 = base_parameters_expr()
+    for _ in range(5):
+        rows = [dict(r) for r in PUMA560_DH]
+        for r in rows[3:]:
+            r.update(mass=0.0, com=(0, 0, 0), inertia=(0,) * 6)
+        for j in (1, 2):
+            A = rng.normal(size=(3, 3))
+            rows[j].update(mass=rng.uniform(1, 20), com=tuple(rng.uniform(-0.3, 0.3, 3)),
+                           inertia=A @ A.T * 0.05, motor_inertia=rng.uniform(1e-4, 5e-4),
+                           gear_ratio=rng.choice([-1, 1]) * rng.uniform(20, 150))
+        puma = RobotModel.puma560_links23(gear_ratios=(rows[1]["gear_ratio"], rows[2]["gear_ratio"]))
+        chain = RobotModel([Link(**r) for r in rows], active=(1, 2))
+        L2, L3 = rows[1], rows[2]
+        phys = [L2["mass"], L2["a"] + L2["com"][0], -L2["com"][1], L2["inertia"][2, 2],
+                L2["motor_inertia"], L2["gear_ratio"],
+                L3["mass"], L3["a"] + L3["com"][0], -L3["com"][2], L3["inertia"][1, 1],
+                L3["motor_inertia"], L3["gear_ratio"], L2["a"], 9.81]
+        f_eq3 = np.asarray(eq3(phys)).reshape(-1)
+        np.testing.assert_allclose(puma.definition(chain.standard_parameters()), f_eq3,
+                                   rtol=1e-10, atol=1e-12)
+
+
+def test_puma_links23_payload_and_ranges_go_through_eq3(links23):
+    """A payload and physical search ranges give the instance's f the shifts and boxes of the
+    DH model expressed in eq. 3 (the same chain indices, Robotics Toolbox's link frames)."""
+    rtb = RobotModel.puma560()
+    m, c, ip = 1.5, np.array([0.02, -0.01, 0.1]), np.diag([2e-3, 1e-3, 3e-3])
+    np.testing.assert_allclose(
+        links23.payload_delta(m, c, ip),
+        rtb.payload_delta(m, c, ip, base=rtb.express(PUMA560_LINKS23_BASIS)), rtol=0, atol=1e-12)
+    ranges = {1: dict(mass=(15.0, 20.0), motor_inertia=(1e-4, 3e-4)),
+              2: dict(mass=(4.0, 6.0), com=((-0.03, -0.01), (-0.02, 0.0), (0.05, 0.09))),
+              5: dict(mass=(0.0, 2.0))}
+    box = links23.parameter_ranges(ranges)
+    assert box.shape == (9, 2)
+    np.testing.assert_allclose(box, rtb.parameter_ranges(ranges, basis=PUMA560_LINKS23_BASIS),
+                               rtol=0, atol=1e-12)
+    f = links23.standard_parameters()
+    assert np.all(box[:, 0] <= f + 1e-12) and np.all(f <= box[:, 1] + 1e-12)
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: RobotModel.puma560_links23(gear_ratios=(100.0,)), "gear_ratios"),
+    (lambda: RobotModel.puma560_links23(gear_ratios=(100.0, 0.0)), "gear_ratio"),
+    (lambda: RobotModel.puma560_links23(gravity_m_s2=0.0), "gravity_m_s2"),
+    (lambda: RobotModel.puma560_links23(locked={7: 0.1}), "locked"),
+])
+def test_puma_links23_bad_input_is_one_line(make, match):
+    with pytest.raises(ValueError, match=match) as exc:
+        make()
+    assert "\n" not in str(exc.value)
+
+
+def test_a_basis_model_needs_a_torque_and_a_plain_chain(links23):
+    from plant.robot.robot_model import BasisModel
+
+    with pytest.raises(ValueError, match="torque"):
+        BasisModel(RobotModel.puma560(), PUMA560_LINKS23_BASIS)
+    with pytest.raises(ValueError, match="chain"):
+        BasisModel(links23, links23.basis)

@@ -27,8 +27,13 @@ joints:
   model's reflected motor inertias ``Jm k^2`` too).
 
 A sidecar whose ``robot`` is absent or a string (the development logs' free
-text) is a PUMA 560 links 2-3 log: :func:`plant.load_log` reads it (the
-paper's f1..f9 path), unchanged.
+text) is a PUMA 560 links 2-3 log (columns ``q2_ref_rad, q3_ref_rad,
+e2_pulses, ...``, the rig keys of :func:`plant.load_log`, which reads it
+unchanged for the paper's f1..f9 path).  :func:`load_arm_log` reads it too:
+the arrays, rig and trajectory of :func:`plant.load_log`, and as the robot
+:meth:`RobotModel.puma560_links23 <plant.robot.robot_model.RobotModel.puma560_links23>`
+with the sidecar's gear ratios and g -- the paper's model as a robot-model
+instance, its parameters f1..f9.
 """
 from __future__ import annotations
 
@@ -108,8 +113,15 @@ def robot_section(model) -> dict:
     Raises
     ------
     ValueError
-        For a URDF model (write ``{"urdf": path, "joints": [...]}`` instead).
+        For a URDF model (write ``{"urdf": path, "joints": [...]}`` instead)
+        or a :class:`~plant.robot.robot_model.BasisModel` (the PUMA 560
+        links 2-3 instance: its sidecar has no ``robot`` section).
     """
+    from plant.robot.robot_model import BasisModel
+
+    if isinstance(model, BasisModel):
+        raise ValueError(f"{model.name} has its parameters in a named basis ({model.basis.name}): "
+                         "a DH table would lose it; its log is a sidecar without 'robot'")
     if model.convention not in ("standard", "modified"):
         raise ValueError("only a DH model is written inline; name a URDF model by its file")
     links = []
@@ -118,6 +130,8 @@ def robot_section(model) -> dict:
                           com=[float(v) for v in ln.com],
                           inertia=np.asarray(ln.inertia, dtype=float).tolist(),
                           motor_inertia=ln.motor_inertia))
+        if ln.flip:  # written only when set: the sidecars of unflipped tables are unchanged
+            links[-1]["flip"] = True
     locked = {str(i): float(model.locked_angles[i]) for i in range(len(model.links))
               if i not in model.active and model.locked_angles[i] != 0.0}
     return dict(name=model.name, convention=model.convention, links=links,
@@ -298,23 +312,33 @@ def load_arm_log(path) -> ArmLog:
     Returns
     -------
     ArmLog
+        For a sidecar without a ``robot`` object (or with a text one): a
+        PUMA 560 links 2-3 log, read by :func:`plant.load_log` (every check
+        of it; ``t``, ``q_ref``, ``e_pulses``, ``i_A``, ``rig`` and
+        ``trajectory`` are its), the model
+        :meth:`RobotModel.puma560_links23 <plant.robot.robot_model.RobotModel.puma560_links23>`
+        with the sidecar's ``gear_ratio`` and ``gravity_m_s2``.
 
     Raises
     ------
     LogError
-        A missing or malformed file, column or key (one line).
+        A missing or malformed file, column or key (one line); a PUMA 560
+        links 2-3 log that is a window of a run (``window_s`` not starting
+        at 0: an ArmLog starts at t = 0; read it with :func:`plant.load_log`).
     """
     path = Path(path)
     side = path.with_suffix(".json")
     sidecar = read_sidecar(side)
     robot = sidecar.get("robot")
+    if robot is None or isinstance(robot, str):
+        return _links23_log(path)
     gear = sidecar.get("gear_ratio")
     if not isinstance(gear, list) or not gear:
         raise sidecar_error(side, "key 'gear_ratio' must be a list of numbers, one per joint")
     nj = len(gear)
     if not isinstance(robot, dict):
-        raise sidecar_error(side, "has no 'robot' object: a PUMA 560 links 2-3 log, read it with "
-                            "plant.load_log")
+        raise sidecar_error(side, "key 'robot' must be an object (a DH table or a URDF) or, for a "
+                            "PUMA 560 links 2-3 log, text or absent")
     rig = rig_from_sidecar(sidecar, side, n_joints=nj, robot_model=True)
     model = robot_from_sidecar(robot, rig.gear_ratio, side.parent, side)
     trajectory = Trajectory.from_sidecar(sidecar, str(side), n_joints=model.n_joints)
@@ -343,3 +367,19 @@ def load_arm_log(path) -> ArmLog:
     return ArmLog(path=path, name=path.stem, model=model, rig=rig, trajectory=trajectory,
                   t=data[:, 0], q_ref=data[:, 1:1 + n], e_pulses=e.astype(np.int64),
                   i_A=data[:, 1 + 2 * n:1 + 3 * n], sidecar=sidecar)
+
+
+def _links23_log(path: Path) -> ArmLog:
+    """A PUMA 560 links 2-3 log (sidecar without a ``robot`` object) as an ArmLog."""
+    from plant.logs.log import load_log
+    from plant.robot.robot_model import RobotModel
+
+    log = load_log(path)
+    if log.start_index != 0:
+        raise LogError(f"{log.path}: a window of a PUMA 560 links 2-3 run (t starts at "
+                       f"{float(log.t[0])!r} s); an ArmLog starts at t = 0: read it with plant.load_log")
+    model = RobotModel.puma560_links23(gear_ratios=log.rig.gear_ratio,
+                                       gravity_m_s2=log.rig.gravity_m_s2)
+    return ArmLog(path=log.path, name=log.name, model=model, rig=log.rig,
+                  trajectory=log.trajectory, t=log.t, q_ref=log.q_ref, e_pulses=log.e_pulses,
+                  i_A=log.i_A, sidecar=log.sidecar)

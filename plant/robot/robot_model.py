@@ -36,17 +36,30 @@ moment ``n_i = I_i alpha_i + w_i x (I_i w_i) + m_i x a_i`` (``m_i = R_i
 minus gravity); the torque of joint j is the moment of every link distal to
 it about its axis, ``tau_j = z_j . sum_i (n_i + (o_i - p_j) x f_i)``, plus
 ``Ia_j qdd_j`` (the rotors' gyroscopic coupling neglected, as in the standard
-PUMA model and Robotics Toolbox's ``rne``).  The tests check the result
+PUMA model and Robotics Toolbox's ``rne``).  A flipped joint (``Link.flip``,
+Robotics Toolbox's ``flip``) turns the other way: ``theta = offset - q``
+and its torque is about ``-z_j``.  The tests check the result
 against Robotics Toolbox for Python (``DHRobot.rne``) when it is installed,
 and the PUMA 560 links 2--3 base parameters against the paper's eq. 3.
 
-Scope today: the model, its dynamics and its base parameters.  The closed
-loop, the identification and the controllers still run on the PUMA 560
-links 2--3 model of :mod:`plant.robot.model` (issue 23 carries them to n joints).
+A model may also take a named basis as its parameter vector
+(:class:`BasisModel`: the torques ``B(q, qd, qdd) theta``, ``theta = K p``
+of the chain's standard parameters).  The paper's PUMA 560 links 2--3 are
+such an instance, :meth:`RobotModel.puma560_links23`: the paper's joint
+convention, the parameters f1..f9 of eq. 3 (nine, kept free although the
+chain's geometry ties two of them), its dynamics
+:mod:`plant.robot.model`'s closed forms.
+
+Any model runs through the closed loop, the identification and the
+controllers of :mod:`plant.simulation.arm`, :mod:`identification.arm` and
+:mod:`ctc.arm`; the paper's own path (:func:`identification.identify`, the
+on-line payload, the adaptive CTC) still runs on the PUMA 560 links 2--3
+model of :mod:`plant.robot.model` (issue 23 carries it to n joints).
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -57,6 +70,7 @@ import numpy as np
 __all__ = [
     "Link",
     "RobotModel",
+    "BasisModel",
     "BaseParameterSet",
     "ParameterBasis",
     "STANDARD_NAMES",
@@ -105,6 +119,11 @@ class Link:
         ``<axis>``), normalised; default z.
     name : str
         The joint's name (URDF); optional.
+    flip : bool
+        The joint variable turns the other way: ``theta = offset - q`` and
+        the joint's torque is about the negated axis (Robotics Toolbox's
+        ``flip``); the link frame, hence the inertial parameters, is the
+        same.  Default False.
 
     Raises
     ------
@@ -126,6 +145,7 @@ class Link:
     origin: tuple | None = None
     axis: tuple = (0.0, 0.0, 1.0)
     name: str = ""
+    flip: bool = False
 
     def __post_init__(self):
         for name in ("a", "alpha", "d", "offset", "mass", "gear_ratio", "motor_inertia"):
@@ -161,6 +181,7 @@ class Link:
         if ax.shape != (3,) or not np.all(np.isfinite(ax)) or np.linalg.norm(ax) == 0:
             raise ValueError(f"Link.axis must be 3 finite numbers, not all zero, got {self.axis!r}")
         object.__setattr__(self, "axis", tuple((ax / np.linalg.norm(ax)).tolist()))
+        object.__setattr__(self, "flip", bool(self.flip))
 
     def standard_parameters(self) -> np.ndarray:
         """``XX XY XZ YY YZ ZZ MX MY MZ M`` of this link (about the frame origin), shape (10,).
@@ -185,11 +206,18 @@ class ParameterBasis:
         Parameter names, in order.
     regressor : callable
         ``B(q, qd, qdd)`` -> ndarray (n, k), in the model's joint convention.
+    torque : callable, optional
+        ``torque(s, c, qd, qdd, theta)`` -> casadi SX (n,): the torques ``B
+        theta`` (N m) written in ``s = sin q`` and ``c = cos q`` (casadi SX
+        columns (n,), like ``qd``, ``qdd``; ``theta`` (k,)).  Needed to make
+        the basis a model's parameter vector (:class:`BasisModel`); None
+        when the basis only names combinations (:meth:`RobotModel.express`).
     """
 
     name: str
     names: tuple
     regressor: object
+    torque: object = None
 
 
 @dataclass(frozen=True)
@@ -337,6 +365,12 @@ def _isq(a):
     return (0.0 if a[0] <= 0.0 <= a[1] else min(lo2, hi2)), max(lo2, hi2)
 
 
+def _interval_map(K, lo, hi):
+    """``(lo, hi)`` of ``K x`` for x in the box ``[lo, hi]`` (term by term, exact per row)."""
+    Kp, Kn = np.clip(K, 0, None), np.clip(K, None, 0)
+    return Kp @ lo + Kn @ hi, Kp @ hi + Kn @ lo
+
+
 def _axis_rotation(axis, sin_theta, cos_theta):
     """Rodrigues' rotation about a unit axis (numeric) by theta, from sin and cos of theta."""
     K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
@@ -453,6 +487,25 @@ class RobotModel:
         ia = [self.links[i].motor_inertia * self.links[i].gear_ratio ** 2 for i in self.active]
         return np.concatenate(p + [np.array(ia)])
 
+    def motor_inertia_columns(self) -> np.ndarray:
+        """How each reflected motor inertia ``Ia_j = Jm_j k_j^2`` enters the parameters, shape (n_std, n).
+
+        Column j is the derivative of the model's parameter vector
+        (:meth:`standard_parameters`) with respect to ``Ia_j`` of active
+        joint j: here the unit vector of ``Ia<j>``.  A two-mass (flexible)
+        joint's link model is the rigid one without these columns
+        (:attr:`plant.simulation.arm.ArmPlant.motor_inertia_columns`).
+
+        Returns
+        -------
+        ndarray, shape (n_std, n)
+        """
+        names = list(self.standard_parameter_names)
+        cols = np.zeros((len(names), self.n_joints))
+        for j, i in enumerate(self.active):
+            cols[names.index(f"Ia{i + 1}"), j] = 1.0
+        return cols
+
     def payload_parameters(self, mass_kg, com_m=(0.0, 0.0, 0.0), inertia_kgm2=None) -> np.ndarray:
         """Standard parameters (n_std,) of a rigid payload fixed to the chain's last link.
 
@@ -556,17 +609,21 @@ class RobotModel:
         o = ca.SX.zeros(3)
         axes, points, frames = [], [], []
         for i, link in enumerate(self.links):
-            if i in col:  # sin and cos of q + offset by angle addition
+            # theta = offset + q, or offset - q for a flipped joint
+            if i in col:  # sin and cos of theta by angle addition
                 k, co, so = col[i], math.cos(link.offset), math.sin(link.offset)
-                st, ct = s[k] * co + c[k] * so, c[k] * co - s[k] * so
+                sq = -s[k] if link.flip else s[k]
+                st, ct = sq * co + c[k] * so, c[k] * co - sq * so
             else:
-                theta = self.locked_angles[i] + link.offset
+                q_lock = self.locked_angles[i]
+                theta = (-q_lock if link.flip else q_lock) + link.offset
                 st, ct = math.sin(theta), math.cos(theta)
             A, axis, B = _pieces(link, self.convention)
-            # the joint frame: its axis and a point on it, in the base frame
+            # the joint frame: its axis (the way q turns) and a point on it, in the base frame
             Rj = ca.mtimes(R, ca.DM(A[:3, :3]))
             oj = o + ca.mtimes(R, ca.DM(A[:3, 3]))
-            axes.append(ca.mtimes(Rj, ca.DM(axis)))
+            z = ca.mtimes(Rj, ca.DM(axis))
+            axes.append(-z if link.flip else z)
             points.append(oj)
             Rq = ca.mtimes(Rj, _axis_rotation(axis, st, ct))
             o = oj + ca.mtimes(Rq, ca.DM(B[:3, 3]))
@@ -917,6 +974,11 @@ class RobotModel:
         ValueError
             On an unknown link index or key, or a range with lo > hi.
         """
+        K = (self.base_parameters() if basis is None else self.express(basis)).K
+        return np.column_stack(_interval_map(K, *self._standard_ranges(ranges)))
+
+    def _standard_ranges(self, ranges):
+        """``(lo, hi)``, each (n_std,): the standard parameters' intervals (:meth:`parameter_ranges`)."""
         ranges = dict(ranges or {})
         unknown = set(ranges) - set(self._moving)
         if unknown:
@@ -951,10 +1013,7 @@ class RobotModel:
                            "motor_inertia")
             lo.append(jm[0] * link.gear_ratio ** 2)
             hi.append(jm[1] * link.gear_ratio ** 2)
-        lo, hi = np.array(lo), np.array(hi)
-        K = (self.base_parameters() if basis is None else self.express(basis)).K
-        Kp, Kn = np.clip(K, 0, None), np.clip(K, None, 0)
-        return np.column_stack([Kp @ lo + Kn @ hi, Kp @ hi + Kn @ lo])
+        return np.array(lo), np.array(hi)
 
     # --------------------------------------------------------------- builders
     @classmethod
@@ -1123,10 +1182,236 @@ class RobotModel:
             options.setdefault("joint_names", ("q2", "q3"))
         return cls([Link(**row) for row in PUMA560_DH], active=active, **options)
 
+    @staticmethod
+    def puma560_links23(*, gear_ratios=None, locked=None, gravity_m_s2=9.81,
+                        name="PUMA 560 links 2-3", joint_names=("q2", "q3")):
+        """PUMA 560 links 2--3 in the paper's joint convention, its parameters the paper's f1..f9.
+
+        The paper's model (:mod:`plant.robot.model`: eq. 2, corrected, in
+        the base parameters f1..f9 of eq. 3) as an instance of the robot
+        model: a :class:`BasisModel` whose chain is Corke's PUMA 560
+        (:data:`PUMA560_DH`) with joints 2 and 3 active, turned the paper's
+        way (``Link.flip``: ``q = -q_RTB``, ``tau = -tau_RTB``, the same
+        zero -- the DH zero configuration, upper arm horizontal), and whose
+        parameter vector is ``f = (f1, ..., f9)``: ``regressor(q, qd, qdd) @
+        f`` and ``inverse_dynamics(q, qd, qdd, f)`` are ``D(q) qdd + h(q, qd)
+        + g(q)`` of :func:`plant.robot.model.inverse_dynamics`, q = (q2, q3)
+        the development logs' angles.
+
+        Parameters
+        ----------
+        gear_ratios : sequence of 2 float, optional
+            k2, k3 (motor angle / joint angle, a log's ``gear_ratio``);
+            default Corke's (107.815, -53.7063).  They set the reflected
+            rotor inertias ``Jm k^2`` in f1 and f7 of
+            :meth:`~BasisModel.standard_parameters`.
+        locked : dict, optional
+            ``{0-based chain index: angle (rad)}`` of joint 1 and the wrist
+            (indices 0, 3, 4, 5; Robotics Toolbox's convention); default 0.
+        gravity_m_s2 : float
+            g (m/s^2, > 0), along the base's -z.
+        name : str
+            The model's name.
+        joint_names : sequence of 2 str
+            Default ``("q2", "q3")``: the development logs' columns
+            ``q2_ref_rad``, ``e2_pulses``, ``i2_A``, ...
+
+        Returns
+        -------
+        BasisModel
+            ``standard_parameter_names`` f1..f9;
+            :meth:`~RobotModel.base_parameters` f1..f9 (rank 9, K the
+            identity); :attr:`~BasisModel.definition` eq. 3 in the chain's
+            standard parameters (rank 7, two relations).
+
+        Raises
+        ------
+        ValueError
+            Gear ratios that are not two nonzero numbers, g not finite and
+            > 0, or a malformed ``locked`` (as :class:`RobotModel`).
+
+        Notes
+        -----
+        Nine parameters, two relations.  In the chain's standard parameters
+        the geometry ties ``f3 = a3 f5`` and ``f4 = a3 f6`` (a3 = 0.4318 m):
+        the numerical QR on the DH chain finds 7 base parameters
+        (``model.chain.base_parameters()``), and ``model.definition.relations``
+        lists the two ties.  The instance keeps the paper's nine as free
+        parameters, as the paper's identification and the library's GA do:
+        as functions of the state the nine regressor columns are independent
+        (the QR on the instance's own regressor keeps all nine); a rigid
+        arm's true f satisfies the relations anyway, and effects outside the
+        rigid DH model (motor-side and flexible-joint dynamics, eq. 2 fitted
+        to a real rig) may move the best fit off them.
+        The paper's path imposes the two relations when asked
+        (:class:`identification.parameters.ConsistentBaseParameters`, seven
+        parameters searched).
+
+        Examples
+        --------
+        >>> from plant.robot.robot_model import RobotModel
+        >>> puma = RobotModel.puma560_links23()
+        >>> puma.standard_parameter_names
+        ('f1', 'f2', 'f3', 'f4', 'f5', 'f6', 'f7', 'f8', 'f9')
+        >>> puma.definition.relations
+        ('f3 - 0.4318 f5 = 0', 'f4 - 0.4318 f6 = 0')
+        """
+        g = float(gravity_m_s2)
+        if not (math.isfinite(g) and g > 0):
+            raise ValueError(f"gravity_m_s2 must be finite and > 0, got {gravity_m_s2!r}")
+        rows = [dict(row) for row in PUMA560_DH]
+        if gear_ratios is not None:
+            k = np.asarray(gear_ratios, dtype=float).reshape(-1)
+            if k.shape != (2,):
+                raise ValueError(f"gear_ratios must be (k2, k3), got {gear_ratios!r}")
+            rows[1]["gear_ratio"], rows[2]["gear_ratio"] = k
+        for j in (1, 2):  # the paper's joints 2 and 3 turn the other way
+            rows[j]["flip"] = True
+        chain = RobotModel([Link(**row) for row in rows], active=(1, 2), locked=locked,
+                           gravity=(0.0, 0.0, -g), name=f"{name} (DH chain)",
+                           joint_names=joint_names)
+        basis = ParameterBasis(name="PUMA 560 links 2-3, eq. 3", names=PUMA560_LINKS23_BASIS.names,
+                               regressor=functools.partial(_eq2_regressor, g=g),
+                               torque=functools.partial(_eq2_torque, g=g))
+        return BasisModel(chain, basis, name=name)
+
     def __repr__(self) -> str:
         kind = "URDF" if self.convention == "urdf" else f"{self.convention} DH"
         return (f"RobotModel({self.name!r}, {len(self.links)} links, {kind}, "
                 f"active joints {list(self.joint_names)})")
+
+
+class BasisModel(RobotModel):
+    """A robot model whose parameter vector is a named basis' parameters (e.g. the paper's f1..f9).
+
+    The arm is ``chain``'s (links, active and locked joints, gravity, joint
+    convention); the parameters are not its standard parameters p but a
+    basis' ``theta`` with ``tau = B(q, qd, qdd) theta`` (``basis.torque``),
+    related to them by ``theta = K p`` (:attr:`definition`).  Every
+    :class:`RobotModel` method reads "standard parameters" as theta:
+    :attr:`standard_parameter_names` are the basis' names,
+    :meth:`~RobotModel.regressor` is B (n, k),
+    :meth:`~RobotModel.inverse_dynamics` and the D, c, g methods take
+    theta, :meth:`standard_parameters` is ``K p`` of the chain's links;
+    :meth:`~RobotModel.base_parameters` is the QR on B -- for a basis whose
+    columns are independent functions of the state (f1..f9) K is the
+    identity and the names are the basis' own, so the closed loop
+    (:func:`plant.simulation.arm.arm_plant`) and the identification search
+    all k of them; payloads (:meth:`payload_parameters`) and search ranges
+    (:meth:`~RobotModel.parameter_ranges`) go through K from the chain's.
+    :meth:`RobotModel.puma560_links23` is the instance of the paper.
+
+    Parameters
+    ----------
+    chain : RobotModel
+        The arm (a plain :class:`RobotModel`).
+    basis : ParameterBasis
+        With its ``torque``, in the chain's joint convention; its
+        ``regressor`` must describe every torque of the chain
+        (:meth:`RobotModel.express`).
+    name : str, optional
+        Default the chain's.
+    joint_names : sequence of str, optional
+        Default the chain's.
+
+    Attributes
+    ----------
+    chain : RobotModel
+        The arm in its standard parameters (its own QR:
+        ``chain.base_parameters()``).
+    basis : ParameterBasis
+        The parameter vector's names, regressor and torque.
+
+    Raises
+    ------
+    ValueError
+        If ``chain`` is not a plain RobotModel or ``basis`` has no ``torque``.
+    """
+
+    def __init__(self, chain, basis, *, name=None, joint_names=None):
+        if not isinstance(chain, RobotModel) or isinstance(chain, BasisModel):
+            raise ValueError("BasisModel needs a plant.RobotModel as its chain")
+        if not isinstance(basis, ParameterBasis) or basis.torque is None:
+            raise ValueError("BasisModel needs a ParameterBasis with its torque(s, c, qd, qdd, theta)")
+        super().__init__(chain.links, convention=chain.convention, active=chain.active,
+                         locked=chain.locked_angles, gravity=chain.gravity,
+                         name=chain.name if name is None else name,
+                         joint_names=chain.joint_names if joint_names is None else joint_names)
+        self.chain = chain
+        self.basis = basis
+
+    @property
+    def standard_parameter_names(self) -> tuple:
+        """The basis' names: the parameter vector theta that :meth:`~RobotModel.regressor` multiplies."""
+        return tuple(self.basis.names)
+
+    @cached_property
+    def definition(self) -> BaseParameterSet:
+        """``chain.express(basis)``: theta = K p of the chain's standard parameters p.
+
+        Its ``expressions`` write each theta in the chain's standard
+        parameters (eq. 3 for the paper's f), ``rank`` is K's and
+        ``relations`` the ties among the thetas that the chain's geometry
+        imposes.  Computed on first use (about a second for the PUMA 560).
+        """
+        return self.chain.express(self.basis)
+
+    @cached_property
+    def _tau_sc(self):
+        """tau(s, c, qd, qdd, theta): the basis' torque (:attr:`ParameterBasis.torque`)."""
+        _, qd, qdd, p = self._symbols
+        s, c = self._trig_symbols
+        return ca.vertcat(self.basis.torque(s, c, qd, qdd, p))
+
+    def standard_parameters(self) -> np.ndarray:
+        """The basis' parameters of the chain's links, ``K p`` (:attr:`definition`), shape (k,)."""
+        return self.definition(self.chain.standard_parameters())
+
+    def payload_parameters(self, mass_kg, com_m=(0.0, 0.0, 0.0), inertia_kgm2=None) -> np.ndarray:
+        """Shift of the basis' parameters by a rigid payload on the chain's last link, shape (k,).
+
+        ``K dp`` with ``dp`` the chain's :meth:`RobotModel.payload_parameters`.
+
+        Parameters
+        ----------
+        mass_kg : float
+            Payload mass (kg), >= 0.
+        com_m : array_like, shape (3,)
+            Its centre of mass in the chain's last link frame (m).
+        inertia_kgm2 : array_like, shape (3, 3) or (6,), optional
+            Its inertia about its centre of mass (default a point mass).
+
+        Returns
+        -------
+        ndarray, shape (k,)
+
+        Raises
+        ------
+        ValueError
+            As :meth:`RobotModel.payload_parameters`.
+        """
+        return self.definition.K @ self.chain.payload_parameters(mass_kg, com_m, inertia_kgm2)
+
+    def motor_inertia_columns(self) -> np.ndarray:
+        """How each reflected motor inertia ``Ia_j`` enters the basis' parameters, shape (k, n).
+
+        ``K`` of :attr:`definition` times the chain's
+        :meth:`RobotModel.motor_inertia_columns`: the columns of theta that
+        hold ``Jm k^2`` (for the paper's f: ``Jm3 k3^2`` in f1, ``Jm2 k2^2``
+        in f7).
+
+        Returns
+        -------
+        ndarray, shape (k, n)
+        """
+        return self.definition.K @ self.chain.motor_inertia_columns()
+
+    def _standard_ranges(self, ranges):
+        return _interval_map(self.definition.K, *self.chain._standard_ranges(ranges))
+
+    def __repr__(self) -> str:
+        return (f"BasisModel({self.name!r}, parameters {', '.join(self.standard_parameter_names)} "
+                f"({self.basis.name}), active joints {list(self.joint_names)})")
 
 
 #: The PUMA 560 of P. Corke's Robotics Toolbox (``Puma560``; B. Armstrong,
@@ -1148,11 +1433,32 @@ PUMA560_DH = (
 )
 
 
-def _paper_regressor(q, qd, qdd, g=9.81):
-    """The paper's f1..f9 regressor in Robotics Toolbox's joint convention (q_paper = -q)."""
+def _eq2_regressor(q, qd, qdd, g=9.81):
+    """The paper's f1..f9 regressor in its own joint convention, (2, 9) (:func:`plant.robot.model.regressor`)."""
     from plant.robot.model import regressor
 
-    return -regressor(-np.asarray(q, float), -np.asarray(qd, float), -np.asarray(qdd, float), g)
+    return regressor(q, qd, qdd, g)
+
+
+def _eq2_torque(s, c, qd, qdd, f, g=9.81):
+    """The paper's eq. 2 (corrected) as casadi SX in s = sin q, c = cos q of (q2, q3).
+
+    Built by :mod:`plant.robot.model`'s own kernels (``mass_terms``,
+    ``coriolis_terms``, ``gravity_terms``, their Python functions called on
+    SX), so the instance's expressions are the library's one copy of eq. 2.
+    """
+    from plant.robot.model import coriolis_terms, gravity_terms, mass_terms
+
+    s23, c23 = s[0] * c[1] + c[0] * s[1], c[0] * c[1] - s[0] * s[1]
+    d11, d12, d22 = mass_terms.py_func(f, c[1], s[1])
+    h1, h2 = coriolis_terms.py_func(f, c[1], s[1], qd[0], qd[1])
+    g1, g2 = gravity_terms.py_func(f, c[0], s[0], c23, s23, g)
+    return ca.vertcat(d11 * qdd[0] + d12 * qdd[1] + h1 + g1, d12 * qdd[0] + d22 * qdd[1] + h2 + g2)
+
+
+def _paper_regressor(q, qd, qdd, g=9.81):
+    """The paper's f1..f9 regressor in Robotics Toolbox's joint convention (q_paper = -q)."""
+    return -_eq2_regressor(-np.asarray(q, float), -np.asarray(qd, float), -np.asarray(qdd, float), g)
 
 
 #: The paper's base parameters f1..f9 (eq. 3; :mod:`plant.robot.model`) as a named

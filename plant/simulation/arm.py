@@ -55,13 +55,20 @@ from plant.simulation.lanes import new_lanes
 from plant.simulation.parallel import run_chunks
 from plant.robot.model import friction_torque
 from plant.simulation.plants import Plant, register_plant
+from plant.simulation.simulate import DEFAULT_SUBSTEPS
 from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
            "reference_counts", "ARM_SUBSTEPS", "link_mode_bound"]
 
-#: RK4 substeps per sample of the arm's logged runs by default.
-ARM_SUBSTEPS = 8
+#: RK4 substeps per sample of the arm's logged runs by default: the exact
+#: reproduction of a log, the same rule as the PUMA 560 path's
+#: ``plant.simulate_experiment`` (``plant.simulation.simulate.DEFAULT_SUBSTEPS``,
+#: 48: chosen by the convergence of the quantised loop's pulses), so both
+#: paths simulate a log the same way (on the development logs: the same
+#: pulses).  The searches integrate more coarsely
+#: (``identification.arm.ARM_OUTPUT_ERROR_SUBSTEPS``, ``ARM_REFINE_SUBSTEPS``).
+ARM_SUBSTEPS = DEFAULT_SUBSTEPS
 
 # Per-process kernels (not cached on disk: a generated kind's class cannot be unpickled
 # in another process).
@@ -132,13 +139,17 @@ class ArmPlant(Plant):
     def motor_inertia_columns(self) -> np.ndarray:
         """How each reflected motor inertia ``Ia_j = Jm_j k_j^2`` enters beta, shape (n, r).
 
-        Row j is the column of ``Ia_j`` in the regrouping ``beta = K p``
-        (:class:`~plant.robot.robot_model.BaseParameterSet`): the rigid-equivalent
-        beta of a flexible arm is its link's beta plus ``Ia @ columns``.
+        Row j is ``K`` of the regrouping ``beta = K p``
+        (:class:`~plant.robot.robot_model.BaseParameterSet`) times the way
+        ``Ia_j`` enters the model's parameters p
+        (:meth:`~plant.robot.robot_model.RobotModel.motor_inertia_columns`:
+        the column of ``Ia<j>`` among the standard parameters, or, for a
+        model in a named basis, that basis' definition in the chain's
+        standard parameters): the rigid-equivalent beta of a flexible arm
+        is its link's beta plus ``Ia @ columns``.
         """
-        names = list(self.model.standard_parameter_names)
-        cols = [names.index(f"Ia{i + 1}") for i in self.model.active]
-        return np.ascontiguousarray(np.asarray(self.base.K, dtype=float)[:, cols].T)
+        cols = np.asarray(self.base.K, dtype=float) @ self.model.motor_inertia_columns()
+        return np.ascontiguousarray(cols.T)
 
     def lane_parameters(self, B, rig=None) -> np.ndarray:
         """Per-lane parameter array of candidates ``B`` (m, n_parameters), one row each.
