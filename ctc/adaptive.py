@@ -139,7 +139,11 @@ change in a linear-Gaussian regression):
    one of its windows found (a friction change mimics a payload for a window
    or two; and a last good model goes stale across a put-down) -- reports
    the change (``'unexplained'``) and makes no update until a window shows
-   no change.
+   no change; from then on, only :data:`PERSISTENCE_WINDOWS` agreeing
+   estimates update (the robot has shown a change no payload explains, and
+   one window's residual is no evidence of a payload any more: a friction
+   change reads as a small payload in a quiet window, a put-down as a
+   0.3 kg tool after the update to no payload).
 
 6. **Following-error limit** (:mod:`ctc.guard`).  Whatever the model, a
    joint whose pulse error passes its limit -- by default twice the largest
@@ -640,6 +644,7 @@ class AdaptiveComputedTorqueController:
         self._significant_run = []  # masses (kg) of the latest successive significant estimates
         self._update_masses = []  # masses (kg) of the accepted updates since the last isolation
         self._pool = []  # (f, payload) of the estimates since the payload in use took effect
+        self._isolated = False  # a change no payload explained was isolated (step 5)
         self._warned = False
         self._pending = None  # (k_effective, f, payload dict, 'update'|'refinement'|'rollback')
         self._busy_until = -1
@@ -970,6 +975,12 @@ class AdaptiveComputedTorqueController:
             reason = (_FROZEN_REASONS[self._frozen] + "; updates resume after a window the model "
                       "describes" + (f" or {PERSISTENCE_WINDOWS} agreeing estimates"
                                      if self._frozen == "rolled back" else ""))
+        if self._isolated and decision == "update" and not persistent:
+            # once the robot has changed in a way no payload explained, one window's residual
+            # is no evidence of a payload: only PERSISTENCE_WINDOWS agreeing estimates are
+            decision = "unexplained"
+            reason = (f"after a change no payload explained, only {PERSISTENCE_WINDOWS} agreeing "
+                      f"estimates update")
         if decision == "update" and not _one_payload(self._update_masses[-2:] + [mass]):
             # three successive updates of which no two are one mass, none the empty
             # gripper: no constant payload, nor a pick-up (one window spanning it, then
@@ -1001,6 +1012,7 @@ class AdaptiveComputedTorqueController:
         self._busy_until = k_eff
         if decision == "inconsistent":
             self._update_masses = []
+            self._isolated = True
             # back to the prior, the static CTC's model: the episode's estimates, and a last
             # good model one of its windows found, are not evidence of a payload (and a last
             # good model goes stale across a put-down)
