@@ -257,6 +257,30 @@ def test_a_refinement_pools_the_estimates_of_the_payload(paper_log, prior):
     assert _pooled(estimates[:1]) is estimates[0]
 
 
+def test_after_an_isolation_only_agreeing_estimates_update(paper_log, prior):
+    """Step 5: once a change no payload explained was isolated, one window's evidence no
+    longer updates; a real pick-up still does, after PERSISTENCE_WINDOWS agreeing estimates."""
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    reset = adaptive.reset
+
+    def isolated_reset():  # as after an inconsistent episode
+        reset()
+        adaptive._isolated = True
+
+    adaptive.reset = isolated_reset
+    loaded = plant.add_payload(prior, plant.Payload(2.0, (0.1, 0.02), 0.01), paper_log.rig.a3_m)
+    with pytest.warns(ctc.UnmodelledChangeWarning):
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=[(1.0, loaded)],
+                                          substeps=SUBSTEPS)
+    assert resp.success
+    records = adaptive.identifications
+    first = next(i for i, r in enumerate(records) if r["accepted"])
+    n = ctc.adaptive.PERSISTENCE_WINDOWS
+    waited = records[first - (n - 1):first]
+    assert all(r["decision"] == "unexplained" and "agreeing" in r["reason"] for r in waited)
+    assert adaptive.payload_mass_kg == pytest.approx(2.0, rel=0.05)
+
+
 def test_supervisor_keeps_the_model_without_a_change(paper_log, prior):
     """Issue 21 item 1: windows without a change never move the mass (likelihood-ratio test)."""
     adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
