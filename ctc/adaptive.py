@@ -683,9 +683,9 @@ class AdaptiveComputedTorqueController:
             self.payload = payload
             mass = 0.0 if payload is None else payload["mass_kg"]
             self.payload_history.append((k * self._ts, mass))
-            if kind == "update":
-                # the estimates of the payload now in use start here: the update's own
-                # window may span the change (half old robot, half new)
+            if kind != "refinement":
+                # the estimates of the payload now in use start here (an update's own window
+                # may span the change; a rollback says the estimates misled)
                 self._pool = []
             if kind in ("update", "refinement"):
                 # a refinement (the pooled payload in use) is on no probation: its first
@@ -752,7 +752,6 @@ class AdaptiveComputedTorqueController:
                 what = "the last good model"
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
-            self._pool = []
             self._probation = None
             self._frozen = "diverging"
             mass = 0.0 if payload_good is None else payload_good["mass_kg"]
@@ -775,7 +774,6 @@ class AdaptiveComputedTorqueController:
         if mse_late > self.explain_factor * max(trigger_mse, 1.0):
             f_good, payload_good = self._good
             self._pending = (k_end + 1, f_good, payload_good, "rollback")
-            self._pool = []
             self._pending_trigger_mse = None
             # single windows misled here: until a window shows no change, only
             # PERSISTENCE_WINDOWS agreeing estimates update (step 5)
@@ -1020,7 +1018,6 @@ class AdaptiveComputedTorqueController:
             self._good = (f_good, None)
             # the decision is the identification's: it takes effect after its latency
             self._pending = (k_eff, f_good, payload_good, "rollback")
-            self._pool = []
             self._frozen = "inconsistent"
             self._strikes = 0
             m_good = 0.0 if payload_good is None else payload_good["mass_kg"]
@@ -1063,9 +1060,8 @@ class AdaptiveComputedTorqueController:
             self._update_masses.append(mass)
             self._pending = (k_eff, f_est, payload_est, kind)
             self._pending_trigger_mse = mse
-            n_pooled = 1 if payload_est is None else payload_est.get("pooled", 1)
-            pooled = "" if kind == "update" else "; refinement" + (
-                f", the mean of {n_pooled} estimates" if n_pooled > 1 else "")
+            pooled = "" if kind == "update" else (
+                f"; refinement, the mean of {payload_est.get('pooled', 1)} estimate(s)")
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "
                         f"{self._lr_threshold:.3g}{pooled})", mass_kg=mass, lr=stats["lr"])
 

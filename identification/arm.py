@@ -54,7 +54,7 @@ from scipy.optimize import OptimizeResult
 from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
 from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
-from plant.logs.rig import F_NAMES, rig_constants
+from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
@@ -347,9 +347,7 @@ class ArmPredictionErrorProblem:
         # the current the drive applied: the P law's on the logged integer error, clipped at
         # the drive's full scale -- known exactly, where the logged current carries the
         # current sensor's noise (the PUMA path's replay, plant.simulation.simulate.log_chunk)
-        c = rig_constants(log.rig)
-        self.i = np.clip(self.e * np.asarray(c.p_gain, dtype=float), -c.current_limit,
-                         c.current_limit)
+        self.i = p_law_current(log.rig, self.e)
         self.nfev = 0
         # a failed candidate's residuals: a bound far beyond any prediction error
         self.bound = 1e6

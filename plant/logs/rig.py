@@ -221,6 +221,25 @@ def rig_constants(rig: Rig, *, q0=None, qd0=None) -> RigConstants:
     )
 
 
+def p_law_current(rig, e_pulses) -> np.ndarray:
+    """The rig's P law ``i = clip(P e, -I_fs, I_fs)`` (A), the current the drive applies.
+
+    Parameters
+    ----------
+    rig : Rig
+        Its ``p_gain_A_per_pulse`` and ``current_full_scale_A`` (None: no limit).
+    e_pulses : array_like, shape (n_samples, n_joints) or (n_joints,)
+        Integer pulse errors ``ref - act``.
+
+    Returns
+    -------
+    ndarray, the shape of ``e_pulses``
+    """
+    lim = math.inf if rig.current_full_scale_A is None else float(rig.current_full_scale_A)
+    return np.clip(np.asarray(e_pulses, dtype=float) * np.asarray(rig.p_gain_A_per_pulse, dtype=float),
+                   -lim, lim)
+
+
 # ----------------------------------------------------------------------------
 # Drive friction as vectors (motor side, sidecar order) and per-lane rows (joint side)
 # ----------------------------------------------------------------------------

@@ -18,11 +18,11 @@ uncertainty estimates), and how the tests make logs with a known answer.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from plant.logs.arm_log import ArmLog, column_names, robot_section
+from plant.logs.rig import p_law_current
 from plant.logs.sidecar import rig_into_sidecar
 from plant.simulation.arm import simulate_arm
 from plant.simulation.closed_loop import simulate_closed_loop
@@ -153,8 +153,7 @@ def emulate_arm_log(plant, beta, rig, trajectory, n_samples, *, name="emulated",
         raise ValueError(f"the emulated run failed: {sim.message[0]}")
     e = sim.errors[0].astype(np.int64)
     t = np.arange(int(n_samples)) * rig.sample_time_s
-    lim = math.inf if rig.current_full_scale_A is None else rig.current_full_scale_A
-    i = np.clip(e * np.asarray(rig.p_gain_A_per_pulse), -lim, lim)
+    i = p_law_current(rig, e)
     sidecar = dict(dataset=name, robot=robot if robot is not None else robot_section(plant.model),
                    n_samples=int(n_samples))
     rig_into_sidecar(rig, sidecar)
