@@ -273,9 +273,12 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
             row[name].update(
                 payload_history=[list(map(float, h)) for h in c.payload_history],
                 events=[{k: (float(v) if isinstance(v, (np.floating, float)) else v)
-                         for k, v in ev.items() if k in ("t_s", "kind", "message", "mass_kg")}
+                         for k, v in ev.items() if k in ("t_s", "kind", "message", "mass_kg", "cause")}
                         for ev in c.events],
+                # window start, decision, estimated mass and, where the rival hypothesis was
+                # fitted, Vuong's z of friction against the payload over the run's windows
                 decisions=[(round(r["window_s"][0], 3), r["decision"], round(r["mass_kg"], 3))
+                           + ((round(float(r["friction"]["z_run"]), 2),) if r.get("friction") else ())
                            for r in c.identifications])
             if repeat:
                 c2 = ctc.AdaptiveComputedTorqueController.from_log(prior, log,

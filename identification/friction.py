@@ -28,7 +28,7 @@ from plant.simulation.friction import FRICTION_NAMES, RIGID_FRICTION, friction_f
 
 from .parameters import BaseParameters, Parameterisation, check_bounds
 
-__all__ = ["FrictionParameters", "unknown_friction_indices", "default_friction_bounds",
+__all__ = ["FrictionParameters", "FrictionChangeParameters", "unknown_friction_indices", "default_friction_bounds",
            "friction_entries", "full_friction"]
 
 
@@ -260,3 +260,171 @@ class FrictionParameters(Parameterisation):
 
     def __repr__(self) -> str:
         return f"FrictionParameters(base={self.base!r})"
+
+
+class FrictionChangeParameters(Parameterisation):
+    """A change of the drive friction on a window, the robot's f held (the friction hypothesis).
+
+    The rival of :class:`~identification.parameters.PayloadParameters` in the
+    adaptive CTC's supervisor (:mod:`ctc.adaptive`, step 3): the window's
+    change explained by friction instead of a payload.  It searches
+    ``x = [dB2, dB3, dTc2, dTc3]``, motor side: the viscous coefficients
+    become ``B + dB`` and both Coulomb levels of a joint ``Tc+- + dTc`` (four
+    degrees of freedom, as many as the payload's ``m, xp, yp, Jc``, so the
+    two hypotheses are compared by their output errors alone).  f is the
+    model in use for every candidate; the plant is the window's (the rigid
+    robot with per-lane friction, :data:`plant.simulation.friction.RIGID_FRICTION`,
+    or the wrapped space's two-mass plant with its joints) with each
+    candidate's friction.  The box keeps every total friction within the
+    log's bounds (:func:`default_friction_bounds`: no friction torque beyond
+    the largest motor torque the window applied) and non-negative.
+
+    Parameters
+    ----------
+    space : Parameterisation
+        The window's payload parameterisation (its plant, plant parameters
+        and start state are used): :class:`~identification.parameters.PayloadParameters`
+        or :class:`~identification.flexible.FlexiblePayloadParameters`.
+    f : array_like, shape (9,)
+        The model in use (rigid-equivalent base parameters f1..f9).
+
+    Raises
+    ------
+    ValueError
+        On an ``f`` that is not 9 finite numbers, or a ``space`` that is not a
+        :class:`~identification.parameters.Parameterisation`.
+    """
+
+    name = "friction change"
+    #: as the payload's (:attr:`identification.parameters.PayloadParameters.refine_ftol`)
+    refine_ftol = 1e-6
+
+    def __init__(self, space, f):
+        if not isinstance(space, Parameterisation):
+            raise ValueError("space must be an identification.Parameterisation")
+        self.space = space
+        self.f = np.asarray(f, dtype=float).reshape(-1)
+        if self.f.shape != (9,) or not np.all(np.isfinite(self.f)):
+            raise ValueError("f must be 9 finite numbers")
+
+    def names(self, log) -> list:
+        """``['dB2', 'dB3', 'dTc2', 'dTc3']``.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return ["dB2_Nms_per_rad", "dB3_Nms_per_rad", "dTc2_Nm", "dTc3_Nm"]
+
+    def bounds(self, log) -> np.ndarray:
+        """Box (4, 2) of the changes: every total in ``[0, the log's bound]``.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+
+        Raises
+        ------
+        ValueError
+            If the window applies no current or its reference does not move
+            on a joint (:func:`default_friction_bounds`).
+        """
+        v0 = friction_vector(log.rig)
+        hi = default_friction_bounds(log)[:, 1]
+        tc_lo = np.minimum(v0[[2, 4]], v0[[3, 5]])
+        tc_hi = np.maximum(v0[[2, 4]], v0[[3, 5]])
+        lo = np.concatenate([-v0[:2], -tc_lo])
+        up = np.concatenate([np.maximum(hi[:2] - v0[:2], 0.0),
+                             np.maximum(hi[[2, 4]] - tc_hi, 0.0)])
+        return np.column_stack([lo, up])
+
+    def friction(self, x, log) -> np.ndarray:
+        """Motor-side friction vectors (:data:`FRICTION_NAMES` order) of the changes x.
+
+        Parameters
+        ----------
+        x : ndarray, shape (4,) or (m, 4)
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        ndarray, shape (6,) or (m, 6)
+        """
+        x = np.asarray(x, dtype=float)
+        v = np.broadcast_to(friction_vector(log.rig), x.shape[:-1] + (6,)).copy()
+        v[..., 0:2] += x[..., 0:2]
+        v[..., 2:4] += x[..., 2:3]
+        v[..., 4:6] += x[..., 3:4]
+        return np.maximum(v, 0.0)
+
+    def to_f(self, x, log) -> np.ndarray:
+        """The model in use, for every candidate.
+
+        Parameters
+        ----------
+        x : ndarray, shape (4,) or (m, 4)
+        log : plant.ExperimentLog
+        """
+        x = np.asarray(x, dtype=float)
+        return np.broadcast_to(self.f, x.shape[:-1] + (9,)).copy()
+
+    def plant(self, log):
+        """The wrapped space's plant, or :data:`RIGID_FRICTION` for the rigid one.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        p = self.space.plant(log)
+        return RIGID_FRICTION if p is None else p
+
+    def plant_parameters(self, x, log):
+        """The wrapped space's plant parameters and ``friction`` (m, 6).
+
+        Parameters
+        ----------
+        x : ndarray, shape (m, k)
+        log : plant.ExperimentLog
+        """
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        out = dict(self.space.plant_parameters(x, log) or {})
+        out["friction"] = self.friction(x, log)
+        return out
+
+    def extras(self, x, log) -> dict:
+        """``friction_change``: the changes and the friction they give.
+
+        Parameters
+        ----------
+        x : ndarray, shape (4,)
+        log : plant.ExperimentLog
+        """
+        x = np.asarray(x, dtype=float)
+        return dict(friction_change=dict(zip(self.names(log), (float(v) for v in x))),
+                    **friction_fields(self.friction(x, log)))
+
+    def refine_starts(self, log) -> np.ndarray:
+        """No change, and the changes a quarter of the box up, down and crossed.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        b = self.bounds(log)
+        z = np.zeros(4)
+        span = b[:, 1] - b[:, 0]
+        starts = np.array([z, z + 0.25 * span, z - 0.25 * span,
+                           z + 0.25 * span * np.array([1.0, 1.0, -1.0, -1.0])])
+        return np.clip(starts, b[:, 0], b[:, 1])
+
+    def initial_state(self, log):
+        """The wrapped space's start state (guess, box) on the window.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return self.space.initial_state(log)
+
+    def __repr__(self) -> str:
+        return f"FrictionChangeParameters(space={self.space!r})"

@@ -336,6 +336,45 @@ def test_a_change_no_payload_explains_is_reported_not_adapted(paper_log, prior):
                   <= np.abs(static.e_pulses[k:]).max(axis=0) + 1)
 
 
+@pytest.mark.parametrize("factor, named", [(1.15, True), (0.85, False)])
+def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor, named):
+    """The drive friction x1.15 / x0.85 at 1.0 s (supervisor step 3's rival hypothesis).
+
+    A friction change of this size reads as a plausible 2-5 kg payload in
+    single windows.  At x1.15 the friction change fitted beside the payload
+    (dB, dTc per joint) explains two successive windows significantly better
+    (Vuong's test), so the change is named: an ``'unexplained'`` event with
+    ``cause='friction'`` and a warning.  At x0.85 the payload estimates
+    disagree first (4.9, 1.8, 1.9 kg) and the episode is isolated as
+    inconsistent.  Either way the change is reported as not a payload, the
+    controller ends on the prior, and it tracks as the static CTC does
+    (within a pulse).
+    """
+    from plant.simulation.friction import friction_vector
+
+    schedule = [(1.0, prior, factor * friction_vector(paper_log.rig))]
+    static = plant.simulate_closed_loop(paper_log, prior,
+                                        ctc.ComputedTorqueController.from_log(prior, paper_log),
+                                        f_schedule=schedule, substeps=SUBSTEPS)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    with pytest.warns(ctc.UnmodelledChangeWarning, match="does not explain"):
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
+                                          substeps=SUBSTEPS)
+    assert resp.success and static.success
+    causes = [e.get("cause") for e in adaptive.events if e["kind"] == "unexplained"]
+    assert causes, adaptive.events
+    assert ("friction" in causes) == named, adaptive.identifications
+    fr = [r["friction"] for r in adaptive.identifications if r["decision"] == "friction"]
+    if named:
+        # the fitted change has the friction's sign and beat the payload at the test's level
+        assert any(np.sign(r["change"]["dTc2_Nm"]) == np.sign(factor - 1.0) for r in fr)
+        assert all(r["z_run"] > 3.0 for r in fr)
+    np.testing.assert_array_equal(adaptive.f, prior)
+    k = int(np.ceil(1.5 / paper_log.rig.sample_time_s))
+    assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0)
+                  <= np.abs(static.e_pulses[k:]).max(axis=0) + 1)
+
+
 def test_an_update_that_tracks_worse_is_rolled_back(paper_log, prior):
     """Probation (supervisor step 4): a wrong model put in by an update is replaced by the last good one."""
     a3 = paper_log.rig.a3_m
@@ -358,6 +397,25 @@ def test_an_update_that_tracks_worse_is_rolled_back(paper_log, prior):
     assert rollbacks and rollbacks[0]["mse_after"] > 1.0
     assert adaptive.payload_mass_kg == 0.0 and adaptive.payload_history[-1][1] == 0.0
     np.testing.assert_array_equal(adaptive.f, prior)
+
+
+def test_vuong_statistic():
+    """Vuong's z: 0 for models alike, antisymmetric, positive when b fits better, grows with n."""
+    from ctc.adaptive import vuong_statistic
+
+    rng = np.random.default_rng(3)
+    e_log = rng.integers(-3, 4, size=(200, 2))
+    e_a = e_log + rng.integers(-1, 2, size=(200, 2))
+    assert vuong_statistic(e_log, e_a, e_a) == 0.0
+    e_b = e_log.copy()
+    e_b[::4] += 1  # b misses a quarter of the samples by one pulse, a misses two thirds
+    z = vuong_statistic(e_log, e_a, e_b)
+    assert z > 0
+    assert vuong_statistic(e_log, e_b, e_a) == pytest.approx(-z)
+    # the same evidence twice as long is sqrt(2) times as strong (tau permitting)
+    z2 = vuong_statistic(np.vstack([e_log, e_log]), np.vstack([e_a, e_a]), np.vstack([e_b, e_b]))
+    assert z2 > z
+    assert vuong_statistic(e_log, e_log + 1, e_log) == np.inf
 
 
 def test_window_statistics():

@@ -142,3 +142,40 @@ def test_friction_identified_with_f_when_the_sidecar_lacks_it(tmp_log, tmp_path,
     assert d["friction_identified"] is True and np.shape(d["coulomb_friction_Nm"]) == (2, 2)
     back = IdentificationResult.load_json(path)
     assert np.allclose(back["viscous_friction_Nms_per_rad"], v[:2])
+
+
+
+def test_a_scheduled_friction_change_and_its_parameterisation(paper_log, truth):
+    """``f_schedule``'s third element changes the drive friction mid-run; the rival
+    hypothesis of the adaptive CTC (:class:`FrictionChangeParameters`) holds f and
+    moves the friction within non-negative totals.
+    """
+    import ctc
+    from identification.friction import FrictionChangeParameters
+    from identification.parameters import PayloadParameters
+
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"], dtype=float)
+    v = friction_vector(paper_log.rig)
+    law = ctc.ComputedTorqueController.from_log(f, paper_log)
+    base = plant.simulate_closed_loop(paper_log, f, law, substeps=4)
+    # the rig's own friction scheduled: the same run bit for bit (RIGID_FRICTION == RIGID)
+    same = plant.simulate_closed_loop(paper_log, f, law, substeps=4, f_schedule=[(0.5, f, v)])
+    np.testing.assert_array_equal(base.e_pulses, same.e_pulses)
+    warm = plant.simulate_closed_loop(paper_log, f, law, substeps=4,
+                                      f_schedule=[(0.5, f, 1.5 * v), (1.0, f)])
+    k = int(np.ceil(1.2 / paper_log.rig.sample_time_s))
+    # the change persists through a later f-only entry and shows in the tracking
+    assert np.abs(warm.e_pulses[k:]).max() > np.abs(base.e_pulses[k:]).max() + 1
+    with pytest.raises(ValueError, match="6 finite"):
+        plant.simulate_closed_loop(paper_log, f, law, f_schedule=[(0.5, f, -v)])
+    space = FrictionChangeParameters(PayloadParameters(f), f)
+    b = space.bounds(paper_log)
+    assert b.shape == (4, 2) and np.all(b[:, 0] <= 0) and np.all(b[:, 1] >= 0)
+    np.testing.assert_array_equal(space.friction(np.zeros(4), paper_log), v)
+    np.testing.assert_array_equal(space.to_f(np.zeros((3, 4)), paper_log), np.tile(f, (3, 1)))
+    assert np.all(space.friction(b[:, 0], paper_log) >= 0)
+    assert space.plant(paper_log) is RIGID_FRICTION
+    pp = space.plant_parameters(np.zeros((2, 4)), paper_log)
+    np.testing.assert_array_equal(pp["friction"], np.tile(v, (2, 1)))
+    with pytest.raises(ValueError, match="9 finite"):
+        FrictionChangeParameters(PayloadParameters(f), f[:8])

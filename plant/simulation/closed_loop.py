@@ -132,11 +132,17 @@ def simulate_closed_loop(
         it starts with the springs relaxed.
     label : str, optional
         Label of the response (default: the controller's class name).
-    f_schedule : sequence of (float, array_like (9,)), optional
+    f_schedule : sequence of (float, array_like (9,)[, array_like (6,)]), optional
         Changes of the robot during the run: from the first sample at or
         after ``t_s`` on, the robot is ``f`` (e.g. a payload picked up:
         ``[(1.0, plant.add_payload(f, payload, a3))]``); the state carries
-        over.  With ``plant``: base parameters beta (r,).
+        over.  A third element, when given and not None, is the drive
+        friction from then on (motor side, the sidecar's units, in the order
+        of :data:`plant.simulation.friction.FRICTION_NAMES`: a friction
+        change, e.g. a drive warming up; the rigid robot is then simulated
+        with per-lane friction, :data:`plant.simulation.friction.RIGID_FRICTION`,
+        which starts with the rig's).  With ``plant``: base parameters beta
+        (r,), no friction.
     plant : plant.simulation.arm.ArmPlant, optional
         Simulate a robot model's rigid arm (:func:`plant.simulation.arm.arm_plant`)
         instead of the PUMA 560 links 2-3; the rig and the trajectory must
@@ -153,7 +159,8 @@ def simulate_closed_loop(
     ValueError
         Wrong shapes, NaN/inf in ``f_robot``, ``q0`` or ``qd0``, ``substeps <
         1``, missing trajectory or n_samples with a Rig, a non-PD link model
-        of a flexible robot, or a controller output that is not 2 finite
+        of a flexible robot, a scheduled friction that is not 6 finite values
+        >= 0 (or with ``plant``), or a controller output that is not 2 finite
         currents.
     """
     rig = getattr(log_or_rig, "rig", log_or_rig)
@@ -176,6 +183,19 @@ def simulate_closed_loop(
         raise ValueError("controller must be callable and have a reset() method (sampled-controller protocol)")
     c = rig_constants(rig, q0=q0, qd0=qd0)
     arm = plant is not None
+    schedule = []
+    for item in (f_schedule or ()):
+        t_s, f_new, *rest = item
+        if len(rest) > 1:
+            raise ValueError("an f_schedule entry is (t_s, f) or (t_s, f, friction)")
+        fr = rest[0] if rest else None
+        if fr is not None:
+            fr = np.asarray(fr, dtype=float)
+            if arm or fr.shape != (6,) or not np.all(np.isfinite(fr)) or np.any(fr < 0):
+                raise ValueError("a scheduled friction is 6 finite motor-side values >= 0 "
+                                 "(FRICTION_NAMES order), for the PUMA plants only")
+        schedule.append((t_s, f_new, fr))
+    frictional = any(fr is not None for _, _, fr in schedule)
     if arm:
         from plant.simulation.arm import ArmPlant
 
@@ -184,14 +204,17 @@ def simulate_closed_loop(
         if len(c.pulses_per_rad) != plant.n_joints:
             raise ValueError(f"the rig has {len(c.pulses_per_rad)} joints, the robot {plant.n_joints}")
 
-        def lane_parameters(values, what):
+        def lane_parameters(values, what, friction=None):
             return plant.lane_parameters(np.asarray(values, dtype=float).reshape(1, -1))
         read, step = _read_arm, _step_arm
     else:
-        plant = RIGID if flexible is None else flexible
+        from plant.simulation.friction import RIGID_FRICTION
 
-        def lane_parameters(values, what):
-            return plant.lane_parameters(checked_f(values, what)[None], rig)
+        plant = (RIGID_FRICTION if frictional else RIGID) if flexible is None else flexible
+
+        def lane_parameters(values, what, friction=None):
+            kw = {} if friction is None else {"friction": friction}
+            return plant.lane_parameters(checked_f(values, what)[None], rig, **kw)
         read, step = _read, _step
     P0 = lane_parameters(f_robot, "f_robot")
     if flexible is not None and not is_positive_definite(
@@ -221,9 +244,11 @@ def simulate_closed_loop(
     act = np.zeros(nj)
     err = np.zeros(nj)
     changes = []
-    for t_s, f_new in (f_schedule or ()):
+    friction_now = None
+    for t_s, f_new, fr in sorted(schedule, key=lambda item: float(item[0])):
         k_s = max(0, int(math.ceil(float(t_s) / ts - 1e-9)))
-        changes.append((k_s, lane_parameters(f_new, "f_schedule f")))
+        friction_now = fr if fr is not None else friction_now  # a friction change persists
+        changes.append((k_s, lane_parameters(f_new, "f_schedule f", friction_now)))
     changes.sort(key=lambda ch: ch[0])
     controller.reset()
     status = STATUS_OK
