@@ -391,7 +391,7 @@ def vuong_statistic(e_log, e_a, e_b) -> float:
     better.  ``tau >= 1`` is the integrated autocorrelation time of ``d``
     (as in :func:`window_statistics`), which counts correlated samples once.
     Source: Q. H. Vuong, "Likelihood ratio tests for model selection and
-    non-nested hypotheses", Econometrica 57(2), 1989, eq. 5.6 (the
+    non-nested hypotheses", Econometrica 57(2), 1989, section 5 (the
     Gaussian log-likelihood ratio of two models with as many parameters,
     so no size correction).
 

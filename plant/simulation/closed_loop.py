@@ -249,7 +249,6 @@ def simulate_closed_loop(
         k_s = max(0, int(math.ceil(float(t_s) / ts - 1e-9)))
         friction_now = fr if fr is not None else friction_now  # a friction change persists
         changes.append((k_s, lane_parameters(f_new, "f_schedule f", friction_now)))
-    changes.sort(key=lambda ch: ch[0])
     controller.reset()
     status = STATUS_OK
     n_done = n
