@@ -25,6 +25,12 @@ without a ``robot`` object) side by side:
 * the wall time of the identification call (each path's rigid kernels
   compiled before the clock; the drill log's flexible kernels compile
   inside it);
+* the paper's GA on both paths (``method="paper"``, the paper's budget,
+  seed ``--seed``, the rigid model, one worker): the relative difference of
+  the best f (issue 23's acceptance: within 1e-9), the difference of its
+  output error of eq. 4 (each path's GA objective: one RK4 step per
+  sample), whether the best output error after every generation is the
+  same, and each GA's wall time;
 * unless ``--no-ctc``: the largest tracking error after 0.1 s (pulses,
   joint 2 / 3) of each result's computed torque (``from_result``:
   ``ctc.ComputedTorqueController`` and ``ctc.arm.ArmComputedTorque``) on the
@@ -36,7 +42,8 @@ the library never reads them.  Not part of the test suite.
 
 Usage (from the repository root)::
 
-    python benchmarks/bench_puma_paths.py [--logs STEM ...] [--seed 0] [--no-ctc] [--out F.json]
+    python benchmarks/bench_puma_paths.py [--logs STEM ...] [--seed 0] [--no-ctc] [--no-ga]
+                                          [--out F.json]
 """
 from __future__ import annotations
 
@@ -138,6 +145,42 @@ def warm_up(stems):
     return time.perf_counter() - t
 
 
+def ga_agreement(stem, seed):
+    """The paper's GA on both paths (seed, rigid, one worker): f, output error, history."""
+    path = DATA / f"{stem}.csv"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t = time.perf_counter()
+        puma = identify(plant.load_log(path), method="paper", rng=seed, workers=1,
+                        progress=False, model="rigid")
+        t_puma = time.perf_counter() - t
+        t = time.perf_counter()
+        arm = identify_arm(load_arm_log(path), method="paper", rng=seed, workers=1, model="rigid")
+        t_arm = time.perf_counter() - t
+    f_puma, f_arm = np.asarray(puma.f, dtype=float), np.asarray(arm.ga["x"], dtype=float)
+    return dict(log=stem, seed=seed, f_rel=float(np.max(np.abs(f_arm / f_puma - 1.0))),
+                Y_puma=float(puma.fun), Y_arm=float(arm.ga["output_error"]),
+                history_equal=bool(np.array_equal(arm.ga["best"], puma.history["best"])),
+                generations=int(arm.ga["generations"]), substeps=int(arm.ga["substeps"]),
+                wall_puma_s=t_puma, wall_arm_s=t_arm)
+
+
+def print_ga(ga_rows):
+    print()
+    print("the paper's GA on both paths (method='paper', seed, rigid, 1 worker): best f and "
+          "its output error Y (eq. 4, pulses^2, each path's GA objective)")
+    head = (f"{'log':<25}{'seed':>5}{'max|f_arm/f_puma-1|':>21}{'Y puma':>10}{'Y arm':>10}"
+            f"{'dY/Y':>9}  {'best per gen.':<14}{'substeps':>9}{'puma s':>8}{'arm s':>7}")
+    print(head)
+    print("-" * len(head))
+    for g in ga_rows:
+        dy = abs(g["Y_arm"] - g["Y_puma"]) / g["Y_puma"] if g["Y_puma"] else 0.0
+        print(f"{g['log']:<25}{g['seed']:>5}{g['f_rel']:>21.3g}{g['Y_puma']:>10.0f}"
+              f"{g['Y_arm']:>10.0f}{dy:>9.2g}  "
+              f"{('same' if g['history_equal'] else 'differ') + ' (' + str(g['generations']) + ')':<14}"
+              f"{g['substeps']:>9}{g['wall_puma_s']:>8.1f}{g['wall_arm_s']:>7.1f}")
+
+
 def run_log(stem, seed, ctc):
     """Both paths on one log: a list of row dicts (truth first)."""
     path = DATA / f"{stem}.csv"
@@ -225,18 +268,23 @@ def main(argv=None):
                     help="development logs (default: all three)")
     ap.add_argument("--seed", type=int, default=0, help="the PUMA path's rng (default 0)")
     ap.add_argument("--no-ctc", action="store_true", help="skip the computed-torque runs")
+    ap.add_argument("--no-ga", action="store_true", help="skip the paper's GA on both paths")
     ap.add_argument("--out", type=Path, help="write the rows as JSON")
     args = ap.parse_args(argv)
     compile_s = warm_up(args.logs)
     print(f"compiled the rigid kernels of both paths in {compile_s:.1f} s (not timed below)")
     t0 = time.perf_counter()
-    rows = []
+    rows, ga_rows = [], []
     for stem in args.logs:
         rows += run_log(stem, args.seed, not args.no_ctc)
+        if not args.no_ga:
+            ga_rows.append(ga_agreement(stem, args.seed))
     print_table(rows, not args.no_ctc)
+    if ga_rows:
+        print_ga(ga_rows)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     if args.out:
-        args.out.write_text(json.dumps(rows, indent=1) + "\n")
+        args.out.write_text(json.dumps(rows + ga_rows, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -51,11 +51,13 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import OptimizeResult
 
-from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, simulate_arm
+from plant.simulation.arm import ARM_SUBSTEPS as ARM_SUBSTEPS_SIM
+from plant.simulation.arm import ArmPlant, arm_plant, link_mode_bound, replay_arm, simulate_arm
 from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
 from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
+from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
 from .result_schema import jsonable
@@ -63,7 +65,8 @@ from .uncertainty import RSE_WARN, sandwich_covariance
 
 __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationResult",
            "ArmPredictionErrorProblem", "ARM_REFINE_SUBSTEPS", "ARM_OUTPUT_ERROR_SUBSTEPS", "ARM_FTOL",
-           "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout", "motor_side_friction",
+           "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout", "output_error_substeps",
+           "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction",
            "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
 
 #: Methods of :func:`identify_arm`; the default.
@@ -79,13 +82,108 @@ ARM_FTOL = 1e-6
 #: dynamics are the slow arm's: the applied current carries the fast P loop).
 ARM_REFINE_SUBSTEPS = 2
 
-#: RK4 substeps per sample of the identification's output error (eq. 4): the
-#: GA's objective (methods ``"ga+pem"`` and ``"paper"``) and the result's
-#: ``output_error`` (a flexible result's: at least its fit's substeps).
-#: Coarser than a log's exact reproduction (``plant.simulation.arm.ARM_SUBSTEPS``,
-#: 48), as the PUMA path's GA and ``fun`` are
-#: (``identification.objective.IDENTIFICATION_SUBSTEPS``).
-ARM_OUTPUT_ERROR_SUBSTEPS = 8
+#: RK4 substeps per sample of the GA's objective, the output error of eq. 4
+#: (methods ``"ga+pem"`` and ``"paper"``), at least: the PUMA 560 path's
+#: (:data:`identification.objective.IDENTIFICATION_SUBSTEPS`, 1), so that both
+#: paths run the same GA on the PUMA 560 links 2-3 instance.  It is the
+#: default, not a fixed value: :func:`output_error_substeps` takes more steps
+#: for an arm whose P loop is fast for its sample time.  One step per sample
+#: rests on the PUMA path's measurement (the integer output error is
+#: dominated by whole-pulse flips of the quantised loop: 1 and 2 substeps
+#: identify f1 f2 f4 f6 f7 f9 to the same 0.03 % on the paper log) and on
+#: the P loop's fastest mode there, ``omega Ts = 0.10``.  (It was 8, with
+#: which the arm path's GA could not reproduce the PUMA path's.)
+ARM_OUTPUT_ERROR_SUBSTEPS = IDENTIFICATION_SUBSTEPS
+
+#: RK4 substeps per sample, at least, of the result's ``output_error`` (eq. 4)
+#: -- what the flexible-versus-rigid model choice compares and the plot
+#: shows -- as opposed to the GA's objective (:data:`ARM_OUTPUT_ERROR_SUBSTEPS`):
+#: at one step the rigid model's output error at the truth carries hundreds
+#: of pulses^2 of integration error (524 and 671 on two six-joint draws of
+#: ``benchmarks/bench_arms.py``, 0 at 48), which a flexible fit simulated at
+#: its own finer steps would not, so the two would not be compared like with
+#: like.  8, the value the model choice was measured with.
+ARM_REPORT_SUBSTEPS = 8
+
+#: Largest ``|lambda| h`` of the drive friction's mode (real and damped: the
+#: viscous term plus the Coulomb ramp, ``D(q)^-1 diag(v + Tc / v_ramp)``)
+#: that :func:`output_error_substeps` lets one RK4 step take: RK4 is stable on
+#: the real axis to 2.785; a margin below it (the accuracy of a step inside
+#: the ramp's narrow band matters little: a lane only crosses it at rate
+#: reversals).  The PUMA 560's ramp mode is 0.77 at 0.7 ms.
+ARM_DAMPING_STEP = 2.5
+
+
+def output_error_substeps(log, plant, beta, friction=None) -> int:
+    """RK4 substeps per sample of the output error of eq. 4 for an arm and its log.
+
+    The GA's objective and the result's ``output_error`` of
+    :func:`identify_arm`: :data:`ARM_OUTPUT_ERROR_SUBSTEPS` (the PUMA 560
+    path's :data:`~identification.objective.IDENTIFICATION_SUBSTEPS`, one
+    step per sample) unless the arm needs more:
+
+    * **accuracy** on the P loop's fastest mode ``omega``, the largest over
+      the log's configurations of ``det(diag(kp) - omega^2 D(q)) = 0``
+      (:func:`plant.simulation.arm.link_mode_bound`) with ``kp_j = k_j Kt_j
+      P_j k_j N_j / 2 pi`` (N m/rad) the P law's stiffness:
+      ``ceil(omega Ts / H_OMEGA)`` steps
+      (:data:`identification.flexible.H_OMEGA`, the flexible fits' rule:
+      prediction errors within 0.01 pulse when the steps are doubled);
+    * **stability** on the friction's damped mode ``lambda``, the largest
+      eigenvalue of ``D(q)^-1 diag(v_j + max |Tc_j| / v_ramp,j)``:
+      ``ceil(lambda Ts / ARM_DAMPING_STEP)`` steps.
+
+    ``D(q)`` is the arm's at ``beta`` (the IDIM start in
+    :func:`identify_arm`), or at the model's own parameters when beta's is
+    not positive definite on the log; when neither is, the exact
+    reproduction's :data:`plant.simulation.arm.ARM_SUBSTEPS`.  On the PUMA
+    560 links 2-3 logs: ``omega Ts = 0.10``, ``lambda Ts = 0.77``, one step
+    -- the PUMA path's; on the tests' planar arm (1 ms): 0.15 and 0.14; on
+    ``benchmarks/bench_arms.py``'s draws (planar, PUMA joints 1-3, six
+    joints, 0.5 and 1 ms) ``omega Ts`` 0.05 .. 0.12: one step everywhere
+    (the output error at the truth at one step: 524 and 671 pulses^2 on
+    two six-joint draws, 1192 on the PUMA paper log; 0 at 48).
+
+    Parameters
+    ----------
+    log : plant.logs.arm_log.ArmLog
+    plant : plant.simulation.arm.ArmPlant
+        The rigid arm.
+    beta : array_like, shape (r,) or longer
+        Base parameters (only the first r are read).
+    friction : array_like, shape (n, 3), optional
+        Joint-side viscous, Coulomb +, Coulomb - per joint (default the
+        rig's; :func:`identify_arm` passes the box's upper ends of the
+        unknown ones).
+
+    Returns
+    -------
+    int
+        At least :data:`ARM_OUTPUT_ERROR_SUBSTEPS`.
+    """
+    from .arm_flexible import inertia_matrices
+    from .flexible import H_OMEGA
+
+    c = rig_constants(log.rig)
+    ts = float(c.sample_time_s)
+    q = np.asarray(log.q_ref, dtype=float)
+    q = q[np.linspace(0, q.shape[0] - 1, min(64, q.shape[0])).astype(int)]
+    D = None
+    for b in (np.asarray(beta, dtype=float)[:plant.base.rank], plant.beta()):
+        Dq = inertia_matrices(plant, b, q)
+        if np.all(np.isfinite(Dq)) and np.all(np.linalg.eigvalsh(Dq)[:, 0] > 0):
+            D = Dq
+            break
+    if D is None:
+        return int(ARM_SUBSTEPS_SIM)
+    kp = np.abs(np.asarray(c.torque_per_amp) * np.asarray(c.p_gain) * np.asarray(c.pulses_per_rad))
+    w = link_mode_bound(np.log10(np.maximum(kp, 1e-300)), D)
+    fr = (np.column_stack([c.viscous, c.coulomb_pos, c.coulomb_neg]) if friction is None
+          else np.asarray(friction, dtype=float).reshape(-1, 3))
+    damp = np.abs(fr[:, 0]) + np.maximum(np.abs(fr[:, 1]), np.abs(fr[:, 2])) / np.asarray(c.ramp_speed)
+    lam = max(float(np.max(np.linalg.eigvals(np.linalg.solve(Dq_, np.diag(damp))).real)) for Dq_ in D)
+    return max(int(ARM_OUTPUT_ERROR_SUBSTEPS), int(math.ceil(w * ts / H_OMEGA)),
+               int(math.ceil(lam * ts / ARM_DAMPING_STEP)))
 
 
 #: :func:`plant.simulation.core.cell_centre` element by element (the one definition of a cell's centre).
@@ -402,8 +500,12 @@ class ArmIdentificationResult(OptimizeResult):
         Sum of squared prediction errors at x (pulses^2).
     output_error : float
         Output error of the simulated P loop with x against the log (paper
-        eq. 4, pulses^2), at :data:`ARM_OUTPUT_ERROR_SUBSTEPS` RK4 steps per
-        sample (a flexible result: at least its ``flexible_substeps``).
+        eq. 4, pulses^2), at ``output_error_substeps`` RK4 steps per sample
+        (a flexible result: at least its ``flexible_substeps``).
+    output_error_substeps : int
+        RK4 steps per sample of ``output_error`` (and of the model choice
+        and the plot): the GA's (:func:`output_error_substeps`, or the
+        call's ``output_substeps``), at least :data:`ARM_REPORT_SUBSTEPS`.
     nfev, nit : int
         Simulated candidates (GA and refinement) and refinement iterations
         (GA generations for ``method="paper"``).
@@ -411,7 +513,9 @@ class ArmIdentificationResult(OptimizeResult):
         The method that ran.
     ga : dict or None
         With a GA: its best ``x``, ``output_error`` (pulses^2), ``nfev``,
-        ``generations``.
+        ``generations``, ``substeps`` (RK4 steps per sample of its
+        objective) and ``best`` (the population's best output error after
+        each generation, index 0 the initial population; pulses^2).
     bounds : ndarray, shape (r, 2)
         The search box.
     interrupted : bool
@@ -485,7 +589,7 @@ class ArmIdentificationResult(OptimizeResult):
             ``x``, ``names``, ``expressions``, ``x_std``, ``x_rse``,
             ``well_excited``, ``x_idim``, ``fun`` (pulses^2), ``output_error``
             (pulses^2, eq. 4), ``nfev``, ``nit``, ``success``, ``message``,
-            ``method``, ``robot``, ``joint_names``, ``log_name``,
+            ``output_error_substeps``, ``method``, ``robot``, ``joint_names``, ``log_name``,
             ``cutoff_hz``, ``elapsed_s``, ``bounds``, ``beta``, ``friction``,
             ``friction_identified``, ``model``, ``model_choice``, ``warnings``,
             ``stage_times_s`` and the joints (``joint_stiffness_Nm_per_rad``,
@@ -498,7 +602,8 @@ class ArmIdentificationResult(OptimizeResult):
         return dict(x=floats(self.x), names=list(self.names), expressions=list(self.expressions),
                     x_std=floats(self.x_std), x_rse=floats(self.x_rse),
                     well_excited=[bool(b) for b in self.well_excited], x_idim=floats(self.x_idim),
-                    fun=float(self.fun), output_error=float(self.output_error), nfev=int(self.nfev),
+                    fun=float(self.fun), output_error=float(self.output_error),
+                    output_error_substeps=self.get("output_error_substeps"), nfev=int(self.nfev),
                     nit=int(self.nit), success=bool(self.success), message=str(self.message),
                     method=self.get("method"), robot=self.robot,
                     joint_names=list(self.joint_names), log_name=self.log_name,
@@ -556,6 +661,7 @@ class ArmIdentificationResult(OptimizeResult):
         matplotlib.figure.Figure
         """
         n = log.n_joints
+        sub = int(self.get("output_error_substeps") or ARM_REPORT_SUBSTEPS)
         if ax is None:
             from matplotlib.figure import Figure
 
@@ -569,11 +675,10 @@ class ArmIdentificationResult(OptimizeResult):
         if self.get("flexible_plant") is not None:
             sim = simulate_arm(self.flexible_plant, np.asarray(self.plant_row)[None], log.rig,
                                log.trajectory, log.n_samples,
-                               substeps=max(ARM_OUTPUT_ERROR_SUBSTEPS,
-                                            int(self.get("flexible_substeps") or 0)))
+                               substeps=max(sub, int(self.get("flexible_substeps") or 0)))
         else:
             sim = simulate_arm(self.plant, self.beta[None], self.rig, log.trajectory, log.n_samples,
-                               substeps=ARM_OUTPUT_ERROR_SUBSTEPS)
+                               substeps=sub)
         for j, a in enumerate(axes):
             a.step(log.t, log.e_pulses[:, j], where="post", lw=0.8, label="log")
             a.step(log.t, sim.errors[0, :, j], where="post", lw=0.8, ls="--", label="identified")
@@ -588,7 +693,7 @@ class ArmIdentificationResult(OptimizeResult):
 def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAIN,
                  substeps=ARM_REFINE_SUBSTEPS, max_iter=40, ftol=ARM_FTOL, cutoff_hz=None,
                  bounds=None, ranges=None, rng=None, ga_options=None,
-                 workers=None, model="auto") -> ArmIdentificationResult:
+                 workers=None, model="auto", output_substeps=None) -> ArmIdentificationResult:
     """Identify an arm's base parameters from a P-control log (module docstring).
 
     Parameters
@@ -601,8 +706,13 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         its settings: 4 x 20 individuals, 40 generations) on the output
         error of eq. 4 -- the simulated P loop's integer errors against the
         logged ones -- in the search box, and nothing else.  ``"ga+pem"``:
-        the same GA (Gray-coded), then the refinement from its best
-        individual and from the IDIM start (the better end wins).
+        the same GA (Gray-coded, offspring whose running output error
+        passes the population's worst stop early: ``early_stop=1.0``), then
+        the refinement from its best individual and from the IDIM start
+        (the better end wins).  Both GAs are :func:`identification.identify`'s
+        (same settings, encoding, random stream, objective and failure
+        penalty): on the PUMA 560 links 2-3 instance with the sidecar's box
+        they give its f for the same seed.
     plant : plant.simulation.arm.ArmPlant, optional
         The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     gain : float
@@ -630,7 +740,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         The GA's random numbers (methods with a GA); the same seed gives
         the same result.
     ga_options : dict, optional
-        Settings of :func:`identification.ga.run_ga` overriding the paper's.
+        Settings of :func:`identification.ga.run_ga` overriding the paper's
+        (and ``gray``, ``early_stop`` above).
     workers : int, optional
         Threads of the simulations (default: the CPUs this process may use).
     model : {"auto", "rigid", "flexible"}
@@ -649,6 +760,12 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         or whose output error exceeds the rigid model's by more than a
         quantisation floor is rejected, with the reason.  ``model_choice``
         says which model and why.
+    output_substeps : int, optional
+        RK4 steps per sample of the GA's objective, the output error of
+        eq. 4; default :func:`output_error_substeps` at the IDIM start (one
+        step, the PUMA 560 path's, unless the arm's P loop or friction is
+        fast for the sample time).  The result's ``output_error`` takes at
+        least :data:`ARM_REPORT_SUBSTEPS`.
 
     Returns
     -------
@@ -666,7 +783,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     Raises
     ------
     ValueError
-        As :func:`arm_idim_ls`, an unknown method or model, or malformed bounds.
+        As :func:`arm_idim_ls`, an unknown method or model, malformed bounds or
+        ``output_substeps``.
     """
     from .api import PAPER_GA
     from .ga import run_ga
@@ -709,21 +827,32 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     bounds = np.asarray(bounds, dtype=float)
     if bounds.shape != (r, 2) or not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] >= bounds[:, 1]):
         raise ValueError(f"bounds must have shape ({r}, 2) with low < high")
+    if output_substeps is None:  # the box's upper ends of any unknown friction
+        oe_substeps = output_error_substeps(
+            log, pl, x0, _lane_friction(rig, bounds[:, 1][None], nb)[0, nb:])
+    else:
+        oe_substeps = int(output_substeps)
+        if oe_substeps < 1 or oe_substeps != output_substeps:
+            raise ValueError(f"output_substeps must be a whole number >= 1, got {output_substeps!r}")
     ga_info = None
     starts = x0[None]
     if method in ("ga+pem", "paper"):
-        settings = dict(PAPER_GA, gray=(method != "paper"))
+        # the PUMA 560 path's GA (identification.identify): the paper's binary GA, or Gray-coded
+        # with early termination of offspring past the population's worst before a refinement
+        settings = dict(PAPER_GA, gray=(method != "paper"),
+                        early_stop=None if method == "paper" else 1.0)
         settings.update(ga_options or {})
         e_log = np.asarray(log.e_pulses, dtype=float)
 
-        def output_error(X):
+        def output_error(X, cap=None):
             return simulate_arm(sim_plant, lane(X), rig, log.trajectory, log.n_samples,
-                                e_log=e_log, errors=False, substeps=ARM_OUTPUT_ERROR_SUBSTEPS,
+                                e_log=e_log, errors=False, substeps=oe_substeps, cap=cap,
                                 workers=workers).objective
 
         ga = run_ga(output_error, bounds, rng=np.random.default_rng(rng), **settings)
         ga_info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
-                       nfev=int(ga.nfev), generations=int(ga.nit))
+                       nfev=int(ga.nfev), generations=int(ga.nit), substeps=oe_substeps,
+                       best=np.asarray(ga.history["best"], dtype=float))
         starts = np.vstack([np.asarray(ga.x, dtype=float), np.clip(x0, bounds[:, 0], bounds[:, 1])])
     problem = ArmPredictionErrorProblem(log, sim_plant, gain=gain, substeps=substeps, workers=workers)
     if method == "paper":
@@ -742,8 +871,9 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         cov, x_std = None, np.full(r, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         rse = x_std / np.abs(x)
+    report_substeps = max(oe_substeps, ARM_REPORT_SUBSTEPS)
     sim = simulate_arm(sim_plant, lane(x), rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
-                       errors=False, substeps=ARM_OUTPUT_ERROR_SUBSTEPS)
+                       errors=False, substeps=report_substeps, workers=workers)
     nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and method != "paper" else 0)
     friction = motor_side_friction(rig, x, nb)
     names = tuple(pl.base.names) + tuple(
@@ -765,7 +895,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
             coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"])),
         log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=[],
         flexible_plant=None, plant_row=None, flexible_substeps=None,
-        stage_times_s=dict(rigid=time.perf_counter() - t0),
+        output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
         **_NO_JOINTS)
     if ok and model != "rigid":
         t1 = time.perf_counter()
@@ -962,7 +1092,8 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers):
     row = space.to_lanes(x)
     sim = simulate_arm(space.plant, row, log.rig, log.trajectory, log.n_samples,
                        e_log=log.e_pulses, errors=False,
-                       substeps=max(ARM_OUTPUT_ERROR_SUBSTEPS, space.substeps(box)), workers=workers)
+                       substeps=max(int(rigid.output_error_substeps), space.substeps(box)),
+                       workers=workers)
     ok = ok and sim.status[0] == 0
     o = nb + (4 if space.backlash else 3) * n
     fr_x = np.concatenate([x[:nb], x[o:]])

@@ -6,6 +6,8 @@
 :mod:`ctc.arm` then run it like any robot model.  Checked here: the arm
 driver gives the PUMA path's pulses (:func:`plant.simulate_experiment`)
 sample for sample, rigid and flexible, at the same substeps and by default;
+its output errors (failure penalty and early termination included) are the
+PUMA path's, and the paper's GA gives the PUMA path's f for the same seed;
 the identification takes the sidecar's search box and recovers the truth;
 the computed torque of the result tracks the true robot.  Side-by-side
 figures of both paths: ``benchmarks/bench_puma_paths.py``.
@@ -81,6 +83,73 @@ def test_the_flexible_arm_plant_gives_the_drill_logs_pulses(dev_log_paths, truth
     assert sim.status[0] == 0
     np.testing.assert_array_equal(sim.errors[0], plant.simulate_experiment(ref, f, plant=fj))
     np.testing.assert_array_equal(sim.errors[0], log.e_pulses)
+
+
+def test_the_arm_driver_gives_the_puma_paths_output_errors_of_failed_and_stopped_candidates(
+        paper_rigid_path):
+    """The GA's objective on both paths (one RK4 step per sample, IDENTIFICATION_SUBSTEPS): a
+    population drawn in the sidecar's box -- some candidates fail (D not positive definite) --
+    gets the same output errors and status codes from simulate_arm against the log as from
+    plant.simulate_batch: the same pulses, the same finite penalty of a failed candidate
+    (default_bound), and with a cap the same early-terminated candidates and extrapolated
+    values."""
+    from identification.objective import IDENTIFICATION_SUBSTEPS
+    from plant.simulation.core import STATUS_NOT_PD, STATUS_STOPPED
+
+    log, ref = load_arm_log(paper_rigid_path), plant.load_log(paper_rigid_path)
+    robot = arm_plant(log.model)
+    b = ref.rig.bounds
+    X = b[:, 0] + np.random.default_rng(2).random((40, 9)) * (b[:, 1] - b[:, 0])
+    for cap in (None, 3e5):
+        puma = plant.simulate_batch(ref, X, substeps=IDENTIFICATION_SUBSTEPS, errors=False,
+                                    workers=1, cap=cap)
+        arm = simulate_arm(robot, X, log.rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
+                           substeps=IDENTIFICATION_SUBSTEPS, errors=False, cap=cap, workers=1)
+        np.testing.assert_array_equal(arm.status, puma.status)
+        np.testing.assert_array_equal(arm.objective, puma.objective)
+        assert np.any(arm.status == STATUS_NOT_PD) and np.all(np.isfinite(arm.objective))
+        assert np.any(arm.status == STATUS_STOPPED) == (cap is not None)
+
+
+@pytest.mark.parametrize("stem, method, budget", [
+    ("puma560_paper_rigid", "paper", None),  # the paper's whole GA budget
+    ("puma560_validation_rigid", "paper", "small"),
+    ("puma560_paper_drill_flex", "paper", "small"),
+    ("puma560_paper_rigid", "ga+pem", "small"),
+])
+def test_the_arm_paths_ga_is_the_puma_paths(stem, method, budget, dev_log_paths):
+    """Issue 23's acceptance, the GA: identify_arm and identification.identify, seed 0, the
+    same method and budget, the rigid model, give the same GA -- the same best f (to 1e-9
+    relative; in fact bit for bit), the same output error of eq. 4 and the same best
+    output error after every generation: the same settings, encoding (binary for "paper",
+    Gray with early termination for "ga+pem"), random stream, search box (the sidecar's),
+    parameter order (f1..f9), substeps (one RK4 step per sample: output_error_substeps of the
+    instance) and failure penalty."""
+    import warnings
+
+    from identification import identify
+    from identification.arm import ARM_REPORT_SUBSTEPS, identify_arm
+    from identification.objective import IDENTIFICATION_SUBSTEPS
+
+    path = dev_log_paths[stem]
+    opts = None if budget is None else dict(n_subpops=2, n_ind=8, n_gen=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # e.g. a parameter at its search bound after 3 generations
+        puma = identify(plant.load_log(path), method=method, rng=0, workers=1, progress=False,
+                        ga_options=opts, model="rigid")
+    arm = identify_arm(load_arm_log(path), method=method, rng=0, workers=1, ga_options=opts,
+                       model="rigid")
+    assert arm.ga["substeps"] == IDENTIFICATION_SUBSTEPS == puma.settings["substeps"]
+    # the result's own output error (the model choice's) at converged steps
+    assert arm.output_error_substeps == ARM_REPORT_SUBSTEPS
+    f_puma = np.asarray(puma.f if method == "paper" else puma.refinement["ga_f"])
+    assert np.max(np.abs(arm.ga["x"] / f_puma - 1)) <= 1e-9
+    np.testing.assert_array_equal(arm.ga["best"], puma.history["best"])
+    assert arm.ga["output_error"] == float(np.min(puma.history["best"]))
+    assert arm.ga["nfev"] == int(puma.history["nfev"][-1])
+    if method == "paper":  # the result is the GA's best, with its output error
+        np.testing.assert_array_equal(arm.x, puma.f)
+        assert arm.ga["output_error"] == puma.fun
 
 
 def test_the_rig_search_box_is_the_sidecars_for_f1_to_f9(paper_rigid_path):

@@ -34,6 +34,15 @@ column, :mod:`plant.simulation.lanes`):
   ``P gain (m - c)`` toward the centre ``m`` of the count cell the log
   allows; returns the continuous prediction errors ``m - c`` (pulses).
 
+Both run the candidates as the PUMA 560 path's driver
+(:func:`plant.simulation.simulate.log_chunk`) does, so that the two paths
+give the same objective for the same pulses: a lane that fails (D not
+positive definite, a non-finite state, a count beyond the divergence
+bound) or passes the early-termination cap is retired at once, with that
+driver's finite penalty (:func:`plant.simulation.lanes.final_objective`;
+``simulate_arm``'s default bound against a log is
+:func:`plant.simulation.simulate.default_bound`).
+
 These kernels are compiled per process (numba's on-disk cache needs the
 kind's class to be importable, which a generated class is not).
 """
@@ -50,12 +59,13 @@ import numpy as np
 
 from plant.simulation.anchors import REANCHOR
 from plant.robot.codegen import function_source
-from plant.simulation.core import STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, advance_sample, cell_centre, encoder_read, padded_lanes
-from plant.simulation.lanes import new_lanes
+from plant.simulation.core import (STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, STATUS_STOPPED,
+                                   advance_sample, cell_centre, encoder_read, padded_lanes)
+from plant.simulation.lanes import final_objective, new_lanes, retire_lane
 from plant.simulation.parallel import run_chunks
 from plant.robot.model import friction_torque
 from plant.simulation.plants import Plant, register_plant
-from plant.simulation.simulate import DEFAULT_SUBSTEPS
+from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
 from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
@@ -422,62 +432,109 @@ def reference_counts(trajectory, rig, n_samples) -> np.ndarray:
 
 
 @_jit
-def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, out, write,
-             obj, status, compared, n_lanes, enc):
+def _arm_finish(idx, j, code, E, k_done, k_start, n_cmp, bound, obj, status, compared, replay,
+                out, write):
+    """Record lane ``j``'s result (status ``code``, samples ``< k_done`` run).
+
+    The objective is :func:`plant.simulation.lanes.final_objective` of the
+    ``k_done - k_start`` samples compared (the PUMA 560 path's penalties: a
+    failed lane ``E + 2 bound^2`` per sample not compared, a stopped one its
+    running sum extrapolated); a failed replay lane's remaining errors are
+    ``bound``.
+    """
+    c_ = idx[j]
+    cmp = max(k_done - k_start, 0)
+    obj[c_] = final_objective(E[j], code, cmp, n_cmp, bound)
+    status[c_] = code
+    compared[c_] = k_done
+    if write and replay and code != STATUS_OK:
+        for i in range(max(k_done, 0), out.shape[1]):
+            for m in range(out.shape[2]):
+                out[c_, i, m] = bound
+
+
+@_jit
+def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, cap, out,
+             write, obj, status, compared, n_lanes, enc, CS):
     """Experiment (P loop) or replay (logged current + injection) of ``n_lanes`` candidates.
 
     ``ref`` (n_total, n) reference counts; ``e_log``, ``i_log`` (n_total, n)
     logged errors and currents (compared from ``k_start`` on).  Results per
-    lane: ``obj`` sum of squares (experiment: ``e_log - e_sim``; replay: ``m
-    - c``), ``status``, ``compared``; with ``write`` the errors go to ``out``
-    (lanes, n_total, n).  The encoders read state rows ``enc .. enc + n - 1``.
+    candidate (``idx``): ``obj`` sum of squares (experiment: ``e_log -
+    e_sim``; replay: ``m - c``) with the penalties of
+    :func:`_arm_finish`, ``status``, ``compared`` (the samples run); with
+    ``write`` the errors go to ``out`` (candidates, n_total, n).  The
+    encoders read state rows ``enc .. enc + n - 1``.  As the PUMA 560
+    path's :func:`plant.simulation.simulate.log_chunk`: a lane whose
+    continuous count leaves ``bound`` pulses of the reference (checked
+    before the sample is compared), whose step fails, or whose running sum
+    passes ``cap`` after a compared sample is retired at once
+    (:func:`plant.simulation.lanes.retire_lane`; ``CS`` an empty
+    controller state).
     """
     P, X, U, A, S, E, idx, W = lanes
     n_total = ref.shape[0]
+    n_cmp = max(n_total - k_start, 0)
     nj = U.shape[0]
     i_lim = c.current_limit
-    lanes_run = padded_lanes(n_lanes)
-    for j in range(lanes_run):
+    act = n_lanes
+    for j in range(padded_lanes(act)):
         E[j] = 0.0
     for k in range(n_total):
-        for j in range(n_lanes):
-            if status[j] == STATUS_OK:
-                for m in range(nj):
-                    if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
-                        status[j] = STATUS_DIVERGED
-                        compared[j] = k
-        for j in range(lanes_run):
+        # divergence on the continuous count first, so truncation never sees a huge value
+        for j in range(act - 1, -1, -1):
+            for m in range(nj):
+                if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
+                    _arm_finish(idx, j, np.int64(STATUS_DIVERGED), E, k, k_start, n_cmp, bound,
+                                obj, status, compared, replay, out, write)
+                    act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
+                    break
+        if act == 0:
+            break
+        lanes_run = padded_lanes(act)
+        for j in range(lanes_run):  # SIMD over the lanes
             s = 0.0
             for m in range(nj):
                 sc = c.pulses_per_rad[m]
-                cont, act = encoder_read(X[enc + m, j], sc)
+                cont, a_ = encoder_read(X[enc + m, j], sc)
                 _, tgt = encoder_read(ref[k, m], 1.0)
                 if replay:
                     mid = cell_centre(tgt - e_log[k, m])
                     d = mid - cont
                     U[m, j] = i_log[k, m] + c.p_gain[m] * gain * d
-                    if write and j < n_lanes:
-                        out[j, k, m] = d
+                    if write and j < act:
+                        out[idx[j], k, m] = d
                 else:
-                    e = tgt - act
+                    e = tgt - a_
                     d = e_log[k, m] - e
                     U[m, j] = min(max(c.p_gain[m] * e, -i_lim), i_lim)
-                    if write and j < n_lanes:
-                        out[j, k, m] = e
-                if k >= k_start:
-                    s += d * d
-            E[j] += s
+                    if write and j < act:
+                        out[idx[j], k, m] = e
+                s += d * d
+            if k >= k_start:
+                E[j] += s
+        if k >= k_start:
+            for j in range(act - 1, -1, -1):
+                if E[j] > cap:
+                    _arm_finish(idx, j, np.int64(STATUS_STOPPED), E, k + 1, k_start, n_cmp,
+                                bound, obj, status, compared, replay, out, write)
+                    act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
+            if act == 0:
+                break
         if k == n_total - 1:
             break
-        advance_sample(kind, P, c, X, U, A, S, W, lanes_run, substeps, k % REANCHOR == 0)
-        for j in range(n_lanes):
-            if status[j] == STATUS_OK and S[j] != STATUS_OK:
-                status[j] = S[j]
-                compared[j] = k + 1
-    for j in range(n_lanes):
-        obj[j] = E[j]
-        if status[j] == STATUS_OK:
-            compared[j] = n_total
+        advance_sample(kind, P, c, X, U, A, S, W, padded_lanes(act), substeps,
+                       k % REANCHOR == 0)
+        for j in range(act - 1, -1, -1):
+            if S[j] != STATUS_OK:
+                _arm_finish(idx, j, S[j], E, k + 1, k_start, n_cmp, bound, obj, status,
+                            compared, replay, out, write)
+                act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
+        if act == 0:
+            break
+    for j in range(act):
+        _arm_finish(idx, j, np.int64(STATUS_OK), E, n_total, k_start, n_cmp, bound, obj, status,
+                    compared, replay, out, write)
 
 
 @dataclass(frozen=True)
@@ -487,15 +544,24 @@ class ArmSimulation:
     Attributes
     ----------
     errors : ndarray, shape (n_candidates, n_samples, n_joints) or None
-        Experiment: the simulated tracking errors (pulses, integers);
-        replay: the prediction errors ``m - c`` (pulses, continuous).  None
-        when not requested.
+        Experiment: the simulated tracking errors (pulses, integers; 0
+        after a candidate failed or stopped); replay: the prediction errors
+        ``m - c`` (pulses, continuous; ``bound`` after a candidate failed).
+        None when not requested.
     objective : ndarray, shape (n_candidates,)
         Sum of squares from the first compared sample (experiment: output
-        error, paper eq. 4, against the log; replay: prediction errors);
-        inf for a failed candidate.
+        error, paper eq. 4, against the log; replay: prediction errors).
+        A failed candidate (D not positive definite, a non-finite state, or
+        a count beyond the bound) gets the PUMA 560 path's finite penalty
+        (:mod:`plant.simulation.simulate`): its sum so far plus ``2 bound^2``
+        per compared sample it did not reach -- larger than any candidate
+        that stays within the bound, smaller the later it fails, so that a
+        rank-based search still orders failed candidates; one stopped at the
+        early-termination ``cap``: its running sum extrapolated to all
+        compared samples (> cap).
     status : ndarray, shape (n_candidates,), int
-        :data:`plant.simulation.core.STATUS_OK` or a failure code.
+        :data:`plant.simulation.core.STATUS_OK` or a failure code
+        (:data:`plant.simulation.core.STATUS_STOPPED` at the cap).
     message : tuple of str
         Per candidate, ``"ok"`` or the failure and its time.
     """
@@ -507,7 +573,7 @@ class ArmSimulation:
 
 
 def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0, qd0, k_start,
-         bound, workers=None):
+         bound, cap=None, workers=None):
     if not isinstance(plant, ArmPlant):
         raise ValueError(f"plant must be an ArmPlant (plant.simulation.arm.arm_plant), got {type(plant).__name__}")
     n = plant.n_joints
@@ -529,19 +595,23 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     if substeps < 1:
         raise ValueError(f"substeps must be >= 1, got {substeps}")
     bound = float(bound) if bound is not None else 1e12
+    if not bound > 0:
+        raise ValueError(f"bound must be positive, got {bound}")
+    cap = math.inf if cap is None else float(cap)
+    if math.isnan(cap):
+        raise ValueError("cap must be a number (or None), got NaN")
     out = np.zeros((m if errors else 0, nt if errors else 0, n))
     obj = np.zeros(m)
     status = np.zeros(m, dtype=np.int64)
     compared = np.zeros(m, dtype=np.int64)
+
     def chunk(lo, hi):  # one chunk of candidates in its own lanes (the kernel releases the GIL)
         lanes = new_lanes(Pall, lo, hi, x0, n_inputs=n, n_angles=n)
-        o = out[lo:hi] if errors else out
         _arm_run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
-                 float(gain), bound, o, bool(errors), obj[lo:hi], status[lo:hi], compared[lo:hi],
-                 hi - lo, int(plant.encoder_row))
+                 float(gain), bound, cap, out, bool(errors), obj, status, compared, hi - lo,
+                 int(plant.encoder_row), np.zeros((0, lanes.X.shape[1])))
 
     run_chunks(chunk, m, workers)
-    obj = np.where(status == STATUS_OK, obj, np.inf)
     msgs = tuple("ok" if s == STATUS_OK else
                  f"{STATUS_MESSAGES[int(s)]} at t = {k * rig.sample_time_s:.4f} s"
                  for s, k in zip(status, compared))
@@ -549,7 +619,8 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
 
 
 def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=ARM_SUBSTEPS,
-                 errors=True, q0=None, qd0=None, k_start=0, bound=None, workers=None) -> ArmSimulation:
+                 errors=True, q0=None, qd0=None, k_start=0, bound=None, cap=None,
+                 workers=None) -> ArmSimulation:
     """Simulate the logged P-control experiment of an arm for candidates ``B``.
 
     At each sample ``t_k = k Ts`` the motor encoders are read
@@ -581,7 +652,18 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     k_start : int
         First sample of the output error.
     bound : float, optional
-        Divergence bound on ``abs(ref - c)`` (pulses).
+        Divergence bound on ``abs(ref - c)`` (pulses): a candidate beyond it
+        fails with the penalty of :class:`ArmSimulation`.  Default: with
+        ``e_log``, the PUMA 560 path's
+        (:func:`plant.simulation.simulate.default_bound`: 100 times the
+        largest logged error, at least 100 pulses); without, 1e12.
+    cap : float, optional
+        Early termination (as :func:`plant.simulate_batch`): a candidate
+        whose running output error passes ``cap`` (pulses^2) after a
+        compared sample stops there (status
+        :data:`plant.simulation.core.STATUS_STOPPED`, objective its running
+        sum times compared samples / samples compared so far, > cap).
+        Default: none.
     workers : int, optional
         Threads (default: the CPUs this process may use); candidates are
         split into one chunk per thread.
@@ -593,11 +675,15 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     Raises
     ------
     ValueError
-        Wrong shapes, a rig of another joint count, no start state.
+        Wrong shapes, a rig of another joint count, no start state, a
+        non-positive bound or a NaN cap.
     """
     ref = reference_counts(trajectory, rig, n_samples)
+    if bound is None and e_log is not None:
+        bound = default_bound(e_log)
     return _run(plant, B, rig, ref, e_log, None, replay=False, gain=0.0, substeps=substeps,
-                errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, workers=workers)
+                errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, cap=cap,
+                workers=workers)
 
 
 def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS, errors=True,
@@ -621,8 +707,12 @@ def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS,
         Logged errors (pulses) and currents (A).
     gain : float
         Output-injection gain (fraction of the P gain).
-    substeps, errors, q0, qd0, k_start, bound, workers
+    substeps, errors, q0, qd0, k_start, workers
         As :func:`simulate_arm`.
+    bound : float, optional
+        Divergence bound on ``abs(ref - c)`` (pulses; default 1e12): a
+        candidate beyond it fails (penalty of :class:`ArmSimulation`; its
+        remaining prediction errors are ``bound``).
 
     Returns
     -------
