@@ -275,10 +275,11 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
                 events=[{k: (float(v) if isinstance(v, (np.floating, float)) else v)
                          for k, v in ev.items() if k in ("t_s", "kind", "message", "mass_kg", "cause")}
                         for ev in c.events],
-                # window start, decision, estimated mass and, where the rival hypothesis was
-                # fitted, Vuong's z of friction against the payload over the run's windows
+                # window start, decision, estimated mass and, where the rival hypotheses were
+                # fitted, Vuong's z of each (friction, then drive) against the payload over
+                # the run's windows
                 decisions=[(round(r["window_s"][0], 3), r["decision"], round(r["mass_kg"], 3))
-                           + ((round(float(r["friction"]["z_run"]), 2),) if r.get("friction") else ())
+                           + tuple(round(float(h["z_run"]), 2) for h in r.get("rivals") or ())
                            for r in c.identifications])
             if repeat:
                 c2 = ctc.AdaptiveComputedTorqueController.from_log(prior, log,

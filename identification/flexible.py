@@ -97,7 +97,8 @@ from plant.simulation.plants import FlexibleJoints
 from plant.simulation.friction import FRICTION_NAMES, friction_fields
 
 from .friction import default_friction_bounds, full_friction, unknown_friction_indices
-from .parameters import BaseParameters, Parameterisation, PayloadParameters, check_bounds
+from .parameters import (BaseParameters, HeldModelChange, Parameterisation, PayloadParameters,
+                         check_bounds)
 from .refinement import DEFAULT_GAIN, MaskedProblem, PredictionErrorProblem, held_back_mask, refine
 
 __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
@@ -105,7 +106,8 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "apply_model", "held_back_cost", "quantisation_floor", "INADEQUATE_FACTOR",
            "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "CONTINUATION_GAINS", "CONTINUATION_FTOL",
            "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS",
-           "FlexiblePayloadParameters", "RESTART_FRACTION", "MAX_RESTARTS", "unexplained_fraction",
+           "FlexiblePayloadParameters", "DriveChangeParameters", "DRIVE_CHANGE_BOUNDS",
+           "RESTART_FRACTION", "MAX_RESTARTS", "unexplained_fraction",
            "fit_backlash", "BACKLASH_SCHEDULES", "HOP_ROUNDS", "HOP_TOLERANCE",
            "RANDOM_HOP_ROUNDS", "RANDOM_HOP_POINTS", "RANDOM_HOP_STARTS", "RANDOM_HOP_ITER",
            "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR"]
@@ -118,6 +120,10 @@ MODELS = ("rigid", "flexible", "auto")
 #: inertia 10 % .. 95 % of f7 (joint 2) / f1 (joint 3).
 DEFAULT_JOINT_BOUNDS = np.array([[3.0, 5.3], [3.0, 5.3], [0.0, 50.0], [0.0, 50.0],
                                  [0.1, 0.95], [0.1, 0.95]])
+
+#: Factors (low, high) of the drive-change hypothesis (:class:`DriveChangeParameters`):
+#: stiffness K2, K3 x0.5-2, damping D2, D3 x0.25-4 of the model in use.
+DRIVE_CHANGE_BOUNDS = ((0.5, 2.0), (0.5, 2.0), (0.25, 4.0), (0.25, 4.0))
 
 #: log10 K of the start grid (per joint; all pairs are tried).
 STIFFNESS_GRID = np.linspace(3.2, 5.2, 6)
@@ -1353,3 +1359,125 @@ class FlexiblePayloadParameters(PayloadParameters):
     def __repr__(self) -> str:
         return (f"FlexiblePayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()}, "
                 f"joints={np.round(self.joints, 4).tolist()})")
+
+
+class DriveChangeParameters(HeldModelChange):
+    """A change of the two-mass joints' stiffness and damping on a window, f held (a rival hypothesis).
+
+    The flexible arm's counterpart of
+    :class:`identification.friction.FrictionChangeParameters` in the adaptive
+    CTC's supervisor (:mod:`ctc.adaptive`, step 3): the window's change
+    explained by the gearboxes (a stiffness lost to wear, a damping changed
+    with temperature) instead of a payload.  It searches ``x = [ln(K2'/K2),
+    ln(K3'/K3), ln(D2'/D2), ln(D3'/D3)]``, four degrees of freedom like the
+    payload's ``m, xp, yp, Jc``, so the two hypotheses are compared by their
+    output errors alone (Vuong's test, :func:`ctc.adaptive.vuong_statistic`).
+    The box is :data:`DRIVE_CHANGE_BOUNDS`: stiffness x0.5-2, damping
+    x0.25-4 (wider than the issue's model-error set, stiffness +-30 %,
+    damping x0.5-2, so a change inside that set is never at the box's edge);
+    a joint whose damping is zero keeps it (a factor has nothing to scale).
+    f, the reflected motor inertias, the backlash and the friction are the
+    model in use's; the start state and its box are the wrapped space's.
+
+    Parameters
+    ----------
+    space : FlexiblePayloadParameters
+        The window's payload parameterisation (its joints, backlash, plant and
+        start state are used).
+    f : array_like, shape (9,)
+        The model in use (rigid-equivalent base parameters f1..f9).
+
+    Raises
+    ------
+    ValueError
+        On a ``space`` that is not a :class:`FlexiblePayloadParameters` or an
+        ``f`` that is not 9 finite numbers.
+    """
+
+    name = "drive change"
+    space_type = FlexiblePayloadParameters
+
+    def names(self, log) -> list:
+        """``['lnK2', 'lnK3', 'lnD2', 'lnD3']``: log factors of the model's values.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return ["lnK2", "lnK3", "lnD2", "lnD3"]
+
+    def bounds(self, log) -> np.ndarray:
+        """Box (4, 2) of the log factors (:data:`DRIVE_CHANGE_BOUNDS`).
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return np.log(np.asarray(DRIVE_CHANGE_BOUNDS, dtype=float))
+
+    def joints(self, x) -> np.ndarray:
+        """``(K2, K3, D2, D3, Jm2 k2^2, Jm3 k3^2)`` of the changes x.
+
+        Parameters
+        ----------
+        x : ndarray, shape (4,) or (m, 4)
+
+        Returns
+        -------
+        ndarray, shape (6,) or (m, 6)
+        """
+        x = np.asarray(x, dtype=float)
+        j = np.broadcast_to(self.space.joints, x.shape[:-1] + (6,)).copy()
+        j[..., 0:4] *= np.exp(x)
+        return j
+
+    def plant(self, log):
+        """The wrapped space's two-mass plant.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return self.space.plant(log)
+
+    def plant_parameters(self, x, log):
+        """The wrapped space's plant parameters with each candidate's joints (m, 6).
+
+        Parameters
+        ----------
+        x : ndarray, shape (m, k)
+        log : plant.ExperimentLog
+        """
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        out = dict(self.space.plant_parameters(x, log))
+        out["joints"] = self.joints(x)
+        return out
+
+    def extras(self, x, log) -> dict:
+        """``drive_change``: the factors, and the stiffness and damping they give.
+
+        Parameters
+        ----------
+        x : ndarray, shape (4,)
+        log : plant.ExperimentLog
+        """
+        j = self.joints(np.asarray(x, dtype=float))
+        return dict(drive_change=dict(zip(["K2_factor", "K3_factor", "D2_factor", "D3_factor"],
+                                          (float(v) for v in np.exp(x)))),
+                    joint_stiffness_Nm_per_rad=[float(j[0]), float(j[1])],
+                    joint_damping_Nms_per_rad=[float(j[2]), float(j[3])])
+
+    def refine_starts(self, log) -> np.ndarray:
+        """No change, stiffness down and damping up by a third of the box, and crossed.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        b = self.bounds(log)
+        z = np.zeros(4)
+        third = (b[:, 1] - b[:, 0]) / 3.0
+        starts = np.array([z, z + third * np.array([-1.0, -1.0, 1.0, 1.0]),
+                           z + third * np.array([1.0, 1.0, -1.0, -1.0]),
+                           z + third * np.array([-1.0, -1.0, -1.0, -1.0])])
+        return np.clip(starts, b[:, 0], b[:, 1])

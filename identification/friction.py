@@ -26,7 +26,7 @@ import numpy as np
 
 from plant.simulation.friction import FRICTION_NAMES, RIGID_FRICTION, friction_fields, friction_vector
 
-from .parameters import BaseParameters, Parameterisation, check_bounds
+from .parameters import BaseParameters, HeldModelChange, Parameterisation, check_bounds
 
 __all__ = ["FrictionParameters", "FrictionChangeParameters", "unknown_friction_indices", "default_friction_bounds",
            "friction_entries", "full_friction"]
@@ -262,7 +262,7 @@ class FrictionParameters(Parameterisation):
         return f"FrictionParameters(base={self.base!r})"
 
 
-class FrictionChangeParameters(Parameterisation):
+class FrictionChangeParameters(HeldModelChange):
     """A change of the drive friction on a window, the robot's f held (the friction hypothesis).
 
     The rival of :class:`~identification.parameters.PayloadParameters` in the
@@ -296,16 +296,6 @@ class FrictionChangeParameters(Parameterisation):
     """
 
     name = "friction change"
-    #: as the payload's (:attr:`identification.parameters.PayloadParameters.refine_ftol`)
-    refine_ftol = 1e-6
-
-    def __init__(self, space, f):
-        if not isinstance(space, Parameterisation):
-            raise ValueError("space must be an identification.Parameterisation")
-        self.space = space
-        self.f = np.asarray(f, dtype=float).reshape(-1)
-        if self.f.shape != (9,) or not np.all(np.isfinite(self.f)):
-            raise ValueError("f must be 9 finite numbers")
 
     def names(self, log) -> list:
         """``['dB2', 'dB3', 'dTc2', 'dTc3']``.
@@ -357,17 +347,6 @@ class FrictionChangeParameters(Parameterisation):
         v[..., 4:6] += x[..., 3:4]
         return np.maximum(v, 0.0)
 
-    def to_f(self, x, log) -> np.ndarray:
-        """The model in use, for every candidate.
-
-        Parameters
-        ----------
-        x : ndarray, shape (4,) or (m, 4)
-        log : plant.ExperimentLog
-        """
-        x = np.asarray(x, dtype=float)
-        return np.broadcast_to(self.f, x.shape[:-1] + (9,)).copy()
-
     def plant(self, log):
         """The wrapped space's plant, or :data:`RIGID_FRICTION` for the rigid one.
 
@@ -417,14 +396,3 @@ class FrictionChangeParameters(Parameterisation):
                            z + 0.25 * span * np.array([1.0, 1.0, -1.0, -1.0])])
         return np.clip(starts, b[:, 0], b[:, 1])
 
-    def initial_state(self, log):
-        """The wrapped space's start state (guess, box) on the window.
-
-        Parameters
-        ----------
-        log : plant.ExperimentLog
-        """
-        return self.space.initial_state(log)
-
-    def __repr__(self) -> str:
-        return f"FrictionChangeParameters(space={self.space!r})"

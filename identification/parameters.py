@@ -33,6 +33,7 @@ __all__ = [
     "BaseParameters",
     "ConsistentBaseParameters",
     "PayloadParameters",
+    "HeldModelChange",
     "prior_f",
     "DEFAULT_PAYLOAD_BOUNDS",
     "check_bounds",
@@ -500,3 +501,69 @@ class PayloadParameters(Parameterisation):
 
     def __repr__(self) -> str:
         return f"PayloadParameters(prior_f={np.round(self.prior_f, 4).tolist()})"
+
+
+class HeldModelChange(Parameterisation):
+    """A change of a window's plant with the robot's f held: the adaptive CTC's rival hypotheses.
+
+    The base of :class:`identification.friction.FrictionChangeParameters` and
+    :class:`identification.flexible.DriveChangeParameters` (:mod:`ctc.adaptive`,
+    supervisor step 3): every candidate keeps the model in use, ``f``; the
+    window's start state (guess and box) is the wrapped payload space's, so
+    the rival and the payload estimate start alike.  Subclasses give the
+    names, box, plant and plant parameters of their change.
+
+    Parameters
+    ----------
+    space : Parameterisation
+        The window's payload parameterisation (of :attr:`space_type`).
+    f : array_like, shape (9,)
+        The model in use (rigid-equivalent base parameters f1..f9).
+
+    Raises
+    ------
+    ValueError
+        On a ``space`` that is not a :attr:`space_type`, or an ``f`` that is
+        not 9 finite numbers.
+    """
+
+    #: as the payload's (:attr:`PayloadParameters.refine_ftol`)
+    refine_ftol = 1e-6
+    #: the payload parameterisations the change wraps
+    space_type = Parameterisation
+
+    def __init__(self, space, f):
+        if not isinstance(space, self.space_type):
+            t = self.space_type
+            raise ValueError(f"space must be an {t.__module__.rsplit('.', 1)[0]}.{t.__name__}")
+        self.space = space
+        self.f = np.asarray(f, dtype=float).reshape(-1)
+        if self.f.shape != (9,) or not np.all(np.isfinite(self.f)):
+            raise ValueError("f must be 9 finite numbers")
+
+    def to_f(self, x, log) -> np.ndarray:
+        """The model in use, for every candidate.
+
+        Parameters
+        ----------
+        x : ndarray, shape (k,) or (m, k)
+        log : plant.ExperimentLog
+
+        Returns
+        -------
+        ndarray, shape (9,) or (m, 9)
+        """
+        x = np.asarray(x, dtype=float)
+        return np.broadcast_to(self.f, x.shape[:-1] + (9,)).copy()
+
+    def initial_state(self, log):
+        """The wrapped space's start state (guess, box) on the window.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return self.space.initial_state(log)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(space={self.space!r})"

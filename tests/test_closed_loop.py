@@ -173,3 +173,29 @@ def test_flexible_joints_validation(paper_log):
     assert fl[6] == pytest.approx(5 - 200e-6 * 107.8**2)
     assert fl[0] == pytest.approx(5 - 200e-6 * 53.7**2)
     assert math.isclose(fl[1], 5.0)
+
+
+def test_scheduled_joints_change_a_flexible_robot(drill_log, truth):
+    """An ``f_schedule`` entry's third element may be the flexible robot's joints from then
+    on (a gearbox that wears): the run is the robot's until then, and the new joints'
+    after; the same joints scheduled give the run bit for bit; a rigid robot refuses it."""
+    tr = truth(DRILL_FLEX)
+    v = tr["emulator"]["variant"]
+    flex = FlexibleJoints(v["flex_stiffness"], v["flex_damping"], 200e-6)
+    softer = FlexibleJoints([0.5 * k for k in v["flex_stiffness"]], v["flex_damping"], 200e-6)
+    f = np.array(tr["f_vector"])
+    p = PController.from_log(drill_log)
+    ts = drill_log.rig.sample_time_s
+    base = simulate_closed_loop(drill_log, f, p, flexible=flex, substeps=8)
+    same = simulate_closed_loop(drill_log, f, p, flexible=flex, substeps=8, f_schedule=[(1.0, f, flex)])
+    np.testing.assert_array_equal(base.e_pulses, same.e_pulses)
+    worn = simulate_closed_loop(drill_log, f, p, flexible=flex, substeps=8,
+                                f_schedule=[(1.0, f, softer), (2.0, f)])
+    k = int(np.ceil(1.0 / ts))
+    np.testing.assert_array_equal(worn.e_pulses[:k], base.e_pulses[:k])
+    assert np.any(worn.e_pulses[k:] != base.e_pulses[k:])
+    # the softer joints persist through a later f-only entry: the same as softer from 1.0 s on
+    only = simulate_closed_loop(drill_log, f, p, flexible=flex, substeps=8, f_schedule=[(1.0, f, softer)])
+    np.testing.assert_array_equal(worn.e_pulses, only.e_pulses)
+    with pytest.raises(ValueError, match="flexible="):
+        simulate_closed_loop(drill_log, f, p, substeps=8, f_schedule=[(1.0, f, softer)])

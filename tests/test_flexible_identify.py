@@ -148,3 +148,65 @@ def test_a_flexible_result_without_a_physical_link_model_is_not_kept():
     assert not _physical_link(dict(f=f, motor_inertia_reflected_kgm2=[1.0, 1.0]))  # f1 - 1 < f2
     f_ok = np.array([2.47, 1.32, 0.027, -1.28, 0.06, -2.96, 6.34, -0.10, 5.74])
     assert _physical_link(dict(f=f_ok, motor_inertia_reflected_kgm2=[2.0, 0.5]))
+
+
+def test_the_drive_change_hypothesis_scales_stiffness_and_damping(drill_log, truth):
+    """The adaptive CTC's second rival (:class:`DriveChangeParameters`): f held, the joints'
+    stiffness and damping scaled by the factors exp(x) inside DRIVE_CHANGE_BOUNDS, the motor
+    inertias, backlash and start state the payload space's."""
+    from identification.flexible import (DRIVE_CHANGE_BOUNDS, DriveChangeParameters,
+                                         FlexiblePayloadParameters)
+    from identification.parameters import PayloadParameters
+
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"], dtype=float)
+    joints = np.array([30000.0, 6000.0, 20.0, 0.0, 1.5, 0.4])
+    payload_space = FlexiblePayloadParameters(f, joints, backlash=[1e-3, 0.0])
+    space = DriveChangeParameters(payload_space, f)
+    b = space.bounds(drill_log)
+    np.testing.assert_allclose(np.exp(b), DRIVE_CHANGE_BOUNDS)
+    assert np.all(b[:, 0] < 0) and np.all(b[:, 1] > 0)  # no change is inside the box
+    x = np.log([[0.7, 1.0, 2.0, 3.0], [1.0, 1.0, 1.0, 1.0]])
+    j = space.joints(x)
+    np.testing.assert_allclose(j[0], [21000.0, 6000.0, 40.0, 0.0, 1.5, 0.4])  # D = 0 stays 0
+    pp, pp0 = space.plant_parameters(x, drill_log), payload_space.plant_parameters(x, drill_log)
+    np.testing.assert_array_equal(pp["joints"][1], joints)
+    np.testing.assert_array_equal(pp["backlash"], pp0["backlash"])
+    np.testing.assert_array_equal(space.to_f(x, drill_log), np.tile(f, (2, 1)))
+    assert space.plant(drill_log) is payload_space.plant(drill_log)
+    starts = space.refine_starts(drill_log)
+    assert starts.shape == (4, 4) and np.all(starts >= b[:, 0]) and np.all(starts <= b[:, 1])
+    assert space.extras(x[0], drill_log)["drive_change"]["K2_factor"] == pytest.approx(0.7)
+    with pytest.raises(ValueError, match="FlexiblePayloadParameters"):
+        DriveChangeParameters(PayloadParameters(f), f)
+    with pytest.raises(ValueError, match="9 finite"):
+        DriveChangeParameters(payload_space, f[:8])
+
+
+def test_the_drive_change_hypothesis_finds_a_stiffness_loss_a_payload_does_not_explain(drill_log,
+                                                                                       truth):
+    """A 100 ms window of the drill robot's P experiment run with both gearboxes 30 % softer
+    than the model (the library's two-mass plant): the drive-change hypothesis finds the
+    stiffness factors to a few per cent, and its output error is a fraction of the best
+    payload's -- the evidence the adaptive CTC's supervisor weighs (Vuong's test)."""
+    import warnings
+
+    from identification.flexible import DriveChangeParameters, FlexiblePayloadParameters
+
+    f = np.asarray(truth("puma560_paper_drill_flex")["f_vector"], dtype=float)
+    k = np.abs(np.asarray(drill_log.rig.gear_ratio, dtype=float))
+    joints = np.array([30000.0, 6000.0, 4.0, 0.4, *(200e-6 * k ** 2)])
+    payload_space = FlexiblePayloadParameters(f, joints)
+    pp = {name: v[0] for name, v in payload_space.plant_parameters(np.zeros((1, 4)),
+                                                                   drill_log).items()}
+    pp["joints"] = joints * np.array([0.7, 0.7, 1.0, 1.0, 1.0, 1.0])
+    e = plant.simulate_experiment(drill_log, f, plant=payload_space.plant(drill_log),
+                                  plant_parameters=pp, substeps=8)
+    window = drill_log.replace(e_pulses=e, i_A=np.asarray(drill_log.rig.p_gain_A_per_pulse) * e
+                               ).window(1.0, 1.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        payload = identify(window, parameters=payload_space, rng=0, progress=False, workers=1)
+        drive = identify(window, parameters=DriveChangeParameters(payload_space, f), rng=0,
+                         progress=False, workers=1)
+    np.testing.assert_allclose(np.exp(drive.x[:2]), [0.7, 0.7], rtol=0.05)
+    assert drive.fun < 0.25 * payload.fun, (drive.fun, payload.fun)

@@ -132,7 +132,7 @@ def simulate_closed_loop(
         it starts with the springs relaxed.
     label : str, optional
         Label of the response (default: the controller's class name).
-    f_schedule : sequence of (float, array_like (9,)[, array_like (6,)]), optional
+    f_schedule : sequence of (float, array_like (9,)[, array_like (6,) or FlexibleJoints]), optional
         Changes of the robot during the run: from the first sample at or
         after ``t_s`` on, the robot is ``f`` (e.g. a payload picked up:
         ``[(1.0, plant.add_payload(f, payload, a3))]``); the state carries
@@ -141,8 +141,12 @@ def simulate_closed_loop(
         of :data:`plant.simulation.friction.FRICTION_NAMES`: a friction
         change, e.g. a drive warming up; the rigid robot is then simulated
         with per-lane friction, :data:`plant.simulation.friction.RIGID_FRICTION`,
-        which starts with the rig's).  With ``plant``: base parameters beta
-        (r,), no friction.
+        which starts with the rig's).  For a flexible robot the third element
+        may instead be a :class:`plant.simulation.plants.FlexibleJoints`:
+        its joints from then on (a gearbox that wears or warms: stiffness,
+        damping, backlash; the motor inertias should stay ``flexible``'s, as
+        f is rigid-equivalent).  With ``plant``: base parameters beta (r,),
+        no friction.
     plant : plant.simulation.arm.ArmPlant, optional
         Simulate a robot model's rigid arm (:func:`plant.simulation.arm.arm_plant`)
         instead of the PUMA 560 links 2-3; the rig and the trajectory must
@@ -189,13 +193,18 @@ def simulate_closed_loop(
         if len(rest) > 1:
             raise ValueError("an f_schedule entry is (t_s, f) or (t_s, f, friction)")
         fr = rest[0] if rest else None
+        if isinstance(fr, FlexibleJoints):
+            if flexible is None:
+                raise ValueError("scheduled FlexibleJoints change a flexible robot: pass flexible=")
+            schedule.append((t_s, f_new, fr))
+            continue
         if fr is not None:
             fr = np.asarray(fr, dtype=float)
             if arm or fr.shape != (6,) or not np.all(np.isfinite(fr)) or np.any(fr < 0):
                 raise ValueError("a scheduled friction is 6 finite motor-side values >= 0 "
                                  "(FRICTION_NAMES order), for the PUMA plants only")
         schedule.append((t_s, f_new, fr))
-    frictional = any(fr is not None for _, _, fr in schedule)
+    frictional = any(fr is not None and not isinstance(fr, FlexibleJoints) for _, _, fr in schedule)
     if arm:
         from plant.simulation.arm import ArmPlant
 
@@ -212,9 +221,10 @@ def simulate_closed_loop(
 
         plant = (RIGID_FRICTION if frictional else RIGID) if flexible is None else flexible
 
-        def lane_parameters(values, what, friction=None):
+        def lane_parameters(values, what, friction=None, joints=None):
             kw = {} if friction is None else {"friction": friction}
-            return plant.lane_parameters(checked_f(values, what)[None], rig, **kw)
+            return (plant if joints is None else joints).lane_parameters(
+                checked_f(values, what)[None], rig, **kw)
         read, step = _read, _step
     P0 = lane_parameters(f_robot, "f_robot")
     if flexible is not None and not is_positive_definite(
@@ -244,11 +254,15 @@ def simulate_closed_loop(
     act = np.zeros(nj)
     err = np.zeros(nj)
     changes = []
-    friction_now = None
+    friction_now, joints_now = None, None
     for t_s, f_new, fr in sorted(schedule, key=lambda item: float(item[0])):
         k_s = max(0, int(math.ceil(float(t_s) / ts - 1e-9)))
-        friction_now = fr if fr is not None else friction_now  # a friction change persists
-        changes.append((k_s, lane_parameters(f_new, "f_schedule f", friction_now)))
+        # a friction or joint change persists through later entries
+        if isinstance(fr, FlexibleJoints):
+            joints_now = fr
+        elif fr is not None:
+            friction_now = fr
+        changes.append((k_s, lane_parameters(f_new, "f_schedule f", friction_now, joints_now)))
     controller.reset()
     status = STATUS_OK
     n_done = n
