@@ -682,11 +682,14 @@ def test_twenty_ctrl_c_at_random_moments(tmp_path):
 
     From 0.1 s on: the first ~30 ms are the interpreter's own start-up (its ``site``
     import, before any line of this program exists), where a Ctrl-C is CPython's
-    ("Fatal Python error: init_import_site", exit 1) whatever the program does.
+    ("Fatal Python error: init_import_site", exit 1) whatever the program does; on a
+    loaded machine the start-up takes longer, and a Ctrl-C that still lands in it (at
+    most 5 of the 20) must leave the output file as it was.
     """
     rng = np.random.default_rng(20261122)
     out = tmp_path / "out.json"
     old = '{"old": true}\n'
+    in_startup = 0
     for delay in rng.uniform(0.1, 5.0, 20):
         out.write_text(old)
         proc = subprocess.Popen(
@@ -701,8 +704,14 @@ def test_twenty_ctrl_c_at_random_moments(tmp_path):
             if proc.poll() is None:
                 proc.kill()
         where = f"Ctrl-C at {delay:.2f} s: {stderr!r}"
+        if proc.returncode == 1 and "init_import_site" in stderr:
+            # still CPython's own start-up: a loaded machine can take longer than 0.1 s
+            in_startup += 1
+            assert out.read_text() == old, where
+            continue
         assert proc.returncode == 130, where
         assert "Traceback" not in stderr and "Exception ignored" not in stderr, where
         assert len(stderr.strip().splitlines()) <= 1, where
         text = out.read_text()
         assert text == old or json.loads(text)["interrupted"] is True, where
+    assert in_startup <= 5, f"{in_startup} of 20 Ctrl-Cs landed in the interpreter's start-up"
