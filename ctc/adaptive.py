@@ -208,8 +208,8 @@ change in a linear-Gaussian regression):
    estimates update (the robot has shown a change no payload explains, and
    one window's residual is no evidence of a payload any more: a friction
    change reads as a small payload in a quiet window, a put-down as a
-   0.3 kg tool after the update to no payload).  Tried and dropped: letting PERSISTENCE_WINDOWS agreeing
-   estimates end this pause too (as they end a rollback's, step 4), at their
+   0.3 kg tool after the update to no payload).  Tried and dropped:
+   letting PERSISTENCE_WINDOWS agreeing estimates end this pause too (as they end a rollback's, step 4), at their
    mean -- it took up benchmark case 0025's 2.87 kg again (a window spanning
    the pick-up read 2.0 kg, the next 2.99, then one 1.83 kg; the next three
    agreed on 2.86 kg, where the prior now stays for the rest of the run),
