@@ -295,6 +295,42 @@ def test_a_refinement_pools_the_estimates_of_the_payload(paper_log, prior):
     assert _pooled(estimates[:1]) is estimates[0]
 
 
+def test_a_refinement_weighs_each_estimate_by_its_information(paper_log, prior):
+    """Step 3: with each window's covariance, the pooled payload vector is the best linear
+    unbiased combination (inverse-covariance weights): a window whose centre of mass is
+    poorly determined (standard error 0.3 m, as benchmark case 0029's outlier window)
+    lends it almost no weight; equal covariances give the plain mean; the model is the
+    pooled vector's (f affine in it)."""
+    from ctc.adaptive import _pooled
+    from identification.parameters import PayloadParameters
+    from plant.robot.payload import payload_delta_matrix
+
+    space = PayloadParameters(prior)
+    a3 = paper_log.rig.a3_m
+    X = np.array([[1.43, 0.007, -0.36, 0.01], [1.36, 0.012, -0.32, 0.01],
+                  [1.36, -0.315, -0.43, 0.01]])
+    P = PayloadParameters.linear(X)
+    sd = [np.array([0.02, 0.02, 0.03, 0.002]), np.array([0.02, 0.02, 0.03, 0.002]),
+          np.array([0.15, 0.32, 0.19, 0.02])]
+
+    def estimate(x, c):
+        payload = dict(space.extras(x, paper_log)["payload"], vector_cov=c)
+        return space.to_f(x, paper_log), payload
+
+    covs = [np.diag(v ** 2) for v in sd]
+    f, payload = _pooled([estimate(x, c) for x, c in zip(X, covs)], a3=a3)
+    W = [np.linalg.inv(c) for c in covs]
+    expected = np.linalg.solve(sum(W), sum(w @ v for w, v in zip(W, P)))
+    np.testing.assert_allclose(payload["vector"], expected, rtol=1e-9)
+    assert abs(payload["com_m"][0]) < 0.02 < abs(P[:, 1].mean() / P[:, 0].mean())
+    np.testing.assert_allclose(f, prior + np.asarray(payload["vector"]) @ payload_delta_matrix(a3).T,
+                               rtol=1e-12, atol=1e-12)
+    same = [estimate(x, covs[0]) for x in X]
+    np.testing.assert_allclose(_pooled(same, a3=a3)[1]["vector"], P.mean(axis=0), rtol=1e-9)
+    # without covariances (or a3): the plain mean
+    np.testing.assert_allclose(_pooled(same)[1]["vector"], P.mean(axis=0), rtol=1e-12)
+
+
 def test_after_an_isolation_only_agreeing_estimates_update(paper_log, prior):
     """Step 5: once a change no payload explained was isolated, one window's evidence no
     longer updates; a real pick-up still does, after PERSISTENCE_WINDOWS agreeing estimates."""
