@@ -522,6 +522,9 @@ def main(argv=None):
     rows = br.run_jobs(_job, jobs, a.jobs)
     skipped = [r for r in rows if "skipped" in r]
     rows = [r for r in rows if "skipped" not in r]
+    for r in rows:  # a cached case is scored anew (the scores may have grown since it ran)
+        if "error" not in r:
+            r["verdict"] = score(r)
     print()
     s = summarise(rows)
     print_report(rows, s)

@@ -220,7 +220,15 @@ change in a linear-Gaussian regression):
    estimates update (the robot has shown a change no payload explains, and
    one window's residual is no evidence of a payload any more: a friction
    change reads as a small payload in a quiet window, a put-down as a
-   0.3 kg tool after the update to no payload).  Tried and dropped:
+   0.3 kg tool after the update to no payload).  **A model that stops
+   fitting** is dropped the same way: when the model in use is an update's
+   (not the prior) and :data:`STALE_WINDOWS` successive windows leave it
+   undescribed -- its residual shows a change that no payload estimate
+   explains, or that a rival change explains better -- the controller returns
+   to the prior (decision ``'stale'``, event ``'unexplained'``, updates paused
+   until a window shows no change, then only agreeing estimates): an adapted
+   model is worth its risk only while it fits, and the prior is the static
+   CTC's, which the adaptive CTC must never be worse than.  Tried and dropped:
    letting PERSISTENCE_WINDOWS agreeing estimates end this pause too (as they end a rollback's, step 4), at their
    mean -- it took up benchmark case 0025's 2.87 kg again (a window spanning
    the pick-up read 2.0 kg, the next 2.99, then one 1.83 kg; the next three
@@ -272,7 +280,7 @@ from .guard import as_limit
 __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledChangeWarning",
            "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "PERSISTENCE_WINDOWS", "EVIDENT_FACTOR",
            "EVIDENT_IMPROVEMENT", "DIVERGE_FACTOR",
-           "SMALL_MASS_FRACTION", "DRIVE_CHANGE_MIN",
+           "SMALL_MASS_FRACTION", "DRIVE_CHANGE_MIN", "STALE_WINDOWS",
            "window_statistics", "vuong_statistic"]
 
 #: Default identification latency (s): the per-window budget of a 100 ms window
@@ -323,6 +331,13 @@ SMALL_MASS_FRACTION = 0.05
 #: calibration windows and 1.25-1.30 in quiet windows later was reported changed).
 DRIVE_CHANGE_MIN = 0.2
 
+#: Successive windows that the model in use -- an update's, not the prior -- leaves
+#: undescribed (its residual shows a change that no payload estimate explains, or that a
+#: rival change explains better) before the controller returns to the prior, the static
+#: CTC's model (supervisor step 5).  Two, as a change is reported only when the next
+#: window says the same: one window can span a change.
+STALE_WINDOWS = 2
+
 #: Number of payload parameters (m, xp, yp, Jc): the test's degrees of freedom.
 _N_PAYLOAD = 4
 
@@ -333,6 +348,7 @@ _RIVAL_TEXT = {"friction": "friction", "drive": "joint stiffness and damping"}
 
 _FROZEN_REASONS = {"diverging": "tracking diverged under an update",
                   "inconsistent": "the robot changed in a way no payload explained",
+                  "stale": "the model in use stopped describing the robot and no payload did",
                   "rolled back": "an update made tracking worse"}
 
 
@@ -887,6 +903,7 @@ class AdaptiveComputedTorqueController:
         self._good = (self.f, None)  # last good model: (f, payload)
         self._validating = None  # (f, mass) of the update the next identified window checks
         self._strikes = 0
+        self._undescribed = 0  # successive windows the model in use (not the prior) failed
         self._frozen = False  # False, or why updates are paused: a key of _FROZEN_REASONS
         self._probation = None  # (f of the update, tracking mse of the window that triggered it)
         self._pending_trigger_mse = None
@@ -1292,6 +1309,19 @@ class AdaptiveComputedTorqueController:
                       f"payload ({rival['y']:.4g} vs {stats['y_new']:.4g} pulses^2 for "
                       f"{mass:.3g} kg): " + ", ".join(
                           f"{k.split('_')[0]} {v:+.3g}" for k, v in rival["change"].items()))
+        # the model in use, an update's (not the prior), no longer describes the robot: its
+        # residual shows a change and nothing replaces it (no payload explains it, or a rival
+        # change does) in STALE_WINDOWS successive windows -- back to the prior, the static
+        # CTC's model (step 5): an adapted model is worth keeping only while it fits
+        undescribed = (decision in ("unexplained", "implausible", *_RIVAL_TEXT)
+                       and f_used is self.f and not np.array_equal(f_used, self.prior_f))
+        self._undescribed = self._undescribed + 1 if undescribed else 0
+        if self._undescribed >= STALE_WINDOWS:
+            decision = "stale"
+            reason = (f"the model in use ({self.payload_mass_kg:.3g} kg) has not described the "
+                      f"robot for {self._undescribed} successive windows and no payload does ("
+                      + (reason or "no payload estimate explains them") + ")")
+            self._undescribed = 0
         if self._validating is not None and f_used is self._validating[0]:
             self._validating = None
         if decision in ("baseline", "no change") and np.array_equal(f_used, self.prior_f):
@@ -1343,7 +1373,7 @@ class AdaptiveComputedTorqueController:
         latency = wall if self.latency_s == "measured" else self.latency_s
         k_eff = k_end + 1 + int(math.ceil(latency / self._ts))
         self._busy_until = k_eff
-        if decision == "inconsistent":
+        if decision in ("inconsistent", "stale"):
             self._update_masses = []
             self._isolated = True
             # back to the prior, the static CTC's model: the episode's estimates, and a last
@@ -1353,7 +1383,7 @@ class AdaptiveComputedTorqueController:
             self._good = (f_good, None)
             # the decision is the identification's: it takes effect after its latency
             self._pending = (k_eff, f_good, payload_good, "rollback")
-            self._frozen = "inconsistent"
+            self._frozen = decision
             self._strikes = 0
             m_good = 0.0 if payload_good is None else payload_good["mass_kg"]
             msg = (f"a change the payload model does not explain at t = {k_end * self._ts:.3f} s "

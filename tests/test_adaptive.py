@@ -403,6 +403,39 @@ def test_an_update_to_the_model_in_use_is_none(paper_log, prior):
     assert all(m > 0.0 for _, m in adaptive.payload_history[:1])
 
 
+def test_a_model_that_stops_describing_the_robot_returns_to_the_prior(paper_log, prior):
+    """Supervisor step 5, STALE_WINDOWS: a 2 kg tool picked up at 1.0 s is adapted to; at
+    2.0 s the joint-2 gravity changes (f8, f9 x1.3: a counterbalance, no payload on link
+    3 describes it).  Once the model in use -- an update's -- leaves STALE_WINDOWS
+    successive windows undescribed with no payload explaining them, the controller
+    returns to the prior (the static CTC's model), reports it, and tracks as the static
+    CTC does."""
+    loaded = plant.add_payload(prior, plant.Payload(2.0, (0.1, 0.02), 0.01), paper_log.rig.a3_m)
+    changed = np.array(loaded)
+    changed[7:9] *= 1.3
+    schedule = [(1.0, loaded), (2.0, changed)]
+    static = plant.simulate_closed_loop(paper_log, prior,
+                                        ctc.ComputedTorqueController.from_log(prior, paper_log),
+                                        f_schedule=schedule, substeps=SUBSTEPS)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    with pytest.warns(ctc.UnmodelledChangeWarning, match="has not described the robot"):
+        r = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
+                                       substeps=SUBSTEPS)
+    assert r.success
+    # the tool was found first
+    assert any(abs(m - 2.0) < 0.1 and t < 2.0 for t, m in adaptive.payload_history)
+    stale = [i for i, rec in enumerate(adaptive.identifications) if rec["decision"] == "stale"]
+    assert stale and adaptive.identifications[stale[0]]["window_s"][0] > 2.0
+    n = ctc.adaptive.STALE_WINDOWS
+    before = adaptive.identifications[stale[0] - (n - 1):stale[0]]
+    assert all(rec["decision"] in ("unexplained", "implausible", "friction", "drive")
+               for rec in before)
+    np.testing.assert_array_equal(adaptive.f, prior)
+    assert adaptive.payload_history[-1][1] == 0.0
+    k = int(np.ceil(2.5 / paper_log.rig.sample_time_s))
+    assert np.all(np.abs(r.e_pulses[k:]).max(axis=0) <= np.abs(static.e_pulses[k:]).max(axis=0) + 1)
+
+
 def test_a_change_no_payload_explains_is_reported_not_adapted(paper_log, prior):
     """A joint-2 gravity change (f8, f9: a counterbalance, not a payload on link 3).
 
