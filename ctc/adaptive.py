@@ -1469,7 +1469,7 @@ class AdaptiveComputedTorqueController:
             self._pending = (k_eff, f_est, payload_est, kind)
             self._pending_trigger_mse = mse
             pooled = "" if kind == "update" else (
-                f"; refinement, the mean of {payload_est.get('pooled', 1)} estimate(s)")
+                f"; refinement, {payload_est.get('pooled', 1)} estimate(s) pooled")
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "
                         f"{self._lr_threshold:.3g}{pooled})", mass_kg=mass, lr=stats["lr"])
 

@@ -21,6 +21,19 @@ SUBSTEPS = 8
 LATENCY_S = ctc.adaptive.DEFAULT_LATENCY_S
 
 
+def _static_and_adaptive(log, prior, schedule, warns):
+    """The static CTC's and the adaptive CTC's runs of ``log`` from ``prior`` through the
+    changes ``schedule``; the adaptive run must warn ``UnmodelledChangeWarning`` matching
+    ``warns``.  Returns (static response, adaptive controller, adaptive response)."""
+    static = plant.simulate_closed_loop(log, prior, ctc.ComputedTorqueController.from_log(prior, log),
+                                        f_schedule=schedule, substeps=SUBSTEPS)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, log)
+    with pytest.warns(ctc.UnmodelledChangeWarning, match=warns):
+        resp = plant.simulate_closed_loop(log, prior, adaptive, f_schedule=schedule,
+                                          substeps=SUBSTEPS)
+    return static, adaptive, resp
+
+
 @pytest.fixture(scope="module")
 def prior(truth):
     return np.asarray(truth("puma560_paper_rigid")["f_vector"], dtype=float)
@@ -413,14 +426,8 @@ def test_a_model_that_stops_describing_the_robot_returns_to_the_prior(paper_log,
     loaded = plant.add_payload(prior, plant.Payload(2.0, (0.1, 0.02), 0.01), paper_log.rig.a3_m)
     changed = np.array(loaded)
     changed[7:9] *= 1.3
-    schedule = [(1.0, loaded), (2.0, changed)]
-    static = plant.simulate_closed_loop(paper_log, prior,
-                                        ctc.ComputedTorqueController.from_log(prior, paper_log),
-                                        f_schedule=schedule, substeps=SUBSTEPS)
-    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
-    with pytest.warns(ctc.UnmodelledChangeWarning, match="has not described the robot"):
-        r = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
-                                       substeps=SUBSTEPS)
+    static, adaptive, r = _static_and_adaptive(paper_log, prior, [(1.0, loaded), (2.0, changed)],
+                                               warns="has not described the robot")
     assert r.success
     # the tool was found first
     assert any(abs(m - 2.0) < 0.1 and t < 2.0 for t, m in adaptive.payload_history)
@@ -494,14 +501,9 @@ def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor, nam
     """
     from plant.simulation.friction import friction_vector
 
-    schedule = [(1.0, prior, factor * friction_vector(paper_log.rig))]
-    static = plant.simulate_closed_loop(paper_log, prior,
-                                        ctc.ComputedTorqueController.from_log(prior, paper_log),
-                                        f_schedule=schedule, substeps=SUBSTEPS)
-    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
-    with pytest.warns(ctc.UnmodelledChangeWarning, match="does not explain"):
-        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
-                                          substeps=SUBSTEPS)
+    static, adaptive, resp = _static_and_adaptive(
+        paper_log, prior, [(1.0, prior, factor * friction_vector(paper_log.rig))],
+        warns="does not explain")
     assert resp.success and static.success
     causes = [e.get("cause") for e in adaptive.events if e["kind"] == "unexplained"]
     assert causes, adaptive.events
