@@ -1458,9 +1458,10 @@ class AdaptiveComputedTorqueController:
             if payload_est is not None and self.payload is not None and _same_mass(
                     mass, self.payload_mass_kg):
                 kind = "refinement"
-                # a refinement of the payload in use: the mean of every estimate of that
-                # payload since it was found, not the last window's alone (f is affine in the
-                # linear payload vector, so the mean f is the mean payload's)
+                # a refinement of the payload in use: every estimate of that payload since
+                # it was found, pooled by their information, not the last window's alone (f
+                # is affine in the linear payload vector, so the pooled f is the pooled
+                # payload's)
                 f_est, payload_est = _pooled([q for q in self._pool
                                               if _same_mass(q[1]["mass_kg"], mass)]
                                              or [(f_est, payload_est)], a3=self.log.rig.a3_m)
