@@ -344,6 +344,28 @@ def test_a_refinement_weighs_each_estimate_by_its_information(paper_log, prior):
     np.testing.assert_allclose(_pooled(same)[1]["vector"], P.mean(axis=0), rtol=1e-12)
 
 
+def test_a_window_estimates_covariance_follows_the_linear_payload_vector():
+    """The covariance a window's estimate carries into the pooling: the standard errors
+    and correlations of x = [m, xp, yp, Jc] through the Jacobian of p = [m, m xp, m yp,
+    J] (checked by central differences); None without standard errors."""
+    from types import SimpleNamespace
+
+    from ctc.adaptive import _vector_covariance
+    from identification.parameters import PayloadParameters
+
+    x = np.array([1.4, 0.05, -0.3, 0.01])
+    std = np.array([0.02, 0.03, 0.05, 0.004])
+    corr = np.array([[1.0, 0.3, -0.2, 0.0], [0.3, 1.0, 0.1, 0.0],
+                     [-0.2, 0.1, 1.0, 0.5], [0.0, 0.0, 0.5, 1.0]])
+    cov = _vector_covariance(SimpleNamespace(x=x, x_std=std, x_correlation=corr))
+    h = 1e-6
+    G = np.stack([(PayloadParameters.linear(x + h * e) - PayloadParameters.linear(x - h * e))
+                  / (2 * h) for e in np.eye(4)], axis=1)
+    np.testing.assert_allclose(cov, G @ (np.outer(std, std) * corr) @ G.T, rtol=1e-6, atol=1e-12)
+    assert _vector_covariance(SimpleNamespace(x=x, x_std=None, x_correlation=None)) is None
+    assert _vector_covariance(SimpleNamespace(x=x, x_std=std * np.nan, x_correlation=corr)) is None
+
+
 def test_after_an_isolation_only_agreeing_estimates_update(paper_log, prior):
     """Step 5: once a change no payload explained was isolated, one window's evidence no
     longer updates; a real pick-up still does, after PERSISTENCE_WINDOWS agreeing estimates."""
