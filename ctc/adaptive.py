@@ -912,7 +912,6 @@ class AdaptiveComputedTorqueController:
         self._rival_run = []  # whether friction beat the payload, the same windows' (step 3)
         self._drive_run = []  # ln stiffness factors of the latest successive significant drive checks
         self._drive_calibration = []  # ln stiffness factors of the calibration windows
-        self._drive_reference = np.zeros(2)  # their median: the robot's stiffness at the start
         self._drive_named = False  # a stiffness change was reported
         self._rival_terms = {}  # per rival, Vuong's terms (sum d, n tau var d) of the run's windows
         self._update_masses = []  # masses (kg) of the accepted updates since the last isolation
@@ -1351,13 +1350,14 @@ class AdaptiveComputedTorqueController:
             # the robot's stiffness as it runs now (the prior's may be off): the median of
             # the calibration windows' factors
             self._drive_calibration.append(np.log(drive["factors"][:2]))
-            self._drive_reference = np.median(self._drive_calibration, axis=0)
         self._drive_run = ((self._drive_run + [np.log(drive["factors"][:2])])[-PERSISTENCE_WINDOWS:]
                            if significant_drive and decision == "no change" else [])
-        drive_change = len(self._drive_run) == PERSISTENCE_WINDOWS and any(
-            all(_agree_off_model(a[j], b[j], self._drive_reference[j],
-                                 math.log1p(DRIVE_CHANGE_MIN))
-                for a, b in zip(self._drive_run, self._drive_run[1:])) for j in range(2))
+        drive_change = False
+        if len(self._drive_run) == PERSISTENCE_WINDOWS:
+            ref = self._drive_reference
+            drive_change = any(
+                all(_agree_off_model(a[j], b[j], ref[j], math.log1p(DRIVE_CHANGE_MIN))
+                    for a, b in zip(self._drive_run, self._drive_run[1:])) for j in range(2))
         accepted = decision == "update"
         self.identifications.append(dict(window_s=window.window_s, wall_time_s=wall,
                                          mass_kg=mass, x=np.asarray(res.x, dtype=float).tolist(),
@@ -1539,6 +1539,14 @@ class AdaptiveComputedTorqueController:
         ref = refine(problem, np.stack([np.clip(guess, box[:, 0], box[:, 1]), trend]), box,
                      max_iter=20, ftol=1e-6)
         return np.asarray(ref.x, dtype=float)
+
+    @property
+    def _drive_reference(self):
+        """ln stiffness factors (2,) of the robot at the start: the calibration windows'
+        median (zeros before any)."""
+        if not self._drive_calibration:
+            return np.zeros(2)
+        return np.median(self._drive_calibration, axis=0)
 
     @property
     def payload_mass_kg(self):
