@@ -24,21 +24,34 @@ def main(argv=None):
     int
         The exit status (0, 1, 130; argparse usage errors exit with 2).
     """
+    return _main(argv, process=False)
+
+
+def _main(argv, process):
+    """:func:`main`; ``process``: the command owns the process (watchdog, handlers kept)."""
+    installed = False
     try:
-        from identification import sigint
-
-        sigint.install()  # a Ctrl-C swallowed by a finaliser is remembered, not lost
-        from identification.cli import main as cli_main
-    except KeyboardInterrupt:
-        from identification import sigint
-
-        sigint.leaving()
         try:
-            print("error: interrupted (nothing written)", file=sys.stderr, flush=True)
-        except (KeyboardInterrupt, OSError, ValueError):
-            pass
-        return EXIT_INTERRUPTED
-    return cli_main(argv)
+            from identification import sigint
+
+            # a Ctrl-C swallowed by a finaliser or cleared by C code is remembered, not
+            # lost; in a process of its own a run stuck after a Ctrl-C is ended by the
+            # watchdog
+            installed = sigint.install(watchdog=process)
+            from identification.cli import main as cli_main
+        except KeyboardInterrupt:
+            from identification import sigint
+
+            sigint.leaving()
+            try:
+                print("error: interrupted (nothing written)", file=sys.stderr, flush=True)
+            except (KeyboardInterrupt, OSError, ValueError):
+                pass
+            return EXIT_INTERRUPTED
+        return cli_main(argv)
+    finally:
+        if installed and not process:  # a call in-process: the caller's handlers again
+            sigint.uninstall()
 
 
 def exit_after(status):
@@ -76,8 +89,8 @@ def exit_after(status):
 
 def script():
     """Entry point of the ``puma-identify`` script: :func:`main`, then :func:`exit_after`."""
-    exit_after(main())
+    exit_after(_main(None, process=True))
 
 
 if __name__ == "__main__":
-    exit_after(main())
+    exit_after(_main(None, process=True))

@@ -59,10 +59,13 @@ Exit status
     single line ``error: interrupted ...`` on stderr and no traceback;
     files are then either complete or not written at all.  A Ctrl-C that
     arrives while Python runs a finaliser or a ctypes callback (where it can
-    only be printed as "Exception ignored") is remembered
-    (``identification.sigint``) and honoured at the next checkpoint:
-    before the search, after each search step, and before any output is
-    written.
+    only be printed as "Exception ignored"), or that C code clears on its
+    way up, is remembered (``identification.sigint``) and honoured at the
+    next checkpoint: before the search, after each search step, and before
+    any output is written.  A run that has not ended
+    ``identification.sigint.GRACE_S`` (60) seconds after a Ctrl-C is ended
+    by a watchdog with the one ``error: interrupted`` line and exit
+    status 130.
 """
 from __future__ import annotations
 
@@ -330,8 +333,9 @@ class _GracefulInterrupt:
     The first SIGINT only sets :attr:`requested`; the identification's
     callback returns it, so the search stops after the current GA generation
     (or refinement start) and returns the best result so far, which is then
-    printed and written.  The handler is then the default one again, so a
-    second Ctrl-C raises KeyboardInterrupt at once.  (An interrupt raised
+    printed and written.  The handler is then the previous one again (Python's
+    default, or :mod:`identification.sigint`'s recording one), so a second
+    Ctrl-C raises KeyboardInterrupt at once.  (An interrupt raised
     inside the compiled parallel kernels is otherwise not always delivered as
     a KeyboardInterrupt.)  Outside the main thread nothing is installed.
     """
@@ -346,7 +350,9 @@ class _GracefulInterrupt:
         import signal
 
         self.requested = True
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        sigint.note()  # the watchdog's grace starts (a process of its own)
+        again = self._old if callable(self._old) else signal.default_int_handler
+        signal.signal(signal.SIGINT, again)
         if not self.quiet:
             nl = "\n" if _isatty(self.stream) else ""  # end a tqdm bar's line
             print(f"{nl}Ctrl-C: stopping after the current step and writing the best result "
@@ -647,7 +653,7 @@ def main(argv=None) -> int:
         :data:`INTERRUPTED_LINE`, never a traceback).
     """
     stdout, stderr = sys.stdout, sys.stderr
-    sigint.install()
+    installed = sigint.install()  # False under python -m identification (done before imports)
     try:
         return _main(argv, stdout, stderr)
     except KeyboardInterrupt:
@@ -656,3 +662,6 @@ def main(argv=None) -> int:
         if not _is_wrapped_interrupt(e):
             raise
         return _interrupted(stderr)
+    finally:
+        if installed:  # a call in-process: leave the caller's handlers as they were
+            sigint.uninstall()

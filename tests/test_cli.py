@@ -715,3 +715,57 @@ def test_twenty_ctrl_c_at_random_moments(tmp_path):
         text = out.read_text()
         assert text == old or json.loads(text)["interrupted"] is True, where
     assert in_startup <= 5, f"{in_startup} of 20 Ctrl-Cs landed in the interpreter's start-up"
+
+
+def test_a_ctrl_c_cleared_on_its_way_up_is_still_seen():
+    """A KeyboardInterrupt that code between the signal and the command swallows (C code
+    clearing the error of a Python call it made) is recorded by the command's SIGINT
+    handler, and a call in-process leaves the caller's handler and hook as they were."""
+    from identification import sigint
+
+    before = signal.getsignal(signal.SIGINT), sys.unraisablehook
+    assert sigint.install() is True
+    try:
+        assert not sigint.seen()
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(100):  # the handler runs at the next bytecode boundary
+                time.sleep(0.01)
+        except KeyboardInterrupt:
+            pass  # swallowed, as a PyErr_Clear would
+        assert sigint.seen()
+    finally:
+        sigint.uninstall()
+    assert (signal.getsignal(signal.SIGINT), sys.unraisablehook) == before
+    assert not sigint.seen()
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT delivery to a child (POSIX)")
+def test_a_run_stuck_after_a_ctrl_c_is_ended_by_the_watchdog():
+    """A command whose every KeyboardInterrupt is swallowed somewhere it cannot check ends
+    GRACE_S after the Ctrl-C with exit 130 and the one error line."""
+    script = ("import time\n"
+              "from identification import sigint\n"
+              "sigint.GRACE_S = 1.0\n"
+              "sigint.install(watchdog=True)\n"
+              "print('ready', flush=True)\n"
+              "while True:\n"
+              "    try:\n"
+              "        time.sleep(0.05)\n"
+              "    except KeyboardInterrupt:\n"
+              "        pass\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=60)
+        waited = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr
+    assert waited >= 1.0
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: interrupted"), stderr
