@@ -193,20 +193,7 @@ change in a linear-Gaussian regression):
    update made the arm track clearly worse and the controller returns to the
    last good model (event ``'rollback'``); single windows misled here, so
    until a window shows no change only :data:`PERSISTENCE_WINDOWS` agreeing
-   estimates update.  **Its prediction too**: the first identified window
-   under an update to a payload must be predicted by the update's model
-   better than the replaced model predicted the window that brought the
-   update in (residual per value, step 1's ``Y_now``).  When that window
-   shows a change again and leaves more -- the update moved the model away
-   from the robot, not towards it -- the controller returns to the last
-   good model after the identification's latency (decision and event
-   ``'rollback'``, updates paused as above).  A window spanning a pick-up
-   gives part of the mass, and the next window's residual under it is
-   smaller than the spanning window's under the old model; a friction
-   change read as a payload leaves more (changes benchmark, flexible arm,
-   friction x1.29: a 2.06 kg update left 544 pulses^2 where the prior had
-   left 238; it went on to a 3.62 kg update and joint 3 to 8 pulses, 6 for
-   the static CTC).  On every window, tracking that
+   estimates update.  On every window, tracking that
    grows from one whole window to the next under a model other than the last
    good one, beyond :data:`DIVERGE_FACTOR` times the largest mean square of
    any window without change under the prior (the static CTC's normal
@@ -711,8 +698,8 @@ class AdaptiveComputedTorqueController:
         (``fun``, ``fun_current``), the test's ``lr``, ``threshold``,
         ``tau``, the supervisor's ``decision`` (``'baseline'`` for the first
         :data:`CALIBRATION_WINDOWS` windows, ``'update'``, ``'no change'``, ``'implausible'``,
-        ``'unexplained'``, ``'inconsistent'``, ``'stale'``, ``'rollback'``,
-        ``'friction'``, ``'drive'``), its
+        ``'unexplained'``, ``'inconsistent'``, ``'stale'``, ``'friction'``,
+        ``'drive'``), its
         ``reason`` and ``accepted``; where the rival hypotheses were fitted,
         ``rivals`` (each: ``cause``, output error ``y``, Vuong's ``z`` and
         the run's ``z_run``, its ``threshold``, the fitted ``change``) and
@@ -937,7 +924,6 @@ class AdaptiveComputedTorqueController:
         self._frozen = False  # False, or why updates are paused: a key of _FROZEN_REASONS
         self._probation = None  # (f of the update, tracking mse of the window that triggered it)
         self._pending_trigger_mse = None
-        self._pending_trigger_y = None  # the replaced model's residual per value there
         self._suspect = False  # the last identified window was significant but unexplained
         self._significant_run = []  # masses (kg) of the latest successive significant estimates
         self._rival_run = []  # whether friction beat the payload, the same windows' (step 3)
@@ -994,11 +980,7 @@ class AdaptiveComputedTorqueController:
                 # a refinement (the pooled payload in use) is on no probation: its first
                 # window judges a change of the robot, if any, not the refinement's
                 self._probation = (self.f, self._pending_trigger_mse) if kind == "update" else None
-                # the first identified window under an update to a payload checks it: its
-                # prediction, against the residual per value the replaced model left on the
-                # window that brought it in (a refinement's or a return to the prior's: None)
-                self._validating = (self.f, mass, self._pending_trigger_y
-                                    if kind == "update" and payload is not None else None)
+                self._validating = (self.f, mass)
                 self._model_trigger_mse = self._pending_trigger_mse
             else:
                 self._model_trigger_mse = None
@@ -1286,20 +1268,6 @@ class AdaptiveComputedTorqueController:
                     decision = "inconsistent"
                     reason = (f"successive payload estimates disagree ({m_applied:.3g} kg, then "
                               f"{mass:.3g} kg): not a constant payload")
-        validating = (self._validating if self._validating is not None
-                      and f_used is self._validating[0] else None)
-        if (validating is not None and validating[2] is not None
-                and decision in ("update", "implausible", "unexplained")
-                and per_value_now > validating[2]):
-            # step 4: the update's model predicts its first window worse than the model it
-            # replaced predicted the window that brought it in -- the update moved the model
-            # away from the robot (a friction change read as a payload), not towards it (a
-            # window spanning a pick-up gives part of the mass: the next window's residual
-            # under it is smaller than the spanning window's under the old model)
-            decision = "rollback"
-            reason = (f"the update's model ({validating[1]:.3g} kg) leaves {per_value_now:.3g} "
-                      f"pulses^2 per value on its first window, more than the model it replaced "
-                      f"left on the window that brought it in ({validating[2]:.3g})")
         rivals, rival = [], None
         if decision == "update" and payload_est is not None and not of_model:
             # the rival hypotheses (step 3): a change of the drive friction, and on a
@@ -1427,20 +1395,6 @@ class AdaptiveComputedTorqueController:
         latency = wall if self.latency_s == "measured" else self.latency_s
         k_eff = k_end + 1 + int(math.ceil(latency / self._ts))
         self._busy_until = k_eff
-        if decision == "rollback":
-            # back to the last good model, after the identification's latency; single windows
-            # misled here: until a window shows no change, only PERSISTENCE_WINDOWS agreeing
-            # estimates update (as after a probation's rollback)
-            f_good, payload_good = self._good
-            self._pending = (k_eff, f_good, payload_good, "rollback")
-            self._pending_trigger_mse = self._pending_trigger_y = None
-            self._probation = None
-            self._frozen = self._frozen or "rolled back"
-            m_good = 0.0 if payload_good is None else payload_good["mass_kg"]
-            self._event(k_eff, "rollback", f"{reason}: back to the last good model "
-                        f"({m_good:.3g} kg)", y_after=per_value_now, y_before=validating[2])
-            self._suspect = True
-            return
         if decision in ("inconsistent", "stale"):
             self._update_masses = []
             self._isolated = True
@@ -1538,7 +1492,6 @@ class AdaptiveComputedTorqueController:
             self._update_masses.append(mass)
             self._pending = (k_eff, f_est, payload_est, kind)
             self._pending_trigger_mse = mse
-            self._pending_trigger_y = per_value_now
             pooled = "" if kind == "update" else (
                 f"; refinement, {payload_est.get('pooled', 1)} estimate(s) pooled")
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "

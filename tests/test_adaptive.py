@@ -471,16 +471,12 @@ def test_a_model_that_stops_describing_the_robot_returns_to_the_prior(paper_log,
     3 describes it).  Once the model in use -- an update's -- leaves STALE_WINDOWS
     successive windows undescribed with no payload explaining them, the controller
     returns to the prior (the static CTC's model), reports it, and tracks as the static
-    CTC does.  (On the way, a 0.4 kg update that the gravity change brought in is rolled
-    back to the 2 kg model by its first window, step 4; the episode's warning is the
-    first report's.)"""
+    CTC does."""
     loaded = plant.add_payload(prior, plant.Payload(2.0, (0.1, 0.02), 0.01), paper_log.rig.a3_m)
     changed = np.array(loaded)
     changed[7:9] *= 1.3
     static, adaptive, r = _static_and_adaptive(paper_log, prior, [(1.0, loaded), (2.0, changed)],
-                                               warns="the payload model does not explain")
-    assert any(e["kind"] == "unexplained" and "has not described the robot" in e["message"]
-               for e in adaptive.events)
+                                               warns="has not described the robot")
     assert r.success
     # the tool was found first
     assert any(abs(m - 2.0) < 0.1 and t < 2.0 for t, m in adaptive.payload_history)
@@ -594,45 +590,6 @@ def test_an_update_that_tracks_worse_is_rolled_back(paper_log, prior):
     assert rollbacks and rollbacks[0]["mse_after"] > 1.0
     assert adaptive.payload_mass_kg == 0.0 and adaptive.payload_history[-1][1] == 0.0
     np.testing.assert_array_equal(adaptive.f, prior)
-
-
-def test_an_update_that_predicts_worse_than_the_model_it_replaced_is_rolled_back(paper_log, prior):
-    """Supervisor step 4: the first identified window under an update to a payload must be
-    predicted by the update's model better than the replaced model predicted the window
-    that brought the update in; otherwise the update moved the model away from the robot
-    (a friction change read as a payload) and the controller returns to the last good
-    model, after the identification's latency, with updates paused as after a rollback."""
-    wrong = plant.add_payload(prior, plant.Payload(1.5, (0.1, 0.02), 0.01), paper_log.rig.a3_m)
-    ts = paper_log.rig.sample_time_s
-    k_set = int(round(0.6 / ts))
-    y_trigger = ctc.adaptive.QUANTISATION_VARIANCE
-
-    class Misled(ctc.AdaptiveComputedTorqueController):
-        def __call__(self, k, t, q_meas, e_pulses):
-            if k == k_set:
-                # as if the window ending here had been read as a 1.5 kg payload, the old
-                # model leaving it at the quantisation level (the tracking probation blind)
-                self._pending = (k, wrong, {"mass_kg": 1.5}, "update")
-                self._pending_trigger_mse = 1e9
-                self._pending_trigger_y = y_trigger
-            return super().__call__(k, t, q_meas, e_pulses)
-
-    adaptive = Misled(prior, paper_log, latency_s=LATENCY_S)
-    run = plant.simulate_closed_loop(paper_log, prior, adaptive, substeps=SUBSTEPS,
-                                     n_samples=int(1.2 / ts))
-    assert run.success
-    first = next(r for r in adaptive.identifications if r["window_s"][0] >= 0.6)
-    assert first["decision"] == "rollback", first
-    rollback = next(e for e in adaptive.events if e["kind"] == "rollback")
-    assert rollback["y_after"] > rollback["y_before"] == y_trigger
-    assert "first window" in rollback["message"]
-    # back on the last good model (the prior) after the latency, and it describes the robot
-    assert [m for _, m in adaptive.payload_history] == [1.5, 0.0]
-    assert adaptive.payload_history[-1][0] == pytest.approx(first["window_s"][1] + LATENCY_S,
-                                                           abs=2 * ts)
-    np.testing.assert_array_equal(adaptive.f, prior)
-    later = [r["decision"] for r in adaptive.identifications if r["window_s"][0] > rollback["t_s"]]
-    assert later and set(later) == {"no change"}
 
 
 def test_vuong_statistic():
