@@ -1193,18 +1193,12 @@ class AdaptiveComputedTorqueController:
         self._significant_run = run
         persistent = len(run) == PERSISTENCE_WINDOWS and all(
             _agree_off_model(a, b, self.payload_mass_kg) for a, b in zip(run, run[1:]))
-        # the estimate is of the payload in use: within 25 % + 50 g of its mass, or -- when
-        # the model in use carries a payload -- within the estimate's own uncertainty (a
-        # window that hardly determines the mass is no evidence of another payload, step 3)
-        of_model = _same_mass(mass, self.payload_mass_kg) or (
-            self.payload is not None and _within_its_error(payload_est, self.payload_mass_kg,
-                                                           self._mass_z))
         # or the window alone is evident: its residual beyond EVIDENT_FACTOR x the
         # floor and a significant estimate of another mass that removes most of it
         evident = significant and (
             per_value_now > EVIDENT_FACTOR * floor
             and stats["y_new"] <= (1.0 - EVIDENT_IMPROVEMENT) * stats["y_now"]
-            and not of_model)
+            and not _same_mass(mass, self.payload_mass_kg))
         misfit = not first and (per_value_now > self.explain_factor * baseline or persistent
                                 or evident)
         reason = None
@@ -1269,7 +1263,8 @@ class AdaptiveComputedTorqueController:
                     reason = (f"successive payload estimates disagree ({m_applied:.3g} kg, then "
                               f"{mass:.3g} kg): not a constant payload")
         rivals, rival = [], None
-        if decision == "update" and payload_est is not None and not of_model:
+        if (decision == "update" and payload_est is not None
+                and not _same_mass(mass, self.payload_mass_kg)):
             # the rival hypotheses (step 3): a change of the drive friction, and on a
             # two-mass arm of the joints' stiffness and damping, as many degrees of freedom
             # as the payload; the smaller output error of the two is the change
@@ -1477,7 +1472,12 @@ class AdaptiveComputedTorqueController:
             self._isolated = True
         if accepted:
             kind = "update"
-            if payload_est is not None and self.payload is not None and of_model:
+            if payload_est is not None and self.payload is not None and (
+                    _same_mass(mass, self.payload_mass_kg)
+                    or _within_its_error(payload_est, self.payload_mass_kg, self._mass_z)):
+                # the payload in use's mass, within 25 % + 50 g or within the estimate's
+                # own standard errors (a window that hardly determines the mass is no
+                # evidence of another payload)
                 kind = "refinement"
                 # a refinement of the payload in use: every estimate of that payload since
                 # it was found, pooled by their information, not the last window's alone (f
