@@ -94,11 +94,7 @@ change in a linear-Gaussian regression):
    worse), which is no update (on the changes benchmark such 0 kg "updates" came
    before 12 of 96 changes, each costing the next window); a small mass whose first moment at the box edge is material
    is not plausible.  An update whose mass is the model's own (within 25 % +
-   50 g, or -- when the model carries a payload -- within the estimate's
-   own standard errors at ``false_alarm``, two-sided: a window that hardly
-   determines the mass is no evidence of another payload; with a 13 ms
-   latency a window read a 2 kg tool as 1.09 +- 0.51 kg, and the next as
-   1.46 +- 1.6 kg, each replacing the payload in use) refines the payload in use: it installs the pooled estimate of every
+   50 g) refines the payload in use: it installs the pooled estimate of every
    significant, plausible and explaining estimate of that mass from the
    windows since the payload took effect -- not the update's own window,
    which may span the change -- (the model is affine in the linear payload vector
@@ -240,6 +236,15 @@ change in a linear-Gaussian regression):
    but it turned a joint-2 gravity change, whose estimates agree on a
    payload once the episode is over, into a 2.5 kg payload (the test of a
    change no payload explains), and a friction change x0.85 into one too.
+   Also tried on both draws of the changes benchmark and dropped: rolling an
+   update back when its model predicts its first window worse than the
+   replaced model predicted the window that brought it in (it fired on 10
+   genuine pick-ups and put-downs -- a window spanning a pick-up can see a
+   small part of the mass, 0.67 kg of 3.42 -- and cost four of them for one
+   friction case); and refining, not replacing, the payload in use when an
+   update's mass is within the estimate's own standard errors of it (it
+   kept a 2 kg model against loose 1.09 +- 0.51 kg windows under a 13 ms
+   latency, but a flexible 0.62 kg put-down went from 1 / 1 to 1 / 2).
 
 6. **Following-error limit** (:mod:`ctc.guard`).  Whatever the model, a
    joint whose pulse error passes its limit -- by default twice the largest
@@ -389,15 +394,6 @@ def _integrated_autocorrelation_time(r) -> float:
 def _same_mass(a, b) -> bool:
     """Two payload masses (kg) that are one payload: within 25 % of the larger + 50 g."""
     return abs(a - b) <= 0.25 * max(abs(a), abs(b)) + 0.05
-
-
-def _within_its_error(payload_est, mass_kg, z) -> bool:
-    """Whether a window's payload estimate is of mass ``mass_kg`` within ``z`` of its own
-    standard errors (its ``vector_cov``, :func:`_vector_covariance`; False without one)."""
-    cov = payload_est.get("vector_cov")
-    if cov is None:
-        return False
-    return abs(float(payload_est["mass_kg"]) - mass_kg) <= z * math.sqrt(max(cov[0][0], 0.0))
 
 
 def _one_payload(masses) -> bool:
@@ -786,12 +782,9 @@ class AdaptiveComputedTorqueController:
         self.improvement = float(improvement)
         self.false_alarm = float(false_alarm)
         self.explain_factor = float(explain_factor)
-        from scipy.stats import chi2, norm
+        from scipy.stats import chi2
 
         self._lr_threshold = float(chi2.isf(self.false_alarm, _N_PAYLOAD))
-        # an estimate is of another mass than the payload in use only beyond this many of
-        # its own standard errors (two-sided, at false_alarm; step 3)
-        self._mass_z = float(norm.isf(self.false_alarm / 2.0))
         self.latency_s = latency_s if latency_s == "measured" else float(latency_s)
         self.identify_options = dict(identify_options or {})
         self._ts = ts
@@ -1472,21 +1465,15 @@ class AdaptiveComputedTorqueController:
             self._isolated = True
         if accepted:
             kind = "update"
-            if payload_est is not None and self.payload is not None and (
-                    _same_mass(mass, self.payload_mass_kg)
-                    or _within_its_error(payload_est, self.payload_mass_kg, self._mass_z)):
-                # the payload in use's mass, within 25 % + 50 g or within the estimate's
-                # own standard errors (a window that hardly determines the mass is no
-                # evidence of another payload)
+            if payload_est is not None and self.payload is not None and _same_mass(
+                    mass, self.payload_mass_kg):
                 kind = "refinement"
                 # a refinement of the payload in use: every estimate of that payload since
                 # it was found, pooled by their information, not the last window's alone (f
                 # is affine in the linear payload vector, so the pooled f is the pooled
                 # payload's)
-                in_use = self.payload_mass_kg
                 f_est, payload_est = _pooled([q for q in self._pool
-                                              if _same_mass(q[1]["mass_kg"], mass)
-                                              or _within_its_error(q[1], in_use, self._mass_z)]
+                                              if _same_mass(q[1]["mass_kg"], mass)]
                                              or [(f_est, payload_est)], a3=self.log.rig.a3_m)
                 mass = float(payload_est["mass_kg"])
             self._update_masses.append(mass)
