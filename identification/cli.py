@@ -82,8 +82,8 @@ from . import sigint
 
 __all__ = ["main", "build_parser", "format_result_table"]
 
-#: Exit status of a run stopped by Ctrl-C (128 + SIGINT).
-EXIT_INTERRUPTED = 130
+#: Exit status of a run stopped by Ctrl-C (128 + SIGINT): :data:`identification.sigint.EXIT_INTERRUPTED`.
+EXIT_INTERRUPTED = sigint.EXIT_INTERRUPTED
 
 #: The one line printed on stderr when Ctrl-C ends the run without a result.
 INTERRUPTED_LINE = "error: interrupted (nothing written)"

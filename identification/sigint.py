@@ -37,7 +37,8 @@ import sys
 import threading
 import time
 
-__all__ = ["install", "uninstall", "seen", "note", "clear", "leaving", "GRACE_S"]
+__all__ = ["install", "uninstall", "seen", "note", "clear", "leaving", "GRACE_S",
+           "EXIT_INTERRUPTED"]
 
 #: Seconds a command in a process of its own has, after a Ctrl-C, to stop by
 #: itself (finish the current GA generation or refinement start and write the
@@ -45,7 +46,7 @@ __all__ = ["install", "uninstall", "seen", "note", "clear", "leaving", "GRACE_S"
 GRACE_S = 60.0
 
 #: Exit status of a run stopped by Ctrl-C (128 + SIGINT).
-_EXIT_INTERRUPTED = 130
+EXIT_INTERRUPTED = 130
 
 _STATE = {"seen": False, "seen_at": None, "previous": None, "previous_handler": None,
           "leaving": False, "watchdog": None}
@@ -80,7 +81,7 @@ def _watch():
                              "of the Ctrl-C; nothing more written)\n").encode())
             except OSError:
                 pass
-            os._exit(_EXIT_INTERRUPTED)
+            os._exit(EXIT_INTERRUPTED)
 
 
 def install(*, watchdog: bool = False) -> bool:
