@@ -99,6 +99,9 @@ def run_case(family: str, seed: int, compliant: bool = False) -> dict:
             not bool(np.any(true["b"] >= 1e-3))
     k0 = int(round(0.1 / s.sample_time_s))
     ctrl = ArmComputedTorque.from_result(res, log)
+    controller = type(ctrl).__name__
+    if getattr(ctrl, "selection", None) is not None and controller != "ArmComputedTorque":
+        controller += f" ({ctrl.selection['design']})"  # the robust design the check chose
     out = ia.IndependentArm(s).run(ctrl, log.trajectory, s.n_samples)
     e_ctc = np.abs(out["e"][k0:]).max(axis=0) if out["ok"] else None
     e_p = np.abs(log.e_pulses[k0:]).max(axis=0)
@@ -108,7 +111,7 @@ def run_case(family: str, seed: int, compliant: bool = False) -> dict:
                 worst_param=(names[worst] if worst >= 0 else None),
                 worst_err_pct=(100 * float(err[worst]) if worst >= 0 else None),
                 ctc_max=(e_ctc.tolist() if e_ctc is not None else None),
-                ctc_ok=bool(e_ctc is not None and np.all(e_ctc <= 1)),
+                ctc_ok=bool(e_ctc is not None and np.all(e_ctc <= 1)), controller=controller,
                 p_max=e_p.tolist(), nfev=int(res.nfev), nit=int(res.nit),
                 friction_known=s.friction_known, friction_err_pct=fr_err, friction_ok=fr_ok,
                 compliant=compliant, joints=joints, warnings=list(res.warnings),
@@ -145,7 +148,8 @@ def main(argv=None):
                   f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {c['worst_param']} "
                   f"{c['worst_err_pct']:.3f} %  params {'ok' if c['params_ok'] else 'MISS'}  "
                   f"friction {'known' if c['friction_known'] else 'unknown, %.1f %% %s' % (c['friction_err_pct'], 'ok' if c['friction_ok'] else 'MISS')}  "
-                  f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'}  P max|e| {c['p_max']}"
+                  f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'} "
+                  f"[{c['controller']}]  P max|e| {c['p_max']}"
                   + (f"  joints {c['joints']}" if c["joints"] else ""), flush=True)
     rows = [("family", "draws", "well-excited within 1 %", "unknown friction within 15 %",
              "... or within 3 std",

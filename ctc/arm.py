@@ -67,7 +67,7 @@ from .design import gains_for
 from .guard import FollowingErrorLimit
 
 __all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "log_envelope",
-           "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S"]
+           "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S", "GOAL_PULSES"]
 
 
 def log_envelope(log) -> np.ndarray:
@@ -211,9 +211,9 @@ class ArmComputedTorque:
         and, unless ``design`` fixes the design (``gains``,
         ``bandwidth_hz``, ``link_damping``, ...), with each faster motor
         loop of :data:`ctc.flexible.ROBUST_DESIGNS`
-        (:func:`ctc.flexible.robust_design_gains`) -- up to the first that
-        holds +-1 pulse (:data:`GOAL_PULSES`) on every scenario --, and the rigid-equivalent
-        CTC (this class with the rigid-equivalent beta) run on the
+        (:func:`ctc.flexible.robust_design_gains`; up to the first that
+        holds +-1 pulse, :data:`GOAL_PULSES`, on every scenario), and the
+        rigid-equivalent CTC (this class with the rigid-equivalent beta) run on the
         identified two-mass arm along the first :data:`FLEXIBLE_CHECK_S`
         seconds of the log's reference (:func:`plant.simulate_closed_loop`)
         over the model-error set :data:`FLEXIBLE_CHECK_SCENARIOS` (stiffness
@@ -553,7 +553,8 @@ GOAL_PULSES = 1
 #: The order in which the check runs a design's scenarios: the softer gearbox first (the
 #: scenario loose designs fail, so a design that cannot win stops after one run), the
 #: nominal robot last.
-_CHECK_ORDER = (1, 2, 3, 4, 0)
+_CHECK_ORDER = tuple(sorted(range(len(FLEXIBLE_CHECK_SCENARIOS)), key=lambda i: (
+    FLEXIBLE_CHECK_SCENARIOS[i][0] == "nominal", FLEXIBLE_CHECK_SCENARIOS[i][1] >= 1.0)))
 
 #: Keywords that fix the flexible CTC's design: with any of them the caller's design is
 #: the only flexible candidate (no search over :data:`ctc.flexible.ROBUST_DESIGNS`).
