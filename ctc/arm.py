@@ -208,8 +208,9 @@ class ArmComputedTorque:
         :class:`ArmFlexibleComputedTorque`, checked first (the robust design
         of issue 21, item 3, as :func:`ctc.flexible.select_robust_design`
         for the PUMA path): the flexible-joint CTC with the default gains
-        and, unless ``design`` fixes the design (``gains``,
-        ``bandwidth_hz``, ``link_damping``, ...), with each faster motor
+        and, unless ``design`` fixes the design (a key of
+        :data:`ctc.flexible.DESIGN_KEYS`: ``gains``, ``bandwidth_hz``,
+        ``link_damping``, ...), with each faster motor
         loop of :data:`ctc.flexible.ROBUST_DESIGNS`
         (:func:`ctc.flexible.robust_design_gains`; up to the first that
         holds +-1 pulse, :data:`GOAL_PULSES`, on every scenario), and the
@@ -556,11 +557,6 @@ GOAL_PULSES = 1
 _CHECK_ORDER = tuple(sorted(range(len(FLEXIBLE_CHECK_SCENARIOS)), key=lambda i: (
     FLEXIBLE_CHECK_SCENARIOS[i][0] == "nominal", FLEXIBLE_CHECK_SCENARIOS[i][1] >= 1.0)))
 
-#: Keywords that fix the flexible CTC's design: with any of them the caller's design is
-#: the only flexible candidate (no search over :data:`ctc.flexible.ROBUST_DESIGNS`).
-_DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_bandwidth_hz",
-                "delay_samples", "link_damping"}
-
 
 def _flexible_candidates(result, log, design):
     """The flexible designs :func:`_checked_flexible` compares: (name, factory) pairs.
@@ -570,10 +566,10 @@ def _flexible_candidates(result, log, design):
     (faster motor loops, :func:`ctc.flexible.robust_design_gains`), as the PUMA path's
     robust design (:func:`ctc.flexible.select_robust_design`).
     """
-    from .flexible import ROBUST_DESIGNS, robust_design_gains
+    from .flexible import DESIGN_KEYS, ROBUST_DESIGNS, robust_design_gains
 
     out = [("default", lambda: ArmFlexibleComputedTorque.from_result(result, log, **design))]
-    if _DESIGN_KEYS & set(design):
+    if DESIGN_KEYS & set(design):
         return out
     for factor, link_damping in ROBUST_DESIGNS:
         def make(factor=factor, link_damping=link_damping):

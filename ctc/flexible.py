@@ -117,7 +117,7 @@ from .computed_torque import (
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
            "robust_design_gains", "select_robust_design", "MAX_BANDWIDTH_FRACTION",
-           "MAX_ESTIMATOR_FRACTION",
+           "MAX_ESTIMATOR_FRACTION", "DESIGN_KEYS",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
            "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING", "two_mass_observer_gains"]
 
@@ -820,7 +820,7 @@ def _build_from_result(result, log, **options):
         return ctrl
     import warnings
 
-    if robust == "fallback" and not (_DESIGN_KEYS & set(options)):
+    if robust == "fallback" and not (DESIGN_KEYS & set(options)):
         ctrl, report = select_robust_design(ctrl, d, target, **options)
     else:
         report = robustness_check(ctrl, d, target)
@@ -901,8 +901,9 @@ def select_robust_design(first, model, log, **options):
     return ctrl, report
 
 
-#: Options that fix the flexible CTC's design (no design search with them).
-_DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_bandwidth_hz",
+#: Options that fix the flexible CTC's design: with any of them the caller's design is
+#: the only one (no search over :data:`ROBUST_DESIGNS`, here or in :mod:`ctc.arm`).
+DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_bandwidth_hz",
                 "delay_samples", "link_damping"}
 
 #: Candidate designs of the robust flexible-joint CTC, besides the default:
