@@ -563,21 +563,16 @@ def _flexible_candidates(result, log, design):
 
     The caller's design (the default gains without design keywords) first, then -- unless
     the caller fixed the design -- the robust candidates of :data:`ctc.flexible.ROBUST_DESIGNS`
-    (faster motor loops, :func:`ctc.flexible.robust_design_gains`), as the PUMA path's
+    (faster motor loops, :func:`ctc.flexible.robust_design_options`), as the PUMA path's
     robust design (:func:`ctc.flexible.select_robust_design`).
     """
-    from .flexible import DESIGN_KEYS, ROBUST_DESIGNS, robust_design_gains
+    from .flexible import DESIGN_KEYS, robust_design_options
 
-    out = [("default", lambda: ArmFlexibleComputedTorque.from_result(result, log, **design))]
-    if DESIGN_KEYS & set(design):
-        return out
-    for factor, link_damping in ROBUST_DESIGNS:
-        def make(factor=factor, link_damping=link_damping):
-            return ArmFlexibleComputedTorque.from_result(
-                result, log, gains=robust_design_gains(result["rig"], factor),
-                link_damping=link_damping, **design)
-        out.append((f"bandwidth x{factor:g}, link damping {link_damping:g}", make))
-    return out
+    out = [("default", {})]
+    if not DESIGN_KEYS & set(design):
+        out += robust_design_options(result["rig"])
+    return [(name, lambda extra=extra: ArmFlexibleComputedTorque.from_result(
+        result, log, **extra, **design)) for name, extra in out]
 
 
 def _checked_flexible(result, log, **design):

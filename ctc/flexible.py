@@ -116,7 +116,8 @@ from .computed_torque import (
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
-           "robust_design_gains", "select_robust_design", "MAX_BANDWIDTH_FRACTION",
+           "robust_design_gains", "robust_design_options", "select_robust_design",
+           "MAX_BANDWIDTH_FRACTION",
            "MAX_ESTIMATOR_FRACTION", "DESIGN_KEYS",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
            "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING", "two_mass_observer_gains"]
@@ -890,10 +891,9 @@ def select_robust_design(first, model, log, **options):
     """
     ctrl, report = first, robustness_check(first, model, log)
     first.robustness = report
-    for factor, link_damping in ROBUST_DESIGNS:
+    for _, design in robust_design_options(log.rig):
         cand = FlexibleJointComputedTorqueController.from_log(
-            model.f, log, **model.joints(), gains=robust_design_gains(log.rig, factor),
-            link_damping=link_damping, **options)
+            model.f, log, **model.joints(), **design, **options)
         rep = robustness_check(cand, model, log)
         cand.robustness = rep
         if _worst(rep) < _worst(report):
@@ -954,6 +954,27 @@ def robust_design_gains(rig, factor):
     return design_gains(rig, bandwidth_hz=bw,
                         estimator_bandwidth_hz=np.minimum(OBSERVER_FACTOR * bw,
                                                           MAX_ESTIMATOR_FRACTION * fs))
+
+
+def robust_design_options(rig):
+    """The candidate designs of :data:`ROBUST_DESIGNS` as keyword arguments of a flexible CTC.
+
+    Parameters
+    ----------
+    rig : plant.logs.rig.Rig
+        The rig (sample time, encoders; any number of joints).
+
+    Returns
+    -------
+    list of (str, dict)
+        Per candidate its name (``"bandwidth x2, link damping 0.7"``) and
+        ``gains`` (:func:`robust_design_gains`) and ``link_damping``, for
+        :meth:`FlexibleJointComputedTorqueController.from_log` and
+        :class:`ctc.arm.ArmFlexibleComputedTorque` alike.
+    """
+    return [(f"bandwidth x{factor:g}, link damping {link_damping:g}",
+             dict(gains=robust_design_gains(rig, factor), link_damping=link_damping))
+            for factor, link_damping in ROBUST_DESIGNS]
 
 
 #: A rigid fallback must track the identified robot (the nominal scenario) within
