@@ -292,6 +292,25 @@ def test_three_updates_of_no_one_mass_are_not_a_payload():
     assert not _one_payload([2.09, 1.43, 0.71])
 
 
+def test_the_window_after_an_update_judges_it():
+    """Supervisor step 5's trial: the first window under an update that disagrees with it
+    twice in a row is no constant payload, unless the second disagreeing estimate
+    corroborates the update before the one on trial (A, B, then C ~ A: B the outlier,
+    the changes benchmark's 0014), and only once."""
+    from ctc.adaptive import _one_payload, _trial_strike
+
+    assert _trial_strike(3.05, 3.02, [3.02], 0) == (0, False)        # confirmed
+    assert _trial_strike(1.65, 3.64, [3.64], 0) == (1, False)        # one strike
+    # 3.64, 1.65, then 3.02: corroborates 3.64, which _one_payload reads as one payload too
+    assert _trial_strike(3.02, 1.65, [3.64, 1.65], 1) == (2, False)
+    assert _one_payload([3.64, 1.65, 3.02])
+    # a second disagreement that is nobody's payload, or a third in a row: inconsistent
+    assert _trial_strike(2.40, 1.65, [3.64, 1.65], 1) == (2, True)
+    assert _trial_strike(1.70, 3.02, [3.64, 1.65, 3.02], 2) == (3, True)
+    # the empty gripper corroborates nothing (a put-down is an update of its own)
+    assert _trial_strike(0.0, 1.0, [0.02, 1.0], 1) == (2, True)
+
+
 def test_a_refinement_pools_the_estimates_of_the_payload(paper_log, prior):
     """Step 3: a refinement installs the mean payload of its estimates; f is affine in the
     linear payload vector, so the mean f is the model of the mean payload."""
