@@ -148,8 +148,9 @@ change in a linear-Gaussian regression):
    version (where 13 of 18 updates in the benchmark's non-payload cases had
    a rival ahead, 4 of 71 in its payload cases), the tests' 4 kg pick-up --
    no friction change at all -- had its first window favour friction
-   (z = 1.17) and missed +-1 pulse from 0.5 s after it (3 / 3).  A change that no plausible payload explains, or a
-   change with no significant payload estimate --
+   (z = 1.17) and missed +-1 pulse from 0.5 s after it (3 / 3).  A change
+   that no plausible payload explains, or a change with no significant
+   payload estimate --
    friction, damping, stiffness, a collision -- is **not**
    turned into a payload: the model is kept, and (step 5) an event ``'unexplained'`` is
    recorded in the controller's ``events`` and an
@@ -218,10 +219,11 @@ change in a linear-Gaussian regression):
    That exception took the changes benchmark's 0014 (flexible arm, 3.02 kg
    picked up; estimates 3.64, 1.65, 3.02 kg) from a return to the prior
    for the rest of the run (13 / 3 pulses, the static CTC's) to 3.05 kg
-   (4 / 1 pulses: the wrong 1.65 kg model acted for 0.2 s); nor are three successive updates of which no two are
-   one mass (25 % + 50 g) and none is to the empty gripper (a pick-up gives
-   at most one estimate from a window spanning it, then agreeing ones; a
-   put-down is an update to no payload).  Then the controller returns, after the
+   (4 / 1 pulses: the wrong 1.65 kg model acted for 0.2 s); nor are three
+   successive updates of which no two are one mass (25 % + 50 g) and none
+   is to the empty gripper (a pick-up gives at most one estimate from a
+   window spanning it, then agreeing ones; a put-down is an update to no
+   payload).  Then the controller returns, after the
    identification's latency, to the prior -- the static CTC's model: the
    episode's estimates are no evidence of a payload, nor is a last good model
    one of its windows found (a friction change mimics a payload for a window
