@@ -1103,10 +1103,12 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers):
     rig = log.rig if not unknown else dataclasses.replace(
         log.rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
         coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"]))
-    expressions = tuple(rigid.expressions[:nb]) + tuple(
-        f"joint {what} of {j}" for what in ("log10 stiffness (N m/rad)", "damping (N m s/rad)",
-                                             "reflected motor inertia Jm k^2 (kg m^2)")
-        + (("backlash width (rad)",) if space.backlash else ()) for j in log.joint_names)         + tuple(rigid.expressions[nb:])
+    joint_what = (("log10 stiffness (N m/rad)", "damping (N m s/rad)",
+                   "reflected motor inertia Jm k^2 (kg m^2)")
+                  + (("backlash width (rad)",) if space.backlash else ()))
+    expressions = (tuple(rigid.expressions[:nb])
+                   + tuple(f"joint {what} of {j}" for what in joint_what for j in log.joint_names)
+                   + tuple(rigid.expressions[nb:]))
     out = ArmIdentificationResult(dict(rigid))
     out.update(x=x, beta=x[:nb].copy(), fun=float(ref.fun), output_error=float(sim.objective[0]),
                nfev=int(rigid.nfev) + int(fit["nfev"]), nit=int(rigid.nit) + int(ref.nit),
