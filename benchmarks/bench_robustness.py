@@ -637,8 +637,27 @@ def test_log_settings() -> dict:
     }
 
 
+#: Drawn logs of this suite committed beside the five (seed, index): a draw whose
+#: default identification once failed, kept as a regression test --
+#: 20261205/13, rigid joints with heavy unknown Coulomb friction, where the GA's
+#: starts all ended in a wrong basin (f7 8 % off, a flexible model chosen) until
+#: the refinement also started from the IDIM-LS estimate.
+DRAWN_TEST_LOGS = ((20261205, 13),)
+
+
 def make_test_logs(out: Path = TEST_LOG_DIR) -> None:
+    """Write the five fixed logs of :func:`test_log_settings` and the drawn ones of
+    :data:`DRAWN_TEST_LOGS` (their draws' stems) to ``out``."""
+    import shutil
+    import tempfile
+
     out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed, index in DRAWN_TEST_LOGS:
+            csv = generate(seed, index, Path(tmp))
+            for suffix in (".csv", ".json", ".truth.json"):
+                shutil.copyfile(csv.parent / f"{csv.stem}{suffix}", out / f"{csv.stem}{suffix}")
+            print(f"{csv.stem}: drawn (seed {seed}, index {index})", flush=True)
     for i, (stem, s) in enumerate(test_log_settings().items()):
         rho = ir.stability_radius(s)
         if rho > RHO_MAX:
@@ -704,7 +723,7 @@ def main(argv=None):
                          "controller change); logs without a cached result are evaluated")
     ap.add_argument("--rst", type=Path, default=None)
     ap.add_argument("--make-test-logs", action="store_true",
-                    help="(re)write the five committed logs in tests/data/independent and exit")
+                    help="(re)write the committed logs in tests/data/independent and exit")
     a = ap.parse_args(argv)
     if a.make_test_logs:
         make_test_logs()

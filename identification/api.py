@@ -149,7 +149,11 @@ def identify(
     method : {'ga+pem', 'paper', 'idim-ls', 'idim-iv'}
         ``'paper'`` runs the paper's GA alone (binary chromosome, its
         settings); ``'ga+pem'`` (default) runs the same GA on Gray-coded
-        chromosomes and then the refinement; ``'idim-ls'`` the classical
+        chromosomes and then the refinement (from the GA's best distinct
+        individuals; when they all end more than
+        :data:`~identification.flexible.FLOOR_FACTOR` quantisation floors up
+        and the IDIM-LS estimate starts lower, from it too:
+        ``refinement['idim_start']``); ``'idim-ls'`` the classical
         inverse dynamic model by least squares on the logged currents
         (:mod:`identification.idim`; the base parameters only), ``'idim-iv'``
         the same with the simulated closed loop's regressor as instruments.
@@ -471,6 +475,70 @@ def _user_callback(callback, stage, nfev):
     return fn
 
 
+def _default_space(space) -> bool:
+    """The base parameters f1..f9, with the friction the sidecar leaves unknown or not."""
+    return type(space) is BaseParameters or (
+        type(space) is FrictionParameters and type(space.base) is BaseParameters)
+
+
+def _idim_restart(log, problem, ref, bounds, state, ropts):
+    """A further refinement from the IDIM-LS estimate when the GA's starts end far off.
+
+    The GA's best individuals may all lie in a wrong basin of the output error
+    (a log with heavy unknown Coulomb friction: the refined prediction-error
+    cost hundreds of quantisation floors above a point the classical inverse
+    dynamic model, :func:`identification.idim.idim_ls`, finds in a fraction of
+    a second).  When the refined cost exceeds
+    :data:`~identification.flexible.FLOOR_FACTOR` floors (``n_samples * 2 / 12``
+    pulses^2: each count known to a unit cell) and the IDIM-LS estimate's
+    prediction-error cost is already lower, it is refined too and the lower of
+    the two is kept.  (Gautier's IDIM as the initial guess of an output-error
+    refinement: M. Gautier, W. Khalil, P. P. Restrepo, "Identification of the
+    dynamic parameters of a closed loop robot", ICRA 1995; on logs the GA's
+    starts fit, nothing changes: their cost is at the floor, or below the
+    estimate's.)
+
+    Returns
+    -------
+    ref : RefineResult
+        The refinement kept.
+    record : dict or None
+        ``start_cost``, ``fun`` and ``used`` of the IDIM-LS start (None when it
+        was not tried).
+    """
+    from .flexible import FLOOR_FACTOR
+    from .idim import idim_ls
+
+    floor = log.n_samples * np.asarray(log.e_pulses).shape[1] / 12.0
+    if not np.isfinite(ref.fun) or ref.fun <= FLOOR_FACTOR * floor:
+        return ref, None
+    try:
+        x_idim = np.asarray(idim_ls(log)["x"], dtype=float)
+    except (ValueError, np.linalg.LinAlgError):
+        return ref, None
+    k = x_idim.size
+    if k + (0 if state is None else len(state[0])) != bounds.shape[0]:
+        return ref, None
+    start = x_idim if state is None else np.concatenate([x_idim, state[0]])
+    start = np.clip(start, bounds[:, 0], bounds[:, 1])
+    r0 = problem.residuals(start[None])[0]
+    c0 = float(r0 @ r0)
+    record = dict(start_cost=c0, fun=None, used=False)
+    if not (np.isfinite(c0) and c0 < ref.fun):
+        return ref, record
+    alt = refine(problem, start[None], bounds, max_iter=int(ropts["max_iter"]),
+                 ftol=float(ropts["ftol"]))
+    record["fun"] = float(alt.fun)
+    if alt.interrupted or not alt.fun < ref.fun:
+        return ref, record
+    record["used"] = True
+    alt.message = (f"{ref.message}; then from the IDIM-LS estimate (the GA's starts ended at "
+                   f"{ref.fun:.4g} pulses^2, {ref.fun / floor:.3g} quantisation floors): {alt.message}")
+    alt.nfev += ref.nfev
+    alt.nit += ref.nit
+    return alt, record
+
+
 def _refine_starts(space, log, ga, n_starts):
     """The GA's best and the best distinct individuals of its final population."""
     if ga is None:
@@ -559,12 +627,18 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         ref_cb = _user_callback(callback, "refine", nfev)
         ref = refine(problem, starts, rb, max_iter=int(ropts["max_iter"]), ftol=float(ropts["ftol"]),
                      callback=lambda i, n, xs, c: ref_cb(xs[:k], c, start=i, n_starts=n))
+        idim_start = None
+        if (ga is not None and not ref.interrupted and controller is None and lowpass_hz is None
+                and _default_space(space)):
+            ref, idim_start = _idim_restart(log, problem, ref, rb, state, ropts)
         x = ref.x[:k]
         interrupted = ref.interrupted
         messages.append(ref.message)
         nit += ref.nit
         refinement = dict(start_costs=ref.start_costs, costs=ref.costs, fun=ref.fun,
                           nfev=ref.nfev, nit=ref.nit, merged=ref.merged, gain=ropts["gain"])
+        if idim_start is not None:
+            refinement["idim_start"] = idim_start
         if ga is not None:
             refinement["ga_f"] = space.to_f(ga.x, log)
         if state is not None:
