@@ -481,7 +481,7 @@ def _default_space(space) -> bool:
         type(space) is FrictionParameters and type(space.base) is BaseParameters)
 
 
-def _idim_restart(log, problem, ref, bounds, state, ropts):
+def _idim_restart(log, problem, ref, bounds, state, ropts, callback=None):
     """A further refinement from the IDIM-LS estimate when the GA's starts end far off.
 
     The GA's best individuals may all lie in a wrong basin of the output error
@@ -497,6 +497,10 @@ def _idim_restart(log, problem, ref, bounds, state, ropts):
     dynamic parameters of a closed loop robot", ICRA 1995; on logs the GA's
     starts fit, nothing changes: their cost is at the floor, or below the
     estimate's.)
+
+    ``callback`` is :func:`~identification.refinement.refine`'s (a stop it
+    asks for during the further refinement keeps the first one, marked
+    interrupted).
 
     Returns
     -------
@@ -527,9 +531,12 @@ def _idim_restart(log, problem, ref, bounds, state, ropts):
     if not (np.isfinite(c0) and c0 < ref.fun):
         return ref, record
     alt = refine(problem, start[None], bounds, max_iter=int(ropts["max_iter"]),
-                 ftol=float(ropts["ftol"]))
+                 ftol=float(ropts["ftol"]), callback=callback)
     record["fun"] = float(alt.fun)
-    if alt.interrupted or not alt.fun < ref.fun:
+    if alt.interrupted:
+        ref.interrupted, ref.message = True, f"{ref.message}; {alt.message}"
+        return ref, record
+    if not alt.fun < ref.fun:
         return ref, record
     record["used"] = True
     alt.message = (f"{ref.message}; then from the IDIM-LS estimate (the GA's starts ended at "
@@ -630,7 +637,9 @@ def _search(log, space, *, method, rng, seed, ga_settings, ropts, callback, work
         idim_start = None
         if (ga is not None and not ref.interrupted and controller is None and lowpass_hz is None
                 and _default_space(space)):
-            ref, idim_start = _idim_restart(log, problem, ref, rb, state, ropts)
+            ref, idim_start = _idim_restart(
+                log, problem, ref, rb, state, ropts,
+                callback=lambda i, n, xs, c: ref_cb(xs[:k], c, start=i, n_starts=n))
         x = ref.x[:k]
         interrupted = ref.interrupted
         messages.append(ref.message)
