@@ -297,9 +297,7 @@ def identify(
                   ropts=ropts, callback=callback, workers=workers, progress=progress,
                   lowpass_hz=lowpass_hz, substeps=substeps, controller=controller)
     t_search = time.perf_counter()
-    default_space = type(space) is BaseParameters or (
-        type(space) is FrictionParameters and type(space.base) is BaseParameters)
-    eligible = (default_space and lowpass_hz is None and method == "ga+pem"
+    eligible = (_default_space(space) and lowpass_hz is None and method == "ga+pem"
                 and controller is None and log.rig.q0_rad is not None
                 and not res.interrupted and (model == "flexible" or (
                     ga_options is None and refine_options is None)))
@@ -510,10 +508,10 @@ def _idim_restart(log, problem, ref, bounds, state, ropts, callback=None):
         ``start_cost``, ``fun`` and ``used`` of the IDIM-LS start (None when it
         was not tried).
     """
-    from .flexible import FLOOR_FACTOR
+    from .flexible import FLOOR_FACTOR, quantisation_floor
     from .idim import idim_ls
 
-    floor = log.n_samples * np.asarray(log.e_pulses).shape[1] / 12.0
+    floor = quantisation_floor(np.asarray(log.e_pulses).size)
     if not np.isfinite(ref.fun) or ref.fun <= FLOOR_FACTOR * floor:
         return ref, None
     try:

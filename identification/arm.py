@@ -923,11 +923,11 @@ def _held_cost(problem, x, held, residuals=False):
 def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, ftol):
     """The model choice and the flexible fit of :func:`identify_arm` (its docstring)."""
     from .arm_flexible import ARM_BACKLASH_GRID, ArmFlexibleSpace, fit_flexible_arm
-    from .flexible import CHOICE_RATIO, FLOOR_FACTOR, INADEQUATE_FACTOR
+    from .flexible import CHOICE_RATIO, FLOOR_FACTOR, INADEQUATE_FACTOR, quantisation_floor
     from .refinement import MaskedProblem, held_back_mask
 
     n, nb = log.n_joints, res.plant.base.rank
-    floor = log.n_samples * n / 12.0
+    floor = quantisation_floor(log.n_samples * n)
     level = res.fun / floor
     if model == "auto" and level <= FLOOR_FACTOR:
         res.model_choice = dict(
@@ -936,7 +936,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
                    f"(prediction-error cost {level:.3g} x n/12 <= {FLOOR_FACTOR})")
         return res
     fit_mask, held = held_back_mask(log.n_samples, n, log.rig.sample_time_s)
-    floor_h = float(held.sum()) / 12.0
+    floor_h = quantisation_floor(held.sum())
     limit = INADEQUATE_FACTOR * floor_h
     # the rigid model refit without the held-back blocks
     ref_r = refine(MaskedProblem(problem, fit_mask), res.x[None], bounds, max_iter=20, ftol=ftol)
