@@ -50,9 +50,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import independent_arm as ia  # noqa: E402
-
-TOLERANCE = 0.01
-WELL_EXCITED_RSE = TOLERANCE / 3.0
+from bench_arms import well_excited_check  # noqa: E402
 
 
 def write_logs(n: int, seed: int, directory: Path) -> list[Path]:
@@ -68,14 +66,9 @@ def write_logs(n: int, seed: int, directory: Path) -> list[Path]:
 def accuracy(result, path: Path) -> dict:
     """Well-excited base parameters against the truth file, and the unknown friction's flag."""
     truth = json.loads(path.with_suffix(".truth.json").read_text())
-    beta = np.asarray(truth["beta"], dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.abs(np.asarray(result.beta, dtype=float) / beta - 1.0)
-    well = np.asarray(result.x_rse, dtype=float)[:len(beta)] < WELL_EXCITED_RSE
-    worst = float(np.max(err[well])) if np.any(well) else float("nan")
-    return dict(n_base=len(beta), n_well=int(well.sum()),
-                params_ok=bool(result.success and np.all(err[well] <= TOLERANCE)),
-                worst_pct=100.0 * worst,
+    err, well, worst, ok = well_excited_check(result, truth["beta"])
+    return dict(n_base=len(err), n_well=int(well.sum()), params_ok=ok,
+                worst_pct=100.0 * float(err[worst]) if worst >= 0 else float("nan"),
                 friction=("known" if truth["settings"].get("friction_known") else "identified"))
 
 

@@ -47,6 +47,35 @@ TOLERANCE = 0.01
 WELL_EXCITED_RSE = TOLERANCE / 3.0
 
 
+def well_excited_check(res, beta):
+    """The criterion of step 3: every well-excited base parameter within TOLERANCE.
+
+    Parameters
+    ----------
+    res : identification.arm.ArmIdentificationResult
+    beta : ndarray, shape (r,)
+        The true base parameters.
+
+    Returns
+    -------
+    err : ndarray, shape (r,)
+        Relative errors of the identified beta.
+    well : ndarray of bool, shape (r,)
+        Relative standard error below :data:`WELL_EXCITED_RSE`.
+    worst : int
+        Index of the largest well-excited error (-1 when none is well excited).
+    ok : bool
+        The identification succeeded and every well-excited error is within
+        :data:`TOLERANCE`.
+    """
+    beta = np.asarray(beta, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.abs(np.asarray(res.beta, dtype=float) / beta - 1.0)
+    well = np.asarray(res.x_rse, dtype=float)[:len(beta)] < WELL_EXCITED_RSE
+    worst = int(np.argmax(np.where(well, err, -1.0))) if np.any(well) else -1
+    return err, well, worst, bool(np.all(err[well] <= TOLERANCE)) and bool(res.success)
+
+
 def run_case(family: str, seed: int, compliant: bool = False) -> dict:
     from ctc.arm import ArmComputedTorque
     from identification.arm import identify_arm
@@ -57,11 +86,7 @@ def run_case(family: str, seed: int, compliant: bool = False) -> dict:
     t_log = time.perf_counter() - t0
     names, beta = ia.truth_beta(s, log.model)
     res = identify_arm(log)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.abs(res.beta / beta - 1.0)
-    well = res.x_rse[:len(beta)] < WELL_EXCITED_RSE
-    worst = int(np.argmax(np.where(well, err, -1.0))) if np.any(well) else -1
-    ok_params = bool(np.all(err[well] <= TOLERANCE)) and res.success
+    err, well, worst, ok_params = well_excited_check(res, beta)
     fr_err = fr_ok = None
     if not s.friction_known:  # the identified friction (joint side) against the drawn one
         from identification.arm import friction_layout

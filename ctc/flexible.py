@@ -904,7 +904,7 @@ def select_robust_design(first, model, log, **options):
 #: Options that fix the flexible CTC's design: with any of them the caller's design is
 #: the only one (no search over :data:`ROBUST_DESIGNS`, here or in :mod:`ctc.arm`).
 DESIGN_KEYS = {"gains", "bandwidth_hz", "damping", "estimator", "estimator_bandwidth_hz",
-                "delay_samples", "link_damping"}
+               "delay_samples", "link_damping"}
 
 #: Candidate designs of the robust flexible-joint CTC, besides the default:
 #: (loop bandwidth as a multiple of the default :func:`ctc.design.default_bandwidth_hz`,
