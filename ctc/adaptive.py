@@ -108,7 +108,27 @@ change in a linear-Gaussian regression):
    one such window (benchmark case 0029: x_p -0.32 +- 0.32 m beside 0.01 +-
    0.02 m) put the flexible arm's model 0.07 in f5 off and its joint 3 three
    pulses off a second later; weighted, f is within 0.003 of the truth and the
-   arm within a pulse.  **The rival hypotheses.**  A payload is not the only
+   arm within a pulse.  **An update installs the episode's evidence.**  A 0.1 s
+   window determines a combination of mass and centre of mass, not each: on
+   benchmark case 0025 (rigid arm, 2.87 kg picked up) successive windows read
+   2.99, 1.83 and 1.57 kg, each rejecting the model the one before installed,
+   while a 2.83 kg payload came within 3 pulses^2 of the best fit of every one of
+   them -- and three disagreeing updates made the episode "inconsistent" and
+   the controller went back to the prior.  So every update (to another payload
+   or a refinement) pools the window's estimate with the *episode's*: the
+   significant, plausible and explaining estimates since the model last
+   described the robot (a "no change" window; a rollback clears them too),
+   across the updates in between, each kept when it is one payload with the
+   window's by Wald's test (``_one_payload_test``: the difference of the two
+   linear vectors against the sum of their covariances, chi-square with 4
+   degrees of freedom at ``false_alarm``) -- which leaves out the window that
+   spans the change (0025's 2.0 kg: chi-square 22 to 99 against the later
+   windows, 3 to 20 among them) -- and when the window itself admits the pooled
+   payload: its likelihood ratio against the window's own estimate (each from its
+   own refined start state) within the significance threshold (a window that
+   spans a put-down passed Wald's test with the estimates before it and did not
+   fit their payload).  Any two of 0025's later windows pool to 2.83-2.95 kg;
+   the update after 1.83 kg installs 2.86 kg and the arm holds +-1 pulse.  **The rival hypotheses.**  A payload is not the only
    change with four degrees of freedom that a window can fit: before an
    update to another payload than the model's (not to the empty gripper:
    that is the prior, the static CTC's model, which an update may always
@@ -519,6 +539,30 @@ def _pooled(estimates, a3=None):
     payload = dict(estimates[-1][1], mass_kg=pl.mass_kg, com_m=list(pl.com_m),
                    izz_kgm2=pl.izz_kgm2, vector=[float(v) for v in p], pooled=len(estimates))
     return f, payload
+
+
+def _one_payload_test(a, b, false_alarm) -> bool:
+    """Whether two windows' payload estimates are of one payload: Wald's test.
+
+    With the linear payload vectors ``p = [m, m xp, m yp, J]`` of two independent
+    windows and their covariances (``vector``, ``vector_cov``:
+    :func:`_vector_covariance`), ``d = p_a - p_b`` has covariance ``C_a + C_b``
+    when both windows see one payload, and ``d' (C_a + C_b)^+ d`` is chi-square with
+    4 degrees of freedom; the estimates are one payload unless it exceeds the
+    quantile at ``false_alarm``.  False when either covariance is missing or not
+    finite.
+    """
+    from scipy.stats import chi2
+
+    ca, cb = a.get("vector_cov"), b.get("vector_cov")
+    if ca is None or cb is None:
+        return False
+    C = np.asarray(ca, dtype=float) + np.asarray(cb, dtype=float)
+    d = np.asarray(a["vector"], dtype=float) - np.asarray(b["vector"], dtype=float)
+    if not (np.all(np.isfinite(C)) and np.all(np.isfinite(d))):
+        return False
+    q = float(d @ np.linalg.pinv(C, hermitian=True) @ d)
+    return q <= float(chi2.isf(false_alarm, _N_PAYLOAD))
 
 
 def _agree_off_model(a, b, model, minimum=0.05) -> bool:
@@ -973,6 +1017,8 @@ class AdaptiveComputedTorqueController:
         self._rival_terms = {}  # per rival, Vuong's terms (sum d, n tau var d) of the run's windows
         self._update_masses = []  # masses (kg) of the accepted updates since the last isolation
         self._pool = []  # (f, payload) of the estimates since the payload in use took effect
+        self._episode = []  # (f, payload) of the same estimates since the model last
+        # described the robot (across updates): the evidence of the change in progress
         self._isolated = False  # a change no payload explained was isolated (step 5)
         self._warned = False
         self._pending = None  # (k_effective, f, payload dict, 'update'|'refinement'|'rollback')
@@ -1275,11 +1321,33 @@ class AdaptiveComputedTorqueController:
             decision = "unexplained"
             reason = (f"the model leaves {per_value_now:.3g} pulses^2 per value (baseline "
                       f"{baseline:.3g}) and no payload reduces it significantly")
-        if (significant and not first and payload_est is not None
-                and per_value_new <= self.explain_factor * floor and self._plausible(res) is None):
+        own = (f_est, payload_est)
+        measured = bool(significant and not first and payload_est is not None
+                        and per_value_new <= self.explain_factor * floor
+                        and self._plausible(res) is None)
+        if measured:
             # every window's significant, plausible, explaining estimate is a measurement of
             # the payload the robot carries: pooled for refinements (step 3)
-            self._pool.append((f_est, payload_est))
+            self._pool.append(own)
+        mates = []
+        if decision == "update" and payload_est is not None:
+            # an update installs the episode's evidence, not one window's: the estimates
+            # since the model last described the robot that are one payload with this
+            # window's (Wald's test at false_alarm), pooled with it -- a 0.1 s window
+            # determines a combination of mass and centre of mass, not each
+            mates = [q for q in self._episode
+                     if _one_payload_test(q[1], payload_est, self.false_alarm)]
+            if mates:
+                f_pool, payload_pool = _pooled(mates + [own], a3=self.log.rig.a3_m)
+                # and the window itself admits the pooled payload (a window that spans a
+                # change can pass the test with the estimates before it, and not fit them)
+                if self._window_admits(window, law, space, substeps, x0_new, f_pool, e_est):
+                    f_est, payload_est = f_pool, payload_pool
+                    mass = float(payload_est["mass_kg"])
+                else:
+                    mates = []
+        if measured:
+            self._episode.append(own)
         if first:
             # the first identified windows set the baseline: how well the prior describes
             # this robot under this controller (a prior that fits only roughly -- a rigid
@@ -1289,6 +1357,7 @@ class AdaptiveComputedTorqueController:
             self._quiet.append(per_value_now)
             self.baseline = max(1.0 / stats["n_values"], max(self._calibration))
         if decision in ("no change", "baseline"):
+            self._episode = []
             # the model in use describes this window: it is the last good model (steps 4, 5)
             self._good = (f_used, self.payload if f_used is self.f else self._good[1])
             self._strikes = 0
@@ -1417,7 +1486,8 @@ class AdaptiveComputedTorqueController:
                     for a, b in zip(self._drive_run, self._drive_run[1:])) for j in range(2))
         accepted = decision == "update"
         self.identifications.append(dict(window_s=window.window_s, wall_time_s=wall,
-                                         mass_kg=mass, x=np.asarray(res.x, dtype=float).tolist(),
+                                         mass_kg=mass, pooled=len(mates) + 1,
+                                         x=np.asarray(res.x, dtype=float).tolist(),
                                          fun=float(res.fun), fun_current=stats["y_now"],
                                          lr=stats["lr"], threshold=self._lr_threshold,
                                          tau=stats["tau"], tracking_mse=mse, decision=decision,
@@ -1432,6 +1502,7 @@ class AdaptiveComputedTorqueController:
         self._busy_until = k_eff
         if decision in ("inconsistent", "stale"):
             self._update_masses = []
+            self._episode = []
             self._isolated = True
             # back to the prior, the static CTC's model: the episode's estimates, and a last
             # good model one of its windows found, are not evidence of a payload (and a last
@@ -1519,9 +1590,12 @@ class AdaptiveComputedTorqueController:
                 # it was found, pooled by their information, not the last window's alone (f
                 # is affine in the linear payload vector, so the pooled f is the pooled
                 # payload's)
-                f_est, payload_est = _pooled([q for q in self._pool
-                                              if _same_mass(q[1]["mass_kg"], mass)]
-                                             or [(f_est, payload_est)], a3=self.log.rig.a3_m)
+                same = [q for q in self._pool if _same_mass(q[1]["mass_kg"], mass)]
+                if mates:  # the episode's estimates of this payload, and the pool's
+                    same = mates + [own] + [q for q in same
+                                            if not any(q is r for r in mates + [own])]
+                f_est, payload_est = _pooled(same or [(f_est, payload_est)],
+                                             a3=self.log.rig.a3_m)
                 mass = float(payload_est["mass_kg"])
             self._update_masses.append(mass)
             self._pending = (k_eff, f_est, payload_est, kind)
@@ -1582,9 +1656,14 @@ class AdaptiveComputedTorqueController:
 
     def _start_state_of(self, window, law, substeps, guess, space):
         """The current model's start state on a window, refined by prediction error (nuisances)."""
+        return self._refined_start(self.f, window, law, substeps, guess, space)
+
+    @staticmethod
+    def _refined_start(f, window, law, substeps, guess, space):
+        """The start state of the model ``f`` on a window, refined by prediction error."""
         from identification.refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
 
-        f_now = np.asarray(self.f, dtype=float)
+        f_now = np.asarray(f, dtype=float)
         # the model in use: the controller's own link estimate, no payload's deflection
         trend, box = space.model_initial_state(window)
         problem = PredictionErrorProblem(window, to_f=lambda X: np.tile(f_now, (len(X), 1)),
@@ -1596,6 +1675,25 @@ class AdaptiveComputedTorqueController:
         ref = refine(problem, np.stack([np.clip(guess, box[:, 0], box[:, 1]), trend]), box,
                      max_iter=20, ftol=1e-6)
         return np.asarray(ref.x, dtype=float)
+
+    def _window_admits(self, window, law, space, substeps, guess, f, e_own):
+        """Whether a window's data admit the model ``f`` beside its own estimate.
+
+        ``f`` from its own start state (refined as the model in use's,
+        :meth:`_refined_start`) against the window's estimate (simulated errors
+        ``e_own``): the likelihood ratio of :func:`window_statistics` within the
+        significance threshold -- the window does not reject ``f``.
+        """
+        import plant
+
+        f = np.asarray(f, dtype=float)
+        x0 = self._refined_start(f, window, law, substeps, guess, space)
+        sim = plant.simulate_batch(window, f[None], substeps=substeps, errors=True, workers=1,
+                                   initial_state=x0[None], controller=law,
+                                   plant=space.plant(window),
+                                   plant_parameters=space.plant_parameters(f[None], window))
+        st = window_statistics(window.e_pulses, sim.e_pulses[0], e_own)
+        return bool(st["lr"] <= self._lr_threshold)
 
     @property
     def _drive_reference(self):

@@ -366,6 +366,34 @@ def test_a_refinement_weighs_each_estimate_by_its_information(paper_log, prior):
     np.testing.assert_allclose(_pooled(same)[1]["vector"], P.mean(axis=0), rtol=1e-12)
 
 
+def test_one_payload_test_holds_its_false_alarm_rate():
+    """Supervisor step 3: two windows' estimates of one payload pass Wald's test at its
+    stated false-alarm rate (estimates drawn with their covariances: rejected in about
+    ``false_alarm`` of the pairs); estimates ten standard errors apart, or without a
+    covariance, are not one payload."""
+    from ctc.adaptive import _one_payload_test
+
+    rng = np.random.default_rng(5)
+    p = np.array([2.87, -0.33, -1.39, 0.72])
+    A = rng.normal(size=(4, 4))
+    Ca = 0.01 * (A @ A.T + 0.1 * np.eye(4))
+    Cb = np.diag([0.1, 0.05, 0.02, 0.03]) ** 2
+
+    def est(v, C):
+        return dict(vector=v, vector_cov=C)
+
+    n, alpha = 4000, 0.05
+    La, Lb = np.linalg.cholesky(Ca), np.linalg.cholesky(Cb)
+    rejected = sum(not _one_payload_test(est(p + La @ rng.normal(size=4), Ca),
+                                         est(p + Lb @ rng.normal(size=4), Cb), alpha)
+                   for _ in range(n))
+    assert abs(rejected / n - alpha) < 4 * np.sqrt(alpha * (1 - alpha) / n)
+    far = p + 10 * np.sqrt(np.diag(Ca + Cb)) * np.array([1, 0, 0, 0])
+    assert not _one_payload_test(est(p, Ca), est(far, Cb), 1e-3)
+    assert _one_payload_test(est(p, Ca), est(p, Cb), 1e-3)
+    assert not _one_payload_test(est(p, None), est(p, Cb), 1e-3)
+
+
 def test_a_window_estimates_covariance_follows_the_linear_payload_vector():
     """The covariance a window's estimate carries into the pooling: the standard errors
     and correlations of x = [m, xp, yp, Jc] through the Jacobian of p = [m, m xp, m yp,
