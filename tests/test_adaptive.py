@@ -760,3 +760,39 @@ def test_the_window_link_box_holds_any_payload_deflection(drill_log):
         window.rig.a3_m)
     tau = np.abs(PayloadParameters.linear(x) @ Y.T).max(axis=0)
     assert np.all(tau <= bound * (1 + 1e-12)) and np.all(tau >= 0.5 * bound), (tau, bound)
+
+
+def test_a_window_admits_the_payload_it_carries_and_rejects_another(paper_log, prior):
+    """Supervisor step 3, the pooled update's own check: a window of a run with a 2 kg
+    tool admits the loaded model beside an estimate that simulates it (likelihood ratio
+    within the threshold) and rejects the same tool 1.5 kg heavier."""
+    a3 = paper_log.rig.a3_m
+    loaded = plant.add_payload(prior, plant.Payload(2.0, (0.1, 0.02), 0.01), a3)
+    heavier = plant.add_payload(prior, plant.Payload(3.5, (0.1, 0.02), 0.01), a3)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
+    windows = []
+    identify = adaptive._identify
+
+    def capture(rows, k_end):
+        windows.append(list(rows))
+        identify(rows, k_end)
+
+    adaptive._identify = capture
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ctc.UnmodelledChangeWarning)
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=[(1.0, loaded)],
+                                          substeps=SUBSTEPS)
+    assert resp.success
+    rows = next(r for r in windows if r[0][0] * paper_log.rig.sample_time_s > 1.5)
+    window = adaptive.window_log(rows)
+    law = adaptive._ctc.logged_law_with(window, rows[0][5], rows[0][6])
+    space = adaptive._space(rows[0][5])
+    trend, _ = space.model_initial_state(window)
+    x0 = adaptive._refined_start(loaded, window, law, SUBSTEPS, trend, space)
+    F = np.asarray(loaded, dtype=float)[None]
+    e_own = plant.simulate_batch(window, F, substeps=SUBSTEPS, errors=True, workers=1,
+                                 initial_state=x0[None], controller=law,
+                                 plant=space.plant(window),
+                                 plant_parameters=space.plant_parameters(F, window)).e_pulses[0]
+    assert adaptive._window_admits(window, law, space, SUBSTEPS, x0, loaded, e_own)
+    assert not adaptive._window_admits(window, law, space, SUBSTEPS, x0, heavier, e_own)
