@@ -265,7 +265,8 @@ change in a linear-Gaussian regression):
    letting PERSISTENCE_WINDOWS agreeing estimates end this pause too (as they end a rollback's, step 4), at their
    mean -- it took up benchmark case 0025's 2.87 kg again (a window spanning
    the pick-up read 2.0 kg, the next 2.99, then one 1.83 kg; the next three
-   agreed on 2.86 kg, where the prior now stays for the rest of the run),
+   agreed on 2.86 kg, where the prior then stayed for the rest of the run;
+   the episode's pooled evidence, step 3, now keeps 0025 on 2.86 kg),
    but it turned a joint-2 gravity change, whose estimates agree on a
    payload once the episode is over, into a 2.5 kg payload (the test of a
    change no payload explains), and a friction change x0.85 into one too.
