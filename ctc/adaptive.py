@@ -128,8 +128,9 @@ change in a linear-Gaussian regression):
    own refined start state) within the significance threshold (a window that
    spans a put-down passed Wald's test with the estimates before it and did not
    fit their payload).  Any two of 0025's later windows pool to 2.83-2.95 kg;
-   the update after 1.83 kg installs 2.86 kg and the arm holds +-1 pulse.  **The rival hypotheses.**  A payload is not the only
-   change with four degrees of freedom that a window can fit: before an
+   the update after 1.83 kg installs 2.86 kg and the arm holds +-1 pulse.
+   **The rival hypotheses.**  A payload is not the only change with four
+   degrees of freedom that a window can fit: before an
    update to another payload than the model's (not to the empty gripper:
    that is the prior, the static CTC's model, which an update may always
    return to), a change of the drive friction
@@ -782,7 +783,9 @@ class AdaptiveComputedTorqueController:
         ``(t_s, mass_kg)`` per model switch (an accepted update or a
         rollback), ``t_s`` the time the model took effect.
     identifications : list of dict
-        Every identification: window, wall time, mass, output errors
+        Every identification: window, wall time, mass (``mass_kg``: an update's
+        pooled with the episode's estimates of that payload, ``pooled`` of them,
+        this window's included; ``x`` is the window's own estimate), output errors
         (``fun``, ``fun_current``), the test's ``lr``, ``threshold``,
         ``tau``, the supervisor's ``decision`` (``'baseline'`` for the first
         :data:`CALIBRATION_WINDOWS` windows, ``'update'``, ``'no change'``, ``'implausible'``,
