@@ -64,7 +64,11 @@ __all__ = ["ArmFlexibleSpace", "fit_flexible_arm", "MAX_MODE_HZ", "N_STARTS", "A
 MAX_MODE_HZ = 60.0
 
 #: Starts refined from the pool (measured: 4 missed a joint's stiffness basin on a heavily
-#: damped two-joint draw that 12 found).
+#: damped two-joint draw that 12 found).  Tried and not kept: 16 starts from 64 random
+#: link modes (``bench_arms.py --compliant``, seed 20261122): the first planar draw's
+#: worst well-excited error went from 4.6 % to 0.23 % and its K errors from 58 / 683 % to
+#: 16 / 9 %, but the second's (2.99 mrad of backlash, fitted without) from 0.38 % to 1.3 %
+#: and its joint-2 K error from 4.5 % to 4400 % -- a lower cost further from the truth.
 N_STARTS = 8
 
 #: Backlash widths (rad) tried from the spring fit's point.
