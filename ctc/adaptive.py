@@ -543,19 +543,18 @@ def _pooled(estimates, a3=None):
     return f, payload
 
 
-def _one_payload_test(a, b, false_alarm) -> bool:
+def _one_payload_test(a, b, threshold) -> bool:
     """Whether two windows' payload estimates are of one payload: Wald's test.
 
     With the linear payload vectors ``p = [m, m xp, m yp, J]`` of two independent
     windows and their covariances (``vector``, ``vector_cov``:
     :func:`_vector_covariance`), ``d = p_a - p_b`` has covariance ``C_a + C_b``
     when both windows see one payload, and ``d' (C_a + C_b)^+ d`` is chi-square with
-    4 degrees of freedom; the estimates are one payload unless it exceeds the
-    quantile at ``false_alarm``.  False when either covariance is missing or not
-    finite.
+    4 degrees of freedom; the estimates are one payload unless it exceeds
+    ``threshold``, the chi-square quantile at the false-alarm rate (the
+    controller's likelihood-ratio threshold).  False when either covariance is
+    missing or not finite.
     """
-    from scipy.stats import chi2
-
     ca, cb = a.get("vector_cov"), b.get("vector_cov")
     if ca is None or cb is None:
         return False
@@ -564,7 +563,7 @@ def _one_payload_test(a, b, false_alarm) -> bool:
     if not (np.all(np.isfinite(C)) and np.all(np.isfinite(d))):
         return False
     q = float(d @ np.linalg.pinv(C, hermitian=True) @ d)
-    return q <= float(chi2.isf(false_alarm, _N_PAYLOAD))
+    return q <= threshold
 
 
 def _agree_off_model(a, b, model, minimum=0.05) -> bool:
@@ -1340,7 +1339,7 @@ class AdaptiveComputedTorqueController:
             # window's (Wald's test at false_alarm), pooled with it -- a 0.1 s window
             # determines a combination of mass and centre of mass, not each
             mates = [q for q in self._episode
-                     if _one_payload_test(q[1], payload_est, self.false_alarm)]
+                     if _one_payload_test(q[1], payload_est, self._lr_threshold)]
             if mates:
                 f_pool, payload_pool = _pooled(mates + [own], a3=self.log.rig.a3_m)
                 # and the window itself admits the pooled payload (a window that spans a

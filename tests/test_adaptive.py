@@ -371,7 +371,9 @@ def test_one_payload_test_holds_its_false_alarm_rate():
     stated false-alarm rate (estimates drawn with their covariances: rejected in about
     ``false_alarm`` of the pairs); estimates ten standard errors apart, or without a
     covariance, are not one payload."""
-    from ctc.adaptive import _one_payload_test
+    from scipy.stats import chi2
+
+    from ctc.adaptive import _N_PAYLOAD, _one_payload_test
 
     rng = np.random.default_rng(5)
     p = np.array([2.87, -0.33, -1.39, 0.72])
@@ -384,14 +386,15 @@ def test_one_payload_test_holds_its_false_alarm_rate():
 
     n, alpha = 4000, 0.05
     La, Lb = np.linalg.cholesky(Ca), np.linalg.cholesky(Cb)
+    q_alpha, q_strict = chi2.isf(alpha, _N_PAYLOAD), chi2.isf(1e-3, _N_PAYLOAD)
     rejected = sum(not _one_payload_test(est(p + La @ rng.normal(size=4), Ca),
-                                         est(p + Lb @ rng.normal(size=4), Cb), alpha)
+                                         est(p + Lb @ rng.normal(size=4), Cb), q_alpha)
                    for _ in range(n))
     assert abs(rejected / n - alpha) < 4 * np.sqrt(alpha * (1 - alpha) / n)
     far = p + 10 * np.sqrt(np.diag(Ca + Cb)) * np.array([1, 0, 0, 0])
-    assert not _one_payload_test(est(p, Ca), est(far, Cb), 1e-3)
-    assert _one_payload_test(est(p, Ca), est(p, Cb), 1e-3)
-    assert not _one_payload_test(est(p, None), est(p, Cb), 1e-3)
+    assert not _one_payload_test(est(p, Ca), est(far, Cb), q_strict)
+    assert _one_payload_test(est(p, Ca), est(p, Cb), q_strict)
+    assert not _one_payload_test(est(p, None), est(p, Cb), q_strict)
 
 
 def test_a_window_estimates_covariance_follows_the_linear_payload_vector():
