@@ -79,6 +79,7 @@ class ArmSettings:
     stiffness: tuple | None = None     # compliant joints: K (N m/rad), joint side
     damping: tuple | None = None       # D (N m s/rad)
     backlash: tuple | None = None      # b (rad), joint side
+    payload: dict | None = None        # a point mass on the last link: mass_kg, com_m (its frame)
 
     @property
     def compliant(self) -> bool:
@@ -107,8 +108,26 @@ def _rtb_robot(s: ArmSettings):
         link.Jm = 0.0
         link.B = 0.0
         link.Tc = np.zeros(2)
+    if s.payload:
+        _add_point_mass(robot.links[-1], float(s.payload["mass_kg"]), s.payload["com_m"])
     robot.dynchanged()
     return robot
+
+
+def _add_point_mass(link, m, p):
+    """Fix a point mass ``m`` at ``p`` (the link's frame) to an RTB link: the combined body's
+    mass, centre of mass and inertia about it (parallel axes, written here)."""
+    p = np.asarray(p, dtype=float)
+    m0, r0, i0 = float(link.m), np.asarray(link.r, dtype=float), np.asarray(link.I, dtype=float)
+    mass = m0 + m
+    r = (m0 * r0 + m * p) / mass
+
+    def steiner(mu, d):
+        return mu * (d @ d * np.eye(3) - np.outer(d, d))
+
+    link.m = mass
+    link.r = r
+    link.I = i0 + steiner(m0, r0 - r) + steiner(m, p - r)
 
 
 def library_model(s: ArmSettings):

@@ -76,6 +76,11 @@ it in ``optimisers``):
     ``benchmarks/bench_arms.py --compliant --n 6 4 0 --seed 20261122``: the
     same arms with two-mass joints, half with backlash
     (``figures/arms_compliant.rst``; about an hour on 2 cores).
+``arm_payload``
+    ``benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2``: a
+    payload on the last link of planar two-link arms and PUMA joints 1-3
+    from 0.2 s windows of the independent simulator's logs, and the CTC
+    with it (``figures/bench_arm_payload.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -107,7 +112,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "arms", "arms_compliant")
+            "robustness", "changes", "arms", "arms_compliant", "arm_payload")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -345,6 +350,14 @@ def arms_compliant(ctx):
                        "--rst", ctx["raw"] / "arms_compliant.rst"], ctx["raw"], "bench_arms_compliant",
                       timeout=3 * 3600)
     return {"printed": text.splitlines()[-20:], "wall_s": wall}
+
+
+def arm_payload(ctx):
+    q = ["--n", "1", "0", "--windows", "1", "--ctc-s", "1.0"] if ctx["quick"] else \
+        ["--n", "8", "6", "--jobs", "2"]
+    text, wall = _run(["benchmarks/bench_arm_payload.py", *q, "--seed", "20261125"], ctx["raw"],
+                      "bench_arm_payload", timeout=2 * 3600)
+    return {"printed": text.splitlines()[-12:], "wall_s": wall}
 
 
 # -------------------------------------------------------------------------------- main

@@ -1243,6 +1243,12 @@ class FlexiblePayloadParameters(PayloadParameters):
         (rad, rad/s); default 0 (springs relaxed).
     bounds : array_like, shape (4, 2), optional
         Box of ``[m, xp, yp, Jc]``.
+    link_settled : bool
+        Whether the controller's link estimate, which ``link_offset`` comes
+        from, was made with the model in use (default).  Right after a model
+        switch it was made with the previous model, whose payload deflected
+        the springs by another torque: then the model in use starts from the
+        payload's widened box too (:meth:`model_initial_state`).
 
     Raises
     ------
@@ -1250,8 +1256,10 @@ class FlexiblePayloadParameters(PayloadParameters):
         On a malformed prior, joints, backlash, offset or bounds.
     """
 
-    def __init__(self, prior, joints, backlash=None, link_offset=None, bounds=None):
+    def __init__(self, prior, joints, backlash=None, link_offset=None, bounds=None,
+                 link_settled=True):
         super().__init__(prior, bounds)
+        self.link_settled = bool(link_settled)
         self.joints = np.asarray(joints, dtype=float).reshape(6)
         self.backlash = np.zeros(2) if backlash is None else np.asarray(backlash, float).reshape(2)
         self.link_offset = (np.zeros(4) if link_offset is None
@@ -1304,13 +1312,15 @@ class FlexiblePayloadParameters(PayloadParameters):
 
         As :meth:`initial_state`, but the link's box is not widened for a
         payload: the controller's link estimate, which ``link_offset`` comes
-        from, was made with this model (shapes as there).
+        from, was made with this model (shapes as there) -- unless
+        ``link_settled`` is False (a window right after a model switch), when
+        the box is :meth:`initial_state`'s.
 
         Parameters
         ----------
         log : plant.ExperimentLog
         """
-        return self._state_box(log, payload=False)
+        return self._state_box(log, payload=not self.link_settled)
 
     def _state_box(self, log, payload):
         from .window import estimate_initial_state

@@ -487,7 +487,9 @@ def test_an_update_to_the_model_in_use_is_none(paper_log, prior):
     # the model's residual is spoiled (several times the estimate's), the empty gripper
     # explains the window, and the decision is the model's: no change
     assert sum(r["empty_gripper"] and r["fun_current"] > 4.0 * r["fun"] for r in quiet) >= 3
-    assert {r["decision"] for r in quiet} == {"no change"}
+    assert all(r["decision"] == "no change" for r in quiet if r["empty_gripper"])
+    # (a misread the arm tracks within +-1 pulse and a rival explains better is held)
+    assert {r["decision"] for r in quiet} <= {"no change", "held"}
     assert all(m > 0.0 for _, m in adaptive.payload_history[:1])
 
 

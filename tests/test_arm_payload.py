@@ -1,0 +1,133 @@
+"""A payload on any arm's last link from a window of pulses, fed to the arm's CTC (issue 23)."""
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import plant
+from identification.arm_payload import ArmPayloadResult, identify_arm_payload
+from plant.logs.arm_log import load_arm_log
+from plant.simulation.arm import arm_plant
+from plant.simulation.synthetic import emulate_arm_log
+from test_arm import TRAJ, planar_arm, planar_rig
+
+DATA = Path(__file__).parent / "data" / "independent_arm"
+STEM = "indep_arm_planar2_payload"
+TOOL = dict(mass_kg=2.0, com_m=(0.08, 0.03, 0.0))
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return arm_plant(planar_arm())
+
+
+@pytest.fixture(scope="module")
+def loaded_log(arm):
+    """A P-control log of the library's planar arm carrying TOOL (plumbing; acceptance:
+    the independent log below and benchmarks/bench_arm_payload.py)."""
+    beta = arm.beta() + arm.model.payload_delta(TOOL["mass_kg"], TOOL["com_m"], base=arm.base)
+    return emulate_arm_log(arm, beta, planar_rig(), TRAJ, 3000), beta
+
+
+def test_independent_robot_payload_from_a_window():
+    """The committed log of benchmarks/independent_arm.py (Robotics Toolbox rne, DOP853): a
+    3.49 kg point mass on a random planar arm's last link.  From the unloaded arm's base
+    parameters, each 0.2 s window gives the mass within 2 % and the centre of mass in the
+    arm's plane within a centimetre; the offset along the joint axes changes no torque of a
+    planar arm and is reported as not identifiable."""
+    log = load_arm_log(DATA / f"{STEM}.csv")
+    truth = json.loads((DATA / f"{STEM}.truth.json").read_text())
+    tool = truth["settings"]["payload"]
+    for t0 in (0.6, 1.4, 2.5):
+        res = identify_arm_payload(log, truth["beta"], window_s=(t0, t0 + 0.2))
+        assert isinstance(res, ArmPayloadResult) and res.success
+        assert res.mass_kg == pytest.approx(tool["mass_kg"], rel=0.02)
+        assert np.all(np.abs(res.com_m[:2] - tool["com_m"][:2]) < 0.01)
+        assert res.com_identifiable.tolist() == [True, True, False]
+        assert np.all(np.isfinite(res.x_std[:3])) and np.isnan(res.x_std[3])
+        # the loaded arm's base parameters: the prior shifted by the payload alone, within
+        # 2 % of the largest shift
+        shift = np.asarray(truth["beta_loaded"]) - np.asarray(truth["beta"])
+        assert np.abs(res.beta - np.asarray(truth["beta_loaded"])).max() <= 0.02 * np.abs(shift).max()
+        np.testing.assert_array_equal(res.beta_prior, truth["beta"])
+        assert res.window_s[0] == pytest.approx(t0, abs=log.rig.sample_time_s)
+
+
+def test_the_payload_makes_the_arm_ctc_track(arm, loaded_log):
+    """The CTC built from the prior plus a window's payload tracks the loaded arm within +-1
+    pulse after 0.1 s; the prior alone does not."""
+    from ctc.arm import ArmComputedTorque
+
+    log, beta_true = loaded_log
+    res = identify_arm_payload(log, arm.beta(), window_s=(1.0, 1.2))
+    assert res.mass_kg == pytest.approx(TOOL["mass_kg"], rel=0.01)
+    rig = planar_rig(limit=40.0)
+    out = {}
+    for name, beta in (("prior", arm.beta()), ("payload", res.beta)):
+        ctrl = ArmComputedTorque(arm, beta, rig, TRAJ)
+        r = plant.simulate_closed_loop(rig, beta_true, ctrl, trajectory=TRAJ, n_samples=2000,
+                                       plant=arm)
+        assert r.success
+        out[name] = r.max_abs_error(0.1)
+    assert np.all(out["payload"] <= 1) and np.any(out["prior"] > 1)
+
+
+def test_logged_currents_of_a_p_log_are_the_p_law(arm, loaded_log):
+    """``currents='logged'`` reads the log's i_A; on a P-control log they are the P law's, so
+    the result is the default's."""
+    log, _ = loaded_log
+    a = identify_arm_payload(log, arm.beta(), window_s=(2.0, 2.15))
+    b = identify_arm_payload(log, arm.beta(), window_s=(2.0, 2.15), currents="logged")
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-12)
+    assert a.fun == pytest.approx(b.fun, rel=1e-9)
+
+
+def test_result_speaks_scipy_and_json(arm, loaded_log, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    log, _ = loaded_log
+    res = identify_arm_payload(log, arm.beta(), window_s=(0.5, 0.7))
+    for key in ("x", "fun", "nfev", "nit", "success", "message"):
+        assert key in res
+    assert res.nfev > 0 and res.nit > 0
+    d = res.to_dict()
+    text = json.dumps(d)
+    assert json.loads(text)["x_std"][3] is None  # NaN -> null
+    assert "not identifiable" in res.table()
+    ax = res.plot()
+    assert len(ax.lines) == 2
+    assert res.residuals_pulses.shape == (int(round(0.2 / log.rig.sample_time_s)) + 1, 2)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(window_s=(1.0, 1.005)), "at least 20"),
+    (dict(window_s=(2.5, 9.0)), "outside the log"),
+    (dict(currents="measured"), "currents must be"),
+    (dict(currents=np.zeros((5, 2))), "currents must be"),
+    (dict(bounds=[[0, 1], [0, 1], [0, 1]]), "bounds"),
+])
+def test_bad_inputs_give_one_line_errors(arm, loaded_log, kwargs, match):
+    log, _ = loaded_log
+    with pytest.raises(ValueError, match=match) as exc:
+        identify_arm_payload(log, arm.beta(), **kwargs)
+    assert "\n" not in str(exc.value)
+
+
+def test_a_bare_prior_needs_known_friction(arm, loaded_log):
+    import dataclasses
+
+    log, _ = loaded_log
+    rig = dataclasses.replace(log.rig, viscous_friction_Nms_per_rad=None, coulomb_friction_Nm=None)
+    unknown = dataclasses.replace(log, rig=rig)
+    with pytest.raises(ValueError, match="friction is unknown"):
+        identify_arm_payload(unknown, arm.beta(), window_s=(1.0, 1.2))
+    with pytest.raises(ValueError, match="base parameters"):
+        identify_arm_payload(log, arm.beta()[:-1], window_s=(1.0, 1.2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        identify_arm_payload(log, arm.beta(), window_s=(1.0, 1.2))
