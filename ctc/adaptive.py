@@ -846,9 +846,9 @@ class AdaptiveComputedTorqueController:
     model in use, does not: the controller's link estimate was made with
     that model -- except on a window that starts less than a window after a
     model switch, where the estimate still carries the previous model's
-    deflection and the model in use gets the wide box too).  A model switch replaces the link model's f, and the link
-    observer's gains are placed anew for its link inertia; the motor loop
-    keeps its gains.
+    deflection and the model in use gets the wide box too).  A model switch
+    replaces the link model's f, and the link observer's gains are placed
+    anew for its link inertia; the motor loop keeps its gains.
     """
 
     def __init__(self, prior_f, log, *, window_s=0.1, improvement=0.2, false_alarm=1e-3,
@@ -1471,8 +1471,9 @@ class AdaptiveComputedTorqueController:
             # PERSISTENCE_WINDOWS agreeing estimates, which it then pools (step 3) -- the
             # empty gripper excepted: the prior, the static CTC's model
             decision = "held"
-            reason = (f"the arm tracks within +-1 pulse under the model in use: a payload of "
-                      f"{mass:.3g} kg waits for {PERSISTENCE_WINDOWS} agreeing estimates")
+            reason = (f"the arm tracks within +-1 pulse under the model in use and a rival "
+                      f"change explains the window better: a payload of {mass:.3g} kg waits for "
+                      f"{PERSISTENCE_WINDOWS} agreeing estimates")
         if rival is not None and decision in ("update", "unexplained", "held"):
             decision = rival["cause"]
             reason = (f"a {_RIVAL_TEXT[rival['cause']]} change explains the window better than a "

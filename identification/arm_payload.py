@@ -125,7 +125,17 @@ class ArmPayloadProblem:
         self.bound = 1e6
 
     def beta(self, x) -> np.ndarray:
-        """Base parameters (r,) of the arm carrying the payload ``x[:4]``."""
+        """Base parameters (r,) of the arm carrying the payload ``x[:4]``.
+
+        Parameters
+        ----------
+        x : array_like, shape (4,) or longer
+            ``[m, cx, cy, cz, ...]`` (kg, m); a negative mass counts as zero.
+
+        Returns
+        -------
+        ndarray, shape (r,)
+        """
         m, c = float(x[0]), np.asarray(x[1:4], dtype=float)
         return self.prior + self.model.payload_delta(max(m, 0.0), c, base=self.plant.base)
 

@@ -76,6 +76,29 @@ def test_the_payload_makes_the_arm_ctc_track(arm, loaded_log):
     assert np.all(out["payload"] <= 1) and np.any(out["prior"] > 1)
 
 
+def test_online_from_a_window_of_the_ctcs_own_run(arm, loaded_log):
+    """The paper's on-line proposal: the prior's CTC runs the loaded arm; a 0.2 s window of
+    its own run, its commanded currents replayed (``currents='logged'``), gives the payload,
+    and the CTC with it tracks within +-1 pulse."""
+    import dataclasses
+
+    from ctc.arm import ArmComputedTorque
+
+    log, beta_true = loaded_log
+    rig = planar_rig(limit=40.0)
+    run = plant.simulate_closed_loop(rig, beta_true, ArmComputedTorque(arm, arm.beta(), rig, TRAJ),
+                                     trajectory=TRAJ, n_samples=2000, plant=arm)
+    assert run.success and np.any(run.max_abs_error(0.1) > 1)
+    n = run.e_pulses.shape[0]
+    ctc_log = dataclasses.replace(log, rig=rig, t=log.t[:n], q_ref=log.q_ref[:n],
+                                  e_pulses=np.asarray(run.e_pulses), i_A=np.asarray(run.i_A))
+    res = identify_arm_payload(ctc_log, arm.beta(), window_s=(1.0, 1.2), currents="logged")
+    assert res.mass_kg == pytest.approx(TOOL["mass_kg"], rel=0.01)
+    r = plant.simulate_closed_loop(rig, beta_true, ArmComputedTorque(arm, res.beta, rig, TRAJ),
+                                   trajectory=TRAJ, n_samples=2000, plant=arm)
+    assert np.all(r.max_abs_error(0.1) <= 1)
+
+
 def test_logged_currents_of_a_p_log_are_the_p_law(arm, loaded_log):
     """``currents='logged'`` reads the log's i_A; on a P-control log they are the P law's, so
     the result is the default's."""
