@@ -456,6 +456,22 @@ def test_supervisor_keeps_the_model_without_a_change(paper_log, prior):
     assert adaptive.baseline is not None and adaptive.baseline < ctc.adaptive.QUANTISATION_VARIANCE
 
 
+def _spoil_start_state(adaptive, shift_rad=4e-4):
+    """Move the model in use's start state on every window after the calibration windows by
+    ``shift_rad`` per joint (a misread window, without a change of the robot)."""
+    own = adaptive._start_state_of
+    n = ctc.adaptive.CALIBRATION_WINDOWS
+
+    def spoiled(window, law, substeps, guess, space):
+        x0 = own(window, law, substeps, guess, space)
+        if len(adaptive._calibration) >= n:
+            x0 = np.array(x0, dtype=float)
+            x0[:2] += shift_rad
+        return x0
+
+    adaptive._start_state_of = spoiled
+
+
 def test_an_update_to_the_model_in_use_is_none(paper_log, prior):
     """Supervisor step 3: when a window's misfit is the model's own start state (its
     prediction-error start state worse in output error than the estimate's) and the
@@ -466,17 +482,8 @@ def test_an_update_to_the_model_in_use_is_none(paper_log, prior):
     are not below the mass resolution, can still be misread (0.3-0.5 kg on this run):
     the likelihood ratio trusts the model's own start state (module docstring)."""
     adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
-    own = adaptive._start_state_of
     n = ctc.adaptive.CALIBRATION_WINDOWS
-
-    def spoiled(window, law, substeps, guess, space):
-        x0 = own(window, law, substeps, guess, space)
-        if len(adaptive._calibration) >= n:
-            x0 = np.array(x0, dtype=float)
-            x0[:2] += 4e-4
-        return x0
-
-    adaptive._start_state_of = spoiled
+    _spoil_start_state(adaptive)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ctc.UnmodelledChangeWarning)
         resp = plant.simulate_closed_loop(paper_log, prior, adaptive, substeps=SUBSTEPS)
@@ -500,22 +507,13 @@ def test_a_calm_window_a_rival_explains_better_is_held(paper_log, prior):
     payloads here by spoiling the model's start state (as in the test above); a friction
     rival that explains each window slightly better is put in place of the fitted ones."""
     adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log)
-    own = adaptive._start_state_of
-    n = ctc.adaptive.CALIBRATION_WINDOWS
-
-    def spoiled(window, law, substeps, guess, space):
-        x0 = own(window, law, substeps, guess, space)
-        if len(adaptive._calibration) >= n:
-            x0 = np.array(x0, dtype=float)
-            x0[:2] += 4e-4
-        return x0
+    _spoil_start_state(adaptive)
 
     def rival(window, law, space, substeps, opts, e_est):
         # z = 1 / 2 per window: better than the payload, far below the threshold
         return [dict(cause="friction", y=0.0, z=0.5, terms=[1.0, 4.0], x=[0.0] * 4,
                      change=dict(dB2=0.0, dB3=0.0, dTc2=0.0, dTc3=0.0))]
 
-    adaptive._start_state_of = spoiled
     adaptive._rival_hypotheses = rival
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ctc.UnmodelledChangeWarning)
