@@ -85,32 +85,31 @@ def run_case(family: str, seed: int, n_windows: int, ctc_s: float) -> dict:
     err = [abs(w["mass_kg"] / m_true - 1) for w in windows]
     n_ctc = int(round(ctc_s / s.sample_time_s))
     k0 = int(round(0.1 / s.sample_time_s))
-    ctc, online, runs = {}, None, {}
-    for name in ("prior", "payload", "online"):
-        if name == "online":
-            # the paper's on-line proposal: a 0.2 s window of the prior CTC's own run on the
-            # loaded robot (its logged commands replayed), then the CTC with that payload
-            if not runs["prior"]["ok"]:
-                break
-            n_run = runs["prior"]["e"].shape[0]
-            run_log = dataclasses.replace(log, t=log.t[:n_run], q_ref=log.q_ref[:n_run],
-                                          e_pulses=runs["prior"]["e"], i_A=runs["prior"]["i"])
-            t0 = float(rng.uniform(0.3, n_run * s.sample_time_s - WINDOW_S - 0.01))
-            r = identify_arm_payload(run_log, prior, window_s=(t0, t0 + WINDOW_S),
-                                     currents="logged")
-            online = dict(t0=t0, mass_kg=r.mass_kg, err_pct=100 * abs(r.mass_kg / tool["mass_kg"] - 1),
-                          s=r.elapsed_s)
-            beta = r.beta
-        else:
-            beta = prior.beta if name == "prior" else windows[0]["beta"]
+
+    def run_ctc(beta):
+        """The CTC with ``beta`` on the loaded independent robot: its run and a summary."""
         ctrl = ArmComputedTorque(prior.plant, beta, prior.rig, log.trajectory,
                                  envelope=log_envelope(log))
         out = ia.IndependentArm(loaded).run(ctrl, log.trajectory, n_ctc)
-        runs[name] = out
         e = np.abs(out["e"][k0:]).max(axis=0) if out["ok"] else None
-        ctc[name] = dict(max=None if e is None else e.tolist(),
+        return out, dict(max=None if e is None else e.tolist(),
                          ok=bool(e is not None and np.all(e <= 1)),
                          fallback=ctrl.fallback_t_s is not None)
+
+    ctc, online = {}, None
+    run_prior, ctc["prior"] = run_ctc(prior.beta)
+    _, ctc["payload"] = run_ctc(windows[0]["beta"])
+    if run_prior["ok"]:
+        # the paper's on-line proposal: a 0.2 s window of the prior CTC's own run on the
+        # loaded robot (its logged commands replayed), then the CTC with that payload
+        n_run = run_prior["e"].shape[0]
+        run_log = dataclasses.replace(log, t=log.t[:n_run], q_ref=log.q_ref[:n_run],
+                                      e_pulses=run_prior["e"], i_A=run_prior["i"])
+        t0 = float(rng.uniform(0.3, n_run * s.sample_time_s - WINDOW_S - 0.01))
+        r = identify_arm_payload(run_log, prior, window_s=(t0, t0 + WINDOW_S), currents="logged")
+        online = dict(t0=t0, mass_kg=r.mass_kg, err_pct=100 * abs(r.mass_kg / tool["mass_kg"] - 1),
+                      s=r.elapsed_s)
+        _, ctc["online"] = run_ctc(r.beta)
     for w in windows:
         w.pop("beta")
     return dict(family=family, seed=seed, n_joints=len(s.active), tool=tool,
