@@ -23,6 +23,9 @@ derivation, code generator and RK4 core):
   through a gearbox dead zone of width ``b`` (backlash):
   ``tau_s = K (d - clip(d, -b/2, b/2)) + D (th' - q')``, ``d = th - q``;
   the encoders read the motor angle ``th``; springs relaxed at t = 0;
+* **payload** (``ArmSettings.payload``): a point mass fixed to the last
+  link, merged into the Robotics Toolbox link's mass, centre of mass and
+  inertia by parallel axes written here (``benchmarks/bench_arm_payload.py``);
 * **integration**: ``scipy.integrate.solve_ivp(method="DOP853", rtol=1e-9,
   atol=1e-12)`` restarted at every sample (zero-order hold), ``max_step =
   Ts``.
