@@ -192,19 +192,7 @@ def main(argv=None):
         return
     jobs = [(fam, a.seed + i, a.windows, a.ctc_s) for fam, n in zip(FAMILIES, a.n) for i in range(n)]
     t0 = time.perf_counter()
-    if a.jobs > 1:
-        import multiprocessing as mp
-
-        with mp.get_context("spawn").Pool(a.jobs) as pool:
-            rows = []
-            for r in pool.imap(_job, jobs):
-                print(_line(r), flush=True)
-                rows.append(r)
-    else:
-        rows = []
-        for j in jobs:
-            rows.append(_job(j))
-            print(_line(rows[-1]), flush=True)
+    rows = ia.run_jobs(_job, jobs, a.jobs, _line)
     ok = [r for r in rows if "error" not in r]
     print()
     print(f"summary over {len(rows)} draws ({len(rows) - len(ok)} errors), seed {a.seed}, "

@@ -224,9 +224,19 @@ class IndependentArm:
         tau = self.k * self.kt * i + self.friction(w) - b
         return np.concatenate([w, np.linalg.solve(M, tau)])
 
-    def run(self, controller, trajectory, n_samples, *, rtol=1e-9, atol=1e-12):
-        """Sampled closed loop from rest at q = 0; returns dict of e, i, q arrays (time-first)."""
+    def run(self, controller, trajectory, n_samples, *, rtol=1e-9, atol=1e-12, changes=()):
+        """Sampled closed loop from rest at q = 0; returns dict of e, i, q arrays (time-first).
+
+        ``changes``: ``(k, IndependentArm)`` pairs -- from sample ``k`` on the robot is that
+        one (a payload picked up or put down, a drive whose friction changed); the state
+        carries over (same joints, same rigid or compliant kind).
+        """
         from scipy.integrate import solve_ivp
+
+        pending = sorted(changes, key=lambda c: c[0])
+        if any(r.compliant != self.compliant or r.n != self.n for _, r in pending):
+            raise ValueError("a change must keep the joints and the rigid or compliant kind")
+        robot = self
 
         ts = self.s.sample_time_s
         lim = math.inf if self.s.current_full_scale is None else self.s.current_full_scale
@@ -247,7 +257,9 @@ class IndependentArm:
             I[k] = i
             if k == n_samples - 1:
                 break
-            sol = solve_ivp(self.rhs, (t[k], t[k] + ts), y, method="DOP853", rtol=rtol, atol=atol,
+            while pending and pending[0][0] <= k:
+                robot = pending.pop(0)[1]
+            sol = solve_ivp(robot.rhs, (t[k], t[k] + ts), y, method="DOP853", rtol=rtol, atol=atol,
                             max_step=ts, args=(i,))
             if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
                 ok = False
@@ -407,3 +419,21 @@ def rig_of(s: ArmSettings):
                coulomb_ramp_speed_rad_per_s=s.ramp_speed, gravity_m_s2=9.81, a3_m=0.0,
                q0_rad=(0.0,) * n, qd0_rad_per_s=(0.0,) * n, f_bounds=(),
                current_full_scale_A=s.current_full_scale)
+
+
+def run_jobs(job, jobs, n_jobs, line):
+    """Run ``job`` over ``jobs`` (in ``n_jobs`` spawned processes when > 1), printing
+    ``line(row)`` for each row as it comes; returns the rows in order."""
+    rows = []
+    if n_jobs > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(n_jobs) as pool:
+            for r in pool.imap(job, jobs):
+                print(line(r), flush=True)
+                rows.append(r)
+    else:
+        for j in jobs:
+            rows.append(job(j))
+            print(line(rows[-1]), flush=True)
+    return rows

@@ -1,4 +1,4 @@
-"""Computed-torque control of PUMA 560 links 2-3 built on the identified model.
+"""Computed-torque control built on the identified model: the PUMA 560 links 2-3 and any serial arm.
 
 * :mod:`ctc.protocol` -- the sampled-controller protocol and the paper's
   :class:`PController`;
@@ -9,6 +9,10 @@
   identification);
 * :mod:`ctc.adaptive` -- :class:`AdaptiveComputedTorqueController` (on-line
   payload identification and adaptation);
+* :mod:`ctc.arm` -- :class:`~ctc.arm.ArmComputedTorque` (any serial arm of a
+  robot model; :class:`~ctc.arm.ArmFlexibleComputedTorque` for compliant joints);
+* :mod:`ctc.arm_adaptive` -- :class:`~ctc.arm_adaptive.ArmAdaptiveComputedTorque`
+  (any arm, its payload identified on-line from windows of its own run);
 * :mod:`ctc.guard` -- :class:`FollowingErrorGuard` (a following-error
   limit around any controller: the rig's P law takes over when the arm is lost);
 * :mod:`ctc.contract` -- :class:`IdentifiedModel` (the result -> controller

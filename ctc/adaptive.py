@@ -344,7 +344,8 @@ __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledC
            "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "PERSISTENCE_WINDOWS", "EVIDENT_FACTOR",
            "EVIDENT_IMPROVEMENT", "DIVERGE_FACTOR",
            "SMALL_MASS_FRACTION", "DRIVE_CHANGE_MIN", "STALE_WINDOWS",
-           "window_statistics", "vuong_statistic"]
+           "window_statistics", "residual_statistics", "vuong_statistic",
+           "vuong_residual_statistic"]
 
 #: Default identification latency (s): the per-window budget of a 100 ms window
 #: (``benchmarks/bench_online_payload.py`` measures 0.01-0.07 s per window on the
@@ -623,8 +624,28 @@ def window_statistics(e_log, e_now, e_new, n_parameters=_N_PAYLOAD) -> dict:
     :data:`QUANTISATION_VARIANCE` and the sample count reduced by ``tau``.
     """
     e_log = np.asarray(e_log, dtype=float)
-    r_now = e_log - np.asarray(e_now, dtype=float)
-    r_new = e_log - np.asarray(e_new, dtype=float)
+    return residual_statistics(e_log - np.asarray(e_now, dtype=float),
+                               e_log - np.asarray(e_new, dtype=float), n_parameters)
+
+
+def residual_statistics(r_now, r_new, n_parameters=_N_PAYLOAD) -> dict:
+    """:func:`window_statistics` of two models' pulse residuals of one window.
+
+    Parameters
+    ----------
+    r_now, r_new : array_like, shape (n, n_joints)
+        Residuals (pulses) of the current model and of the estimate (logged
+        minus predicted errors).
+    n_parameters : int
+        Degrees of freedom of the estimate.
+
+    Returns
+    -------
+    dict
+        As :func:`window_statistics`.
+    """
+    r_now = np.asarray(r_now, dtype=float)
+    r_new = np.asarray(r_new, dtype=float)
     y_now = float(np.sum(r_now * r_now))
     y_new = float(np.sum(r_new * r_new))
     n_values = int(r_new.size)
@@ -663,11 +684,33 @@ def vuong_statistic(e_log, e_a, e_b) -> float:
     return _vuong_z(*_vuong_terms(e_log, e_a, e_b))
 
 
+def vuong_residual_statistic(r_a, r_b) -> float:
+    """:func:`vuong_statistic` of two models' pulse residuals of one window (b better: > 0).
+
+    Parameters
+    ----------
+    r_a, r_b : array_like, shape (n_samples, n_joints)
+        Residuals (pulses) of models a and b on the same window.
+
+    Returns
+    -------
+    float
+        z, as :func:`vuong_statistic`.
+    """
+    return _vuong_z(*_residual_vuong_terms(r_a, r_b))
+
+
 def _vuong_terms(e_log, e_a, e_b):
     """``(sum d, n tau var(d))`` of :func:`vuong_statistic`: windows' terms add up."""
     e_log = np.asarray(e_log, dtype=float)
-    ra = e_log - np.asarray(e_a, dtype=float)
-    rb = e_log - np.asarray(e_b, dtype=float)
+    return _residual_vuong_terms(e_log - np.asarray(e_a, dtype=float),
+                                 e_log - np.asarray(e_b, dtype=float))
+
+
+def _residual_vuong_terms(ra, rb):
+    """``(sum d, n tau var(d))`` of two models' residuals (n_samples, n_joints)."""
+    ra = np.asarray(ra, dtype=float)
+    rb = np.asarray(rb, dtype=float)
     d = np.sum(ra * ra - rb * rb, axis=1)
     var = float(np.var(d))
     tau = _integrated_autocorrelation_time(d[:, None]) if var > 0.0 else 1.0

@@ -249,6 +249,26 @@ class ArmComputedTorque:
         # the result's rig: the log's, with the friction the identification found
         return cls(result["plant"], m.f, result["rig"], log.trajectory, **design)
 
+    def set_beta(self, beta) -> np.ndarray:
+        """Switch the controller's model to the base parameters ``beta`` (the observer keeps its state).
+
+        Parameters
+        ----------
+        beta : array_like, shape (r,)
+
+        Returns
+        -------
+        ndarray, shape (r,)
+            The parameters now in use.
+
+        Raises
+        ------
+        ValueError
+            beta of the wrong size or not finite.
+        """
+        self.beta = self.plant.lane_parameters(beta)[:, 0].copy()
+        return self.beta
+
     def terms(self, q, qd):
         """``D_hat(q)`` (n, n) and ``n_hat(q, qd)`` (n,) of the controller's model.
 

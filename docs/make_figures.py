@@ -81,6 +81,11 @@ it in ``optimisers``):
     payload on the last link of planar two-link arms and PUMA joints 1-3
     from 0.2 s windows of the independent simulator's logs, and the CTC
     with it (``figures/bench_arm_payload.txt``).
+``arm_adaptive``
+    ``benchmarks/bench_arm_adaptive.py --n 12 8 --seed 20261501 --jobs 2``:
+    pick-ups, put-downs, friction changes and no change on planar two-link
+    arms and PUMA joints 1-3 of the independent simulator, the static and the
+    adaptive CTC of the arm side by side (``figures/bench_arm_adaptive.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -112,7 +117,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "arms", "arms_compliant", "arm_payload")
+            "robustness", "changes", "arms", "arms_compliant", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -358,6 +363,13 @@ def arm_payload(ctx):
     text, wall = _run(["benchmarks/bench_arm_payload.py", *q, "--seed", "20261125"], ctx["raw"],
                       "bench_arm_payload", timeout=2 * 3600)
     return {"printed": text.splitlines()[-12:], "wall_s": wall}
+
+
+def arm_adaptive(ctx):
+    q = ["--n", "1", "0", "--run-s", "2.6"] if ctx["quick"] else ["--n", "12", "8", "--jobs", "2"]
+    text, wall = _run(["benchmarks/bench_arm_adaptive.py", *q, "--seed", "20261501"], ctx["raw"],
+                      "bench_arm_adaptive", timeout=2 * 3600)
+    return {"printed": text.splitlines()[-18:], "wall_s": wall}
 
 
 # -------------------------------------------------------------------------------- main

@@ -65,13 +65,18 @@ from .uncertainty import RSE_WARN, sandwich_covariance
 
 __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationResult",
            "ArmPredictionErrorProblem", "ARM_REFINE_SUBSTEPS", "ARM_OUTPUT_ERROR_SUBSTEPS", "ARM_FTOL",
-           "ARM_METHODS", "ARM_DEFAULT_METHOD", "friction_layout", "output_error_substeps",
+           "ARM_METHODS", "ARM_DEFAULT_METHOD", "IDIM_FALLBACK_SEED", "friction_layout",
+           "output_error_substeps",
            "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction",
            "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper")
 ARM_DEFAULT_METHOD = "idim+pem"
+
+#: Seed of the GA that replaces an IDIM-LS start that does not simulate (``"idim+pem"``
+#: with ``rng=None``): the same log gives the same result.
+IDIM_FALLBACK_SEED = 0
 
 #: Relative cost decrease below which the refinement has converged: 1e-6 of a
 #: cost of ~1e3 pulses^2 is ~1e-3 pulses^2, far below what moves an estimate
@@ -701,7 +706,13 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     log : plant.logs.arm_log.ArmLog
         The logged experiment of a robot model (:func:`plant.logs.arm_log.load_arm_log`).
     method : {"idim+pem", "ga+pem", "paper"}
-        ``"idim+pem"`` (default): IDIM-LS start, output-error refinement.
+        ``"idim+pem"`` (default): IDIM-LS start, output-error refinement;
+        when the IDIM-LS start does not simulate the log (an inertia matrix
+        that is not positive definite, a diverging predictor: measured on a
+        random planar arm of ``benchmarks/independent_arm.py`` whose joint-1
+        drive friction, 1054 N m s/rad at the joint, dwarfed its link
+        torques), the ``"ga+pem"`` GA supplies the start (its seed ``rng``,
+        or :data:`IDIM_FALLBACK_SEED`) and ``warnings`` says so.
         ``"paper"``: the paper's GA (:func:`identification.ga.run_ga` with
         its settings: 4 x 20 individuals, 40 generations) on the output
         error of eq. 4 -- the simulated P loop's integer errors against the
@@ -836,11 +847,13 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
             raise ValueError(f"output_substeps must be a whole number >= 1, got {output_substeps!r}")
     ga_info = None
     starts = x0[None]
-    if method in ("ga+pem", "paper"):
+    problem = ArmPredictionErrorProblem(log, sim_plant, gain=gain, substeps=substeps, workers=workers)
+    notes = []
+
+    def ga_start(paper, generator):
         # the PUMA 560 path's GA (identification.identify): the paper's binary GA, or Gray-coded
         # with early termination of offspring past the population's worst before a refinement
-        settings = dict(PAPER_GA, gray=(method != "paper"),
-                        early_stop=None if method == "paper" else 1.0)
+        settings = dict(PAPER_GA, gray=not paper, early_stop=None if paper else 1.0)
         settings.update(ga_options or {})
         e_log = np.asarray(log.e_pulses, dtype=float)
 
@@ -849,12 +862,24 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
                                 e_log=e_log, errors=False, substeps=oe_substeps, cap=cap,
                                 workers=workers).objective
 
-        ga = run_ga(output_error, bounds, rng=np.random.default_rng(rng), **settings)
-        ga_info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
-                       nfev=int(ga.nfev), generations=int(ga.nit), substeps=oe_substeps,
-                       best=np.asarray(ga.history["best"], dtype=float))
-        starts = np.vstack([np.asarray(ga.x, dtype=float), np.clip(x0, bounds[:, 0], bounds[:, 1])])
-    problem = ArmPredictionErrorProblem(log, sim_plant, gain=gain, substeps=substeps, workers=workers)
+        ga = run_ga(output_error, bounds, rng=generator, **settings)
+        info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
+                    nfev=int(ga.nfev), generations=int(ga.nit), substeps=oe_substeps,
+                    best=np.asarray(ga.history["best"], dtype=float))
+        return info, np.vstack([info["x"], np.clip(x0, bounds[:, 0], bounds[:, 1])])
+
+    if method in ("ga+pem", "paper"):
+        ga_info, starts = ga_start(method == "paper", np.random.default_rng(rng))
+    elif not np.all(problem.residuals(np.clip(x0, bounds[:, 0], bounds[:, 1]))
+                    < problem.bound):
+        # the IDIM start does not simulate (an inertia matrix that is not positive definite,
+        # a predictor that diverges: a drive whose friction dominates the link torques leaves
+        # IDIM-LS's inertial parameters loose): the GA's start over the box, then the refinement
+        ga_info, starts = ga_start(False, np.random.default_rng(
+            IDIM_FALLBACK_SEED if rng is None else rng))
+        notes.append("the IDIM-LS start does not simulate the log (its predictor fails); the "
+                     "refinement started from the GA's best individual over the box "
+                     "(method 'ga+pem')")
     if method == "paper":
         ref = OptimizeResult(x=ga_info["x"], fun=float(np.sum(problem.residuals(ga_info["x"]) ** 2)),
                              nfev=ga_info["nfev"], nit=ga_info["generations"], message="the paper's GA",
@@ -875,6 +900,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     sim = simulate_arm(sim_plant, lane(x), rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
                        errors=False, substeps=report_substeps, workers=workers)
     nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and method != "paper" else 0)
+    start = "the IDIM start" if ga_info is None else "every start"
     friction = motor_side_friction(rig, x, nb)
     names = tuple(pl.base.names) + tuple(
         f"{FRICTION_COMPONENTS[w]}_{log.joint_names[j]}" for j, w in unknown)
@@ -885,7 +911,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         nfev=nfev, nit=int(ref.nit), success=ok, method=method, ga=ga_info, bounds=bounds,
         interrupted=bool(ref.get("interrupted", False) if isinstance(ref, dict) else
                          getattr(ref, "interrupted", False)), message=(ref.message or "ok") if ok else
-        "the predictor failed at the IDIM start: the log does not fit the robot model",
+        f"the predictor failed at {start}: the log does not fit the robot model",
         names=names, expressions=expressions, x_std=x_std, x_rse=rse, cov=cov,
         well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
         friction=friction, friction_identified=bool(unknown), robot=pl.model.name,
@@ -893,7 +919,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         rig=rig if not unknown else dataclasses.replace(
             rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
             coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"])),
-        log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=[],
+        log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=notes,
         flexible_plant=None, plant_row=None, flexible_substeps=None,
         output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
         **_NO_JOINTS)

@@ -41,6 +41,7 @@ its standard error NaN) and does not change ``beta``.
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -56,7 +57,8 @@ from .result_schema import jsonable
 from .uncertainty import sandwich_covariance
 
 __all__ = ["identify_arm_payload", "ArmPayloadResult", "ArmPayloadProblem",
-           "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES"]
+           "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "identify_arm_friction_change",
+           "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX"]
 
 #: Names of the searched payload parameters (kg, m).
 PAYLOAD_NAMES = ("m", "cx", "cy", "cz")
@@ -123,6 +125,24 @@ class ArmPayloadProblem:
         self.gain, self.substeps, self.workers = float(gain), int(substeps), workers
         self.nfev = 0
         self.bound = 1e6
+        self.sim_plant = plant
+
+    #: Values of the hypothesis in front of the start state in a row of X (the payload's 4).
+    n_model = 4
+
+    def lane(self, x) -> np.ndarray:
+        """Lane parameters of the row ``x`` for the replay: the loaded arm's beta.
+
+        Parameters
+        ----------
+        x : array_like, shape (4 + 2 n,) or (4,)
+            A row of X.
+
+        Returns
+        -------
+        ndarray, shape (1, r)
+        """
+        return self.beta(x)[None]
 
     def beta(self, x) -> np.ndarray:
         """Base parameters (r,) of the arm carrying the payload ``x[:4]``.
@@ -154,17 +174,175 @@ class ArmPayloadProblem:
         single = X.ndim == 1
         X = np.atleast_2d(X)
         R = np.full((X.shape[0], self.ref.size), self.bound)
-        n = self.n
+        n, p = self.n, self.n_model
         for j, x in enumerate(X):  # each row has its own start state
-            q0 = self.q0 + (x[4 + n:4 + 2 * n] / self.spr if x.size >= 4 + 2 * n else 0.0)
-            sim = replay_arm(self.plant, self.beta(x)[None], self.log.rig, self.ref, self.e,
+            q0 = self.q0 + (x[p + n:p + 2 * n] / self.spr if x.size >= p + 2 * n else 0.0)
+            sim = replay_arm(self.sim_plant, self.lane(x), self.log.rig, self.ref, self.e,
                              self.i, gain=self.gain, substeps=self.substeps, q0=q0,
-                             qd0=x[4:4 + n], bound=self.bound, workers=self.workers)
+                             qd0=x[p:p + n], bound=self.bound, workers=self.workers)
             r = sim.errors[0].reshape(-1)
             if sim.status[0] == 0 and np.all(np.isfinite(r)):
                 R[j] = r
         self.nfev += X.shape[0]
         return R[0] if single else R
+
+
+class ArmFrictionChangeProblem(ArmPayloadProblem):
+    """:class:`ArmPayloadProblem` for a change of the drive friction instead of a payload.
+
+    ``X = [ln f_v,1 .. ln f_v,n, ln f_c,1 .. ln f_c,n, qd0 (n), dq0 (n)]``: per
+    joint the factors on the rig's viscous and Coulomb friction (both signs),
+    the arm's base parameters held at ``beta`` (the model in use), then the
+    start state as the payload problem's.
+
+    Parameters
+    ----------
+    log, plant, k0, k1, currents, gain, substeps, workers
+        As :class:`ArmPayloadProblem`.
+    beta : array_like, shape (r,)
+        The base parameters held (the model in use).
+    """
+
+    def __init__(self, log, plant, beta, k0, k1, currents, *, gain=DEFAULT_GAIN,
+                 substeps=ARM_REFINE_SUBSTEPS, workers=None):
+        super().__init__(log, plant, beta, k0, k1, currents, gain=gain, substeps=substeps,
+                         workers=workers)
+        self.sim_plant = arm_plant(plant.model, plant.base, lane_friction=True)
+        self.friction = friction_layout(log.rig)[0]  # (n, 3) joint side
+        self.n_model = 2 * self.n
+
+    def lane(self, x) -> np.ndarray:
+        """Lane parameters for the replay: beta held, the rig's friction times the factors.
+
+        Parameters
+        ----------
+        x : array_like, shape (4 n,) or (2 n,)
+            A row of X (the log factors first).
+
+        Returns
+        -------
+        ndarray, shape (1, r + 3 n)
+        """
+        n = self.n
+        fv, fc = np.exp(np.asarray(x[:n], dtype=float)), np.exp(np.asarray(x[n:2 * n], dtype=float))
+        F = self.friction * np.column_stack([fv, fc, fc])
+        return np.concatenate([self.prior, F.reshape(-1)])[None]
+
+
+def _start_box(log, problem, k0):
+    """The start rates' guess (n,) and box (n, 2) of a window starting at sample ``k0``: the
+    reference's rate minus the logged error's slope (least squares over a few samples each
+    side), +- :data:`_RATE_BOX` + 20 %."""
+    n, ts = log.n_joints, log.rig.sample_time_s
+    lo, hi = max(k0 - _RATE_SAMPLES, 0), min(k0 + _RATE_SAMPLES + 1, log.n_samples)
+    tt = np.arange(lo, hi) * ts
+    counts = np.trunc(log.reference_counts()[lo:hi]) - np.asarray(log.e_pulses[lo:hi], float)
+    slope = np.polyfit(tt, counts, 1)[0] if hi - lo > 1 else np.zeros(n)
+    qd_guess = np.asarray(slope, dtype=float).reshape(n) / problem.spr
+    half = _RATE_BOX + 0.2 * np.abs(qd_guess)
+    return qd_guess, np.column_stack([qd_guess - half, qd_guess + half])
+
+
+#: Box of the friction factors' logarithms of :func:`identify_arm_friction_change`
+#: (factors x0.25 .. x4).
+FRICTION_CHANGE_LOG_BOX = math.log(4.0)
+
+
+def identify_arm_friction_change(log, prior, *, beta=None, window_s, currents="logged",
+                                 gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, max_iter=40,
+                                 workers=None) -> OptimizeResult:
+    """Fit a change of the drive friction on a window of an arm's log (the payload's rival).
+
+    The hypothesis a window's payload estimate is tested against
+    (:class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque`): the arm is the
+    model in use (``beta``), and its drive friction changed -- per joint a
+    factor on the viscous and one on the Coulomb friction, in x0.25 .. x4
+    (a drive warming up; :class:`ArmFrictionChangeProblem`).  The residuals,
+    the start-state nuisances and the optimiser are
+    :func:`identify_arm_payload`'s.
+
+    Parameters
+    ----------
+    log : plant.logs.arm_log.ArmLog
+    prior : identification.arm.ArmIdentificationResult or array_like, shape (r,)
+        As :func:`identify_arm_payload` (its plant and rig, with the identified
+        friction when the sidecar had none).
+    beta : array_like, shape (r,), optional
+        The base parameters held (default the prior's).
+    window_s : (float, float)
+        Start and end time of the window (s), at least 20 samples.
+    currents : {"logged", None} or array_like, shape (n_samples, n)
+        As :func:`identify_arm_payload` (default the log's own commands).
+    gain, substeps, max_iter, workers
+        As :func:`identify_arm_payload`.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+        ``x`` (the 2 n log factors), ``fun`` (pulses^2), ``nfev``, ``nit``,
+        ``success``, ``message``, ``viscous_factor`` and ``coulomb_factor``
+        (n each), ``residuals_pulses`` (window samples, n).
+
+    Raises
+    ------
+    ValueError
+        As :func:`identify_arm_payload`.
+    """
+    plant, rig, beta_prior = _prior_of(prior, log, None)
+    if rig is not log.rig:
+        import dataclasses
+
+        log = dataclasses.replace(log, rig=rig)
+    held = beta_prior if beta is None else np.asarray(beta, dtype=float).reshape(-1)
+    if held.shape != beta_prior.shape or not np.all(np.isfinite(held)):
+        raise ValueError(f"beta must be {beta_prior.size} finite base parameters")
+    k0, k1 = _window_samples(log, window_s)
+    i = _currents_of(log, currents)
+    n = log.n_joints
+    problem = ArmFrictionChangeProblem(log, plant, held, k0, k1, i, gain=gain, substeps=substeps,
+                                       workers=workers)
+    qd_guess, rate_box = _start_box(log, problem, k0)
+    box = np.vstack([np.tile([-FRICTION_CHANGE_LOG_BOX, FRICTION_CHANGE_LOG_BOX], (2 * n, 1)),
+                     rate_box, np.tile([-0.5, 0.5], (n, 1))])
+    start = np.concatenate([np.zeros(2 * n), qd_guess, np.zeros(n)])
+    ref = refine(problem, start[None], box, max_iter=max_iter, ftol=1e-8)
+    x_all = np.asarray(ref.x, dtype=float)
+    ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
+    return OptimizeResult(
+        x=x_all[:2 * n], fun=float(ref.fun), nfev=int(ref.nfev), nit=int(ref.nit), success=ok,
+        message=(ref.message or "ok") if ok else "the predictor failed: the window does not fit",
+        viscous_factor=np.exp(x_all[:n]), coulomb_factor=np.exp(x_all[n:2 * n]),
+        residuals_pulses=problem.residuals(x_all).reshape(k1 - k0, n))
+
+
+def _window_samples(log, window_s):
+    """Samples ``(k0, k1)`` of a window (s) of a log (None: the whole log)."""
+    ts = log.rig.sample_time_s
+    if window_s is None:
+        k0, k1 = 0, log.n_samples
+    else:
+        t0, t1 = (float(v) for v in window_s)
+        k0, k1 = int(np.ceil(t0 / ts - 1e-9)), int(np.floor(t1 / ts + 1e-9)) + 1
+        if not (0 <= k0 and k1 <= log.n_samples):
+            raise ValueError(f"window_s {window_s} is outside the log (0 to {log.t[-1]:.4g} s)")
+    if k1 - k0 < 20:
+        raise ValueError(f"the window has {k1 - k0} samples; at least 20 are needed")
+    return k0, k1
+
+
+def _currents_of(log, currents):
+    """The applied currents (n_samples, n) A: None (the P law), "logged" or an array."""
+    if currents is None:
+        i = p_law_current(log.rig, log.e_pulses)
+    elif isinstance(currents, str):
+        if currents != "logged":
+            raise ValueError(f"currents must be None, 'logged' or an array, got {currents!r}")
+        i = np.asarray(log.i_A, dtype=float)
+    else:
+        i = np.asarray(currents, dtype=float)
+    if i.shape != (log.n_samples, log.n_joints) or not np.all(np.isfinite(i)):
+        raise ValueError(f"currents must be finite, shape ({log.n_samples}, {log.n_joints})")
+    return i
 
 
 class ArmPayloadResult(OptimizeResult):
@@ -328,44 +506,22 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
 
         log = dataclasses.replace(log, rig=rig)
     n, ts = log.n_joints, rig.sample_time_s
-    if window_s is None:
-        k0, k1 = 0, log.n_samples
-    else:
-        t0, t1 = (float(v) for v in window_s)
-        k0, k1 = int(np.ceil(t0 / ts - 1e-9)), int(np.floor(t1 / ts + 1e-9)) + 1
-        if not (0 <= k0 and k1 <= log.n_samples):
-            raise ValueError(f"window_s {window_s} is outside the log (0 to {log.t[-1]:.4g} s)")
-    if k1 - k0 < 20:
-        raise ValueError(f"the window has {k1 - k0} samples; at least 20 are needed")
-    if currents is None:
-        i = p_law_current(rig, log.e_pulses)
-    elif isinstance(currents, str):
-        if currents != "logged":
-            raise ValueError(f"currents must be None, 'logged' or an array, got {currents!r}")
-        i = np.asarray(log.i_A, dtype=float)
-    else:
-        i = np.asarray(currents, dtype=float)
-    if i.shape != (log.n_samples, n) or not np.all(np.isfinite(i)):
-        raise ValueError(f"currents must be finite, shape ({log.n_samples}, {n})")
+    k0, k1 = _window_samples(log, window_s)
+    i = _currents_of(log, currents)
     box = np.asarray(DEFAULT_ARM_PAYLOAD_BOUNDS if bounds is None else bounds, dtype=float)
     if box.shape != (4, 2) or not np.all(np.isfinite(box)) or np.any(box[:, 0] >= box[:, 1]) \
             or box[0, 0] < 0:
         raise ValueError("bounds must be 4 finite (low, high) pairs with low < high and a mass >= 0")
     problem = ArmPayloadProblem(log, plant, beta_prior, k0, k1, i, gain=gain, substeps=substeps,
                                 workers=workers)
-    # the start rates: the reference's minus the logged error's slope (least squares over a
-    # few samples each side), refined as nuisance parameters
-    lo, hi = max(k0 - _RATE_SAMPLES, 0), min(k0 + _RATE_SAMPLES + 1, log.n_samples)
-    tt = np.arange(lo, hi) * ts
-    counts = np.trunc(log.reference_counts()[lo:hi]) - np.asarray(log.e_pulses[lo:hi], float)
-    slope = np.polyfit(tt, counts, 1)[0] if hi - lo > 1 else np.zeros(n)
-    qd_guess = np.asarray(slope, dtype=float).reshape(n) / problem.spr
-    half = _RATE_BOX + 0.2 * np.abs(qd_guess)
-    rate_box = np.column_stack([qd_guess - half, qd_guess + half])
+    # the start rates: the reference's minus the logged error's slope, refined as nuisances
+    qd_guess, rate_box = _start_box(log, problem, k0)
     full_box = np.vstack([box, rate_box, np.tile([-0.5, 0.5], (n, 1))])
     mid_com = 0.5 * (box[1:, 0] + box[1:, 1])
     starts = np.array([[box[0, 0] + f * (box[0, 1] - box[0, 0]), *mid_com, *qd_guess, *np.zeros(n)]
                        for f in (0.1, 0.35, 0.65)])
+    if box[0, 1] - box[0, 0] < 1e-6:  # a pinned mass (a model's own fit): one start
+        starts = starts[:1]
     ref = refine(problem, starts, full_box, max_iter=max_iter, ftol=1e-8)
     x_all = np.asarray(ref.x, dtype=float)
     ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)

@@ -254,6 +254,32 @@ def test_identify_arm_with_the_papers_ga(arm):
         identify_arm(log, method="nope")
 
 
+def test_an_idim_start_that_does_not_simulate_falls_back_to_the_ga(arm, monkeypatch):
+    """An IDIM-LS estimate whose inertia matrix is not positive definite (what a drive whose
+    friction dwarfs the link torques gave on an independent planar arm): the default method
+    starts the refinement from the GA instead, says so, and finds the base parameters;
+    without a seed the result repeats."""
+    import identification.arm as ida
+
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1500)
+    real = ida.arm_idim_ls
+
+    def loose(*a, **kw):
+        out = dict(real(*a, **kw))
+        out["x"] = -out["x"]  # D(q) negative definite: the predictor fails at once
+        out["x_std"] = np.abs(out["x"]) * 0.5
+        return out
+
+    monkeypatch.setattr(ida, "arm_idim_ls", loose)
+    small = dict(n_subpops=2, n_ind=10, n_gen=8)
+    a = ida.identify_arm(log, ga_options=small, model="rigid")
+    b = ida.identify_arm(log, ga_options=small, model="rigid")
+    assert a.success and a.ga is not None and "does not simulate" in a.warnings[0]
+    well = a.x_rse < 0.01
+    assert well.sum() >= 4 and np.all(np.abs(a.x[well] / arm.beta()[well] - 1) < 0.005)
+    np.testing.assert_array_equal(a.x, b.x)
+
+
 def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
     """``python -m identification LOG.csv`` takes a robot-model log; PUMA-only options say so."""
     from ctc.arm import ArmComputedTorque

@@ -154,3 +154,28 @@ def test_a_bare_prior_needs_known_friction(arm, loaded_log):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         identify_arm_payload(log, arm.beta(), window_s=(1.0, 1.2))
+
+
+def test_a_friction_change_is_fitted_as_the_payloads_rival(arm):
+    """A window of a P log whose drive friction is 1.5 times the rig's: the friction-change
+    hypothesis finds the factors (within 5 %) and explains the window better than any
+    payload."""
+    import dataclasses
+
+    from identification.arm_payload import identify_arm_friction_change
+
+    rig = planar_rig()
+    warm = dataclasses.replace(
+        rig, viscous_friction_Nms_per_rad=tuple(1.5 * v for v in rig.viscous_friction_Nms_per_rad),
+        coulomb_friction_Nm=tuple((1.5 * a, 1.5 * b) for a, b in rig.coulomb_friction_Nm))
+    log = emulate_arm_log(arm, arm.beta(), warm, TRAJ, 2000)
+    log = dataclasses.replace(log, rig=rig)  # the model's rig: the friction it knows
+    window = (1.0, 1.2)
+    fr = identify_arm_friction_change(log, arm.beta(), window_s=window, currents=None)
+    assert fr.success
+    assert np.allclose(fr.viscous_factor, 1.5, rtol=0.05)
+    assert fr.residuals_pulses.shape == (201, 2)
+    pl = identify_arm_payload(log, arm.beta(), window_s=window)
+    assert fr.fun < pl.fun
+    with pytest.raises(ValueError, match="finite base parameters"):
+        identify_arm_friction_change(log, arm.beta(), beta=np.zeros(3), window_s=window)

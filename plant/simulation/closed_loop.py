@@ -213,7 +213,7 @@ def simulate_closed_loop(
         if len(c.pulses_per_rad) != plant.n_joints:
             raise ValueError(f"the rig has {len(c.pulses_per_rad)} joints, the robot {plant.n_joints}")
 
-        def lane_parameters(values, what, friction=None):
+        def lane_parameters(values, what, friction=None, joints=None):
             return plant.lane_parameters(np.asarray(values, dtype=float).reshape(1, -1))
         read, step = _read_arm, _step_arm
     else:

@@ -1,0 +1,580 @@
+"""Adaptive computed-torque control of any serial arm: a payload identified on-line.
+
+The paper's proposal (sec. 5: identify a carried load from a 100-200 ms
+window and feed it to the computed-torque controller), for a robot model of
+n joints (:class:`plant.robot.robot_model.RobotModel`), with the safety
+rules of the PUMA path's supervisor (:mod:`ctc.adaptive`, issue 21) that
+carry over to an arm whose prior is rigid:
+
+1. **Windows.**  The inner controller is the arm's computed torque
+   (:class:`ctc.arm.ArmComputedTorque`, with its current limit and its
+   following-error watchdog).  Every ``window_s`` of the run the controller
+   identifies the payload on the chain's last link from its own window:
+   :func:`identification.arm_payload.identify_arm_payload` with the
+   currents it commanded (``currents="logged"``: the controller knows what
+   the drive applied, the replay needs no model of the controller), the
+   unloaded prior's base parameters, and the window's start state refined
+   as nuisance parameters.  The model in use is fitted the same way (its
+   payload pinned, the start state free), so the two are compared on equal
+   terms.
+2. **Significance.**  The estimate replaces the model in use only when it
+   explains the window better than the quantisation noise can account for:
+   the likelihood ratio of :func:`ctc.adaptive.residual_statistics` (the
+   difference of the two output errors over the residual variance, floored
+   at :data:`ctc.adaptive.QUANTISATION_VARIANCE`, and the residual's
+   autocorrelation time) beyond the chi-square quantile of ``false_alarm``
+   with as many degrees of freedom as the window identifies payload
+   parameters (Basseville & Nikiforov, *Detection of Abrupt Changes*,
+   1993, sec. 2.4).
+3. **Plausibility and adequacy.**  An estimate at the upper end of the
+   mass box is the optimiser's, not the robot's (decision
+   ``'implausible'``); a significant change whose best payload still leaves
+   the window's output error above
+   :data:`identification.flexible.INADEQUATE_FACTOR` quantisation floors is
+   a change a payload does not describe (friction, damping, a collision:
+   decision ``'unexplained'``).  **The rival**: before an update to another
+   payload (not a refinement, not the empty gripper), a change of the drive
+   friction under the model in use -- per joint a factor on the viscous and
+   on the Coulomb friction
+   (:func:`identification.arm_payload.identify_arm_friction_change`) -- is
+   fitted on the same window, and when it explains the window better than
+   the payload by Vuong's test for non-nested models of the same data
+   (:func:`ctc.adaptive.vuong_residual_statistic`, ``z`` beyond the normal
+   quantile of ``false_alarm``; Q. H. Vuong, Econometrica 57, 1989) the
+   decision is ``'friction'`` (``cause`` of the report); once a window of
+   the episode has said friction, the payload must explain each window
+   significantly better than friction (``z`` below minus that quantile)
+   until a window shows no change.  Motor-side
+   viscous friction reflected through a 100:1 gearbox can dominate a small
+   arm's dynamics; measured on ``benchmarks/bench_arm_adaptive.py`` (seed
+   20261301, planar draw 20261310) a 0.2 % friction change moved the
+   replay by thousands of pulses^2 and one window read it as a 2.14 kg
+   payload that fitted within the quantisation floors, and the update
+   tracked worse than the static CTC (5 / 2 against 2 / 1 pulses).  None of
+   these updates the model; the second
+   window in a row that says so is reported (an event ``'unexplained'``
+   with its ``cause`` and an :class:`ctc.adaptive.UnmodelledChangeWarning`,
+   once per episode), and from then on only
+   :data:`ARM_PERSISTENCE_WINDOWS` successive agreeing estimates (one
+   payload: within 25 % + 50 g) update.
+4. **Rollback.**  The first whole window after an update to another
+   payload is a probation: when its mean squared tracking error exceeds
+   ``explain_factor`` times that of the window that triggered the update
+   (and one pulse^2), the update made the arm track worse and the
+   controller returns to the model it replaced (event ``'rollback'``);
+   again only agreeing estimates update after that, and none of the payload
+   the rollback rejected (one payload: within 25 % + 50 g) until a window
+   shows no change (the model in use describes the robot: an episode of
+   caution ends there).  A window that shows a
+   change no payload describes (one spanning a pick-up or a put-down) does
+   not judge: its tracking answers that change, and the next window judges.
+   A refinement -- an estimate within :data:`REFINEMENT_KG` + 5 % of the
+   payload in use, significant against it -- installs every estimate of
+   that payload since its update pooled by their information (the
+   inverse variances of the mass; the base parameters, linear in the point
+   mass's standard parameters, and the centre of mass by the same
+   weights), moves the model little and is on no probation (measured on ``benchmarks/bench_arm_adaptive.py``,
+   seed 20261201, planar draw 20261206: a refinement of a 4.97 kg tool
+   judged by the window spanning its put-down was rolled back, and the
+   caution that follows a rollback delayed the put-down's update by one
+   window, 17 / 5 pulses against the static CTC's 1 / 1).
+5. **Repeatable.**  A model takes effect ``latency_s`` after its window's
+   last sample: a fixed value (default :data:`DEFAULT_ARM_LATENCY_S`, the
+   simulation's: two runs are identical bit for bit) or ``"measured"``
+   (the wall time of the identification, for hardware).  While a model is
+   pending no other window is identified.  The kernels are compiled when
+   the controller is built (one identification of the prior's log).
+
+A flexible prior is refused: the payload identification of
+:mod:`identification.arm_payload` fits a rigid arm (identify the arm with
+``model="rigid"``, or use the static controller of
+:meth:`ctc.arm.ArmComputedTorque.from_result`).
+
+The controller follows the sampled-controller protocol (``reset()``,
+``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
+:func:`plant.simulate_closed_loop` (``plant=`` the arm) and the
+independent simulator of ``benchmarks/`` run it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import warnings
+
+import numpy as np
+
+from .adaptive import (DEFAULT_LATENCY_S, UnmodelledChangeWarning, residual_statistics,
+                       vuong_residual_statistic)
+from .arm import ArmComputedTorque, log_envelope
+
+__all__ = ["ArmAdaptiveComputedTorque", "DEFAULT_ARM_LATENCY_S", "DEFAULT_ARM_WINDOW_S",
+           "ARM_PERSISTENCE_WINDOWS", "REFINEMENT_KG"]
+
+#: Default window (s): the paper's 100-200 ms, its upper end (a window of an n-joint arm
+#: determines the mass and the first moment of a point mass on the last link;
+#: ``benchmarks/bench_arm_payload.py``).
+DEFAULT_ARM_WINDOW_S = 0.2
+
+#: Default latency (s) of a window's model: the PUMA path's (:data:`ctc.adaptive.DEFAULT_LATENCY_S`).
+DEFAULT_ARM_LATENCY_S = DEFAULT_LATENCY_S
+
+#: Successive agreeing estimates that update after a rollback or an unexplained change.
+ARM_PERSISTENCE_WINDOWS = 2
+
+
+#: A new estimate whose mass is within this many kg (plus 5 %) of the payload in use
+#: refines it: installed without probation (step 4).
+REFINEMENT_KG = 0.05
+
+
+def _refines(a, b) -> bool:
+    """Mass ``a`` (kg) refines the payload in use of mass ``b``."""
+    return abs(a - b) <= 0.05 * max(abs(a), abs(b)) + REFINEMENT_KG
+
+
+def _same_payload(a, b) -> bool:
+    """Two masses (kg) that are one payload: within 25 % of the larger + 50 g."""
+    return abs(a - b) <= 0.25 * max(abs(a), abs(b)) + 0.05
+
+
+class ArmAdaptiveComputedTorque:
+    """Computed-torque control of an arm whose payload is identified on-line (module docstring).
+
+    Parameters
+    ----------
+    prior : identification.arm.ArmIdentificationResult
+        The unloaded arm, identified rigid (its plant, base parameters and
+        rig, with the identified friction when the sidecar had none).
+    log : plant.logs.arm_log.ArmLog
+        The log the prior was identified from (rig, reference; its first
+        window compiles the kernels).
+    window_s : float
+        Length of each identified window (s), at least 20 samples.
+    latency_s : float or "measured"
+        Delay from a window's last sample to its model taking effect (s):
+        fixed (repeatable) or the identification's wall time.
+    false_alarm : float
+        Probability that a window of an unchanged arm passes the significance
+        test (0 < false_alarm < 1).
+    explain_factor : float
+        Rollback threshold (> 1) on the first window after an update.
+    bounds : array_like, shape (4, 2), optional
+        Box of ``[m, cx, cy, cz]`` (default
+        :data:`identification.arm_payload.DEFAULT_ARM_PAYLOAD_BOUNDS`).
+    trajectory : plant.Trajectory, optional
+        The reference to track (default the log's).
+    envelope : array_like, shape (n,) or None or "log"
+        The inner controller's following-error limit (pulses); ``"log"``
+        (default): :func:`ctc.arm.log_envelope`, twice the log's largest
+        P-control errors.
+    **design
+        Gains of the inner controller (:class:`ctc.arm.ArmComputedTorque`).
+
+    Attributes
+    ----------
+    beta : ndarray, shape (r,)
+        The base parameters in use.
+    payload : dict or None
+        The payload in use (``mass_kg``, ``com_m``) or None.
+    payload_history : list of (float, float)
+        ``(t_s, mass_kg)`` each time a model took effect, starting with
+        ``(0.0, 0.0)``.
+    events : list of dict
+        ``t_s``, ``kind`` (``'update'``, ``'refinement'``, ``'rollback'``,
+        ``'unexplained'``) and ``message``.
+    identifications : list of dict
+        Per identified window: ``window_s``, ``decision`` (``'no change'``,
+        ``'update'``, ``'refinement'``, ``'held'``, ``'implausible'``,
+        ``'unexplained'``, ``'friction'``, ``'failed'``; a fitted friction
+        rival adds ``friction_z``, ``friction_y`` and ``friction_factors``), ``mass_kg``, ``mass_std``, ``lr``, ``threshold``,
+        ``y_now``, ``y_new`` (pulses^2), ``tracking_mse`` (pulses^2),
+        ``elapsed_s`` and ``reason``.
+
+    Raises
+    ------
+    ValueError
+        A prior that is not a successful rigid arm identification, a window
+        shorter than 20 samples, a latency that is neither >= 0 nor
+        ``"measured"``, ``false_alarm`` outside (0, 1), ``explain_factor`` <= 1,
+        or any error of :class:`ctc.arm.ArmComputedTorque`.
+    """
+
+    def __init__(self, prior, log, *, window_s=DEFAULT_ARM_WINDOW_S,
+                 latency_s=DEFAULT_ARM_LATENCY_S, false_alarm=1e-3, explain_factor=4.0,
+                 bounds=None, trajectory=None, envelope="log", **design):
+        from scipy.stats import chi2, norm
+
+        from identification.arm_payload import (DEFAULT_ARM_PAYLOAD_BOUNDS,
+                                                identify_arm_friction_change,
+                                                identify_arm_payload)
+
+        if not (hasattr(prior, "get") and prior.get("plant") is not None
+                and prior.get("beta") is not None):
+            raise ValueError("prior must be an identification.arm.identify_arm result")
+        if prior.get("model", "rigid") != "rigid":
+            raise ValueError("ArmAdaptiveComputedTorque needs a rigid prior (the payload "
+                             "identification fits a rigid arm): identify the arm with "
+                             "model='rigid'")
+        if not prior.get("success", False):
+            raise ValueError(f"the prior's identification did not succeed: {prior.get('message')}")
+        self.prior = prior
+        self.log = log
+        self.trajectory = log.trajectory if trajectory is None else trajectory
+        ts = float(log.rig.sample_time_s)
+        self.ts = ts
+        self.window_n = int(round(float(window_s) / ts))
+        if self.window_n < 20:
+            raise ValueError(f"window_s={window_s} gives {self.window_n} samples; at least 20 "
+                             "are needed")
+        self.window_s = self.window_n * ts
+        if isinstance(latency_s, str):
+            if latency_s != "measured":
+                raise ValueError(f"latency_s must be a number >= 0 or 'measured', got {latency_s!r}")
+        elif not (np.isfinite(latency_s) and latency_s >= 0):
+            raise ValueError(f"latency_s must be a number >= 0 or 'measured', got {latency_s!r}")
+        self.latency_s = latency_s
+        if not 0.0 < float(false_alarm) < 1.0:
+            raise ValueError(f"false_alarm must be in (0, 1), got {false_alarm!r}")
+        self.false_alarm = float(false_alarm)
+        if not float(explain_factor) > 1.0:
+            raise ValueError(f"explain_factor must be > 1, got {explain_factor!r}")
+        self.explain_factor = float(explain_factor)
+        self.bounds = np.asarray(DEFAULT_ARM_PAYLOAD_BOUNDS if bounds is None else bounds,
+                                 dtype=float)
+        self._chi2 = chi2
+        if isinstance(envelope, str):
+            if envelope != "log":
+                raise ValueError(f"envelope must be n pulses, None or 'log', got {envelope!r}")
+            envelope = log_envelope(log)
+        self.prior_beta = np.asarray(prior["beta"], dtype=float).copy()
+        self._ctc = ArmComputedTorque(prior["plant"], self.prior_beta, prior["rig"],
+                                      self.trajectory, envelope=envelope, **design)
+        self.n = self._ctc.n
+        self._identify_payload = identify_arm_payload
+        self._identify_friction = identify_arm_friction_change
+        self._z_threshold = float(norm.isf(self.false_alarm))
+        # compile the replay kernels now, not inside the loop: one window of the prior's log
+        k1 = min(log.n_samples, max(self.window_n, 20))
+        identify_arm_payload(log, prior, window_s=(0.0, (k1 - 1) * ts), bounds=self.bounds,
+                             workers=1, max_iter=2)
+        self.reset()
+
+    @classmethod
+    def from_result(cls, prior, log, **options):
+        """The adaptive controller of an unloaded arm's identification on its log's rig.
+
+        Parameters
+        ----------
+        prior : identification.arm.ArmIdentificationResult
+        log : plant.logs.arm_log.ArmLog
+        **options
+            Keywords of the constructor (``window_s``, ``latency_s``,
+            ``trajectory``, gains, ...).
+
+        Returns
+        -------
+        ArmAdaptiveComputedTorque
+
+        Raises
+        ------
+        ValueError
+            As the constructor.
+        """
+        return cls(prior, log, **options)
+
+    # ------------------------------------------------------------------ protocol
+    def reset(self) -> None:
+        """Back to the prior; forget the run, the history and any pending model."""
+        self._ctc.reset()
+        self._install(self.prior_beta, None)
+        self.payload_history = [(0.0, 0.0)]
+        self.events = []
+        self.identifications = []
+        self._E = np.zeros((0, self.n), dtype=np.int64)
+        self._I = np.zeros((0, self.n))
+        self._pending = None  # (k_effective, beta, payload, trigger_mse)
+        self._rejected = None  # the mass (kg) a rollback rejected, until a window shows no change
+        self._probation = None  # (k_from, trigger_mse, previous beta, previous payload)
+        self._cautious = False  # after a rollback or an unexplained change: agreeing estimates
+        self._agree = []  # the latest successive significant estimates (mass, beta, payload)
+        self._pool = []  # estimates of the payload in use since its update (m, sd, beta, com)
+        self._odd = 0  # successive windows a payload does not describe
+        self._causes = []  # their causes ('friction', 'unknown')
+        self._friction_named = False  # a friction change reported in this episode
+        self._warned = False
+
+    def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
+        """Motor currents (n,) A for sample ``k`` (sampled-controller protocol)."""
+        if self._pending is not None and k >= self._pending[0]:
+            k_eff, beta, payload, trigger = self._pending
+            self._pending = None
+            m_new = 0.0 if payload is None else payload["mass_kg"]
+            # a refinement of the payload in use (its mass within REFINEMENT_KG + 5 %) moves
+            # the model little and is on no probation (one on trial stays); another payload is
+            if not _refines(m_new, self.payload_mass_kg):
+                self._probation = (k_eff, trigger, self.beta, self.payload)
+            self._install(beta, payload)
+            self.payload_history.append((k * self.ts, self.payload_mass_kg))
+        i = np.asarray(self._ctc(k, t, q_meas, e_pulses), dtype=float)
+        if k >= self._E.shape[0]:
+            grow = max(k + 1, 2 * self._E.shape[0], 1024)
+            self._E = np.vstack([self._E, np.zeros((grow - self._E.shape[0], self.n), np.int64)])
+            self._I = np.vstack([self._I, np.zeros((grow - self._I.shape[0], self.n))])
+        self._E[k] = np.asarray(e_pulses, dtype=np.int64)
+        self._I[k] = np.clip(i, -self._ctc.limit, self._ctc.limit)
+        k1 = k + 1
+        if (k1 % self.window_n == 0 and self._pending is None
+                and self._ctc.fallback_t_s is None):
+            self._identify(k1)
+        return i
+
+    # ------------------------------------------------------------------ internals
+    def _install(self, beta, payload) -> None:
+        self.beta = np.asarray(beta, dtype=float).copy()
+        self.payload = payload
+        self._ctc.set_beta(self.beta)
+
+    def _event(self, k, kind, message, **details) -> None:
+        self.events.append(dict(t_s=k * self.ts, kind=kind, message=message, **details))
+
+    def _window_log(self, k1):
+        """The run so far as an arm log (the controller's commands as ``i_A``)."""
+        t = np.arange(k1) * self.ts
+        q_ref = np.asarray(self.trajectory.position(t), dtype=float).reshape(k1, self.n)
+        return dataclasses.replace(self.log, t=t, q_ref=q_ref, e_pulses=self._E[:k1].copy(),
+                                   i_A=self._I[:k1].copy(), trajectory=self.trajectory,
+                                   rig=self.prior["rig"])
+
+    def _pinned(self, payload) -> np.ndarray:
+        """A box that pins the payload ``payload`` (None: no payload) for the null fit."""
+        m, c = (0.0, np.zeros(3)) if payload is None else (payload["mass_kg"], payload["com_m"])
+        x = np.concatenate([[m], np.asarray(c, dtype=float)])
+        return np.column_stack([x, x + 1e-9])
+
+    def _fit_window(self, wlog, k0, k1) -> dict:
+        """The payload estimate and the model in use fitted on samples ``k0 .. k1 - 1``, and
+        their likelihood-ratio statistics (:func:`ctc.adaptive.residual_statistics`)."""
+        from identification.flexible import INADEQUATE_FACTOR, quantisation_floor
+
+        window = (k0 * self.ts, (k1 - 1) * self.ts)
+        est = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
+                                     bounds=self.bounds, workers=1)
+        now = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
+                                     bounds=self._pinned(self.payload), workers=1)
+        dof = 1 + int(np.sum(est.com_identifiable))
+        out = dict(window=window, est=est, now=now, ok=bool(est.success and now.success),
+                   threshold=float(self._chi2.isf(self.false_alarm, dof)))
+        if out["ok"]:
+            st = residual_statistics(now.residuals_pulses, est.residuals_pulses, dof)
+            floor = quantisation_floor(st["n_values"])
+            out.update(st=st, floor=floor, limit=INADEQUATE_FACTOR * floor)
+        return out
+
+    def _identify(self, k1) -> None:
+        """Identify the window ending before sample ``k1`` and act on the decision."""
+        k0 = k1 - self.window_n
+        t_wall = time.perf_counter()
+        wlog = self._window_log(k1)
+        fit = self._fit_window(wlog, k0, k1)
+        est, now = fit["est"], fit["now"]
+        e = self._E[k0:k1].astype(float)
+        mse = float(np.mean(e * e))
+        rec = dict(window_s=fit["window"], decision="failed", mass_kg=float(est.mass_kg),
+                   mass_std=float(est.x_std[0]), lr=float("nan"), threshold=fit["threshold"],
+                   y_now=float(now.fun), y_new=float(est.fun), tracking_mse=mse,
+                   elapsed_s=0.0, reason="")
+        self.identifications.append(rec)
+        try:
+            self._decide(wlog, k0, k1, fit, rec, mse)
+        finally:
+            rec["elapsed_s"] = time.perf_counter() - t_wall
+        if self._pending is not None and self._pending[0] is None:
+            # the update's latency: fixed, or the identification's wall time ('measured')
+            latency = rec["elapsed_s"] if self.latency_s == "measured" else float(self.latency_s)
+            k_eff = k1 + max(int(math.ceil(latency / self.ts - 1e-9)), 0)
+            self._pending = (k_eff,) + self._pending[1:]
+            kind = rec["decision"]
+            m_new = 0.0 if self._pending[2] is None else self._pending[2]["mass_kg"]
+            self._event(k_eff, kind, f"payload {m_new:.3g} kg ({rec['reason']})", mass_kg=m_new)
+
+    def _decide(self, wlog, k0, k1, fit, rec, mse) -> None:
+        """The supervisor's decision on one window (module docstring, steps 2-4)."""
+        from identification.flexible import INADEQUATE_FACTOR
+
+        if not fit["ok"]:
+            est = fit["est"]
+            rec["reason"] = est.message if not est.success else fit["now"].message
+            return
+        st, limit = fit["st"], fit["limit"]
+        rec["lr"] = float(st["lr"])
+        # a window that shows a change no payload describes (one spanning a pick-up, a
+        # put-down, a collision) does not judge the update on probation: its tracking
+        # answers that change, not the update; the next window does
+        if st["y_new"] <= limit:
+            self._judge_probation(k0, k1, mse)
+        half = self.window_n // 2
+        if st["y_new"] > limit and half >= 20:
+            # a window spanning a change: its second half may be the robot as it is now
+            late = self._fit_window(wlog, k1 - half, k1)
+            if late["ok"] and late["st"]["y_new"] <= late["limit"] \
+                    and late["st"]["lr"] > late["threshold"]:
+                fit = late
+                st, limit = fit["st"], fit["limit"]
+                rec.update(window_s=fit["window"], half_window=True, lr=float(st["lr"]),
+                           threshold=fit["threshold"], mass_kg=float(fit["est"].mass_kg),
+                           mass_std=float(fit["est"].x_std[0]), y_now=float(fit["now"].fun),
+                           y_new=float(fit["est"].fun))
+        est, threshold, floor = fit["est"], fit["threshold"], fit["floor"]
+        window = fit["window"]
+        m = float(est.mass_kg)
+        payload = dict(mass_kg=m, com_m=np.asarray(est.com_m, dtype=float).copy())
+        if st["lr"] <= threshold and st["y_now"] > limit and st["y_new"] > limit:
+            # neither the model in use nor any payload describes the window: no test between
+            # them, but a change (friction, damping, a collision, or a window spanning a change)
+            rec.update(decision="unexplained",
+                       reason=(f"neither the model in use ({st['y_now']:.4g} pulses^2) nor the "
+                               f"best payload ({m:.3g} kg, {st['y_new']:.4g}) describes the "
+                               f"window: more than {INADEQUATE_FACTOR:g} quantisation floors "
+                               f"({floor:.4g})"))
+            self._unexplained(k1, rec)
+            return
+        if st["lr"] <= threshold:
+            # the model in use describes the window: an episode of caution is over
+            rec.update(decision="no change", reason=f"LR {st['lr']:.3g} <= {threshold:.3g}")
+            self._odd = 0
+            self._causes = []
+            self._agree = []
+            self._cautious = False
+            self._rejected = None
+            self._friction_named = False
+            return
+        if m >= self.bounds[0, 1] - 0.01 * (self.bounds[0, 1] - self.bounds[0, 0]):
+            rec.update(decision="implausible", reason=f"mass {m:.3g} kg at the box's upper end")
+            self._unexplained(k1, rec)
+            return
+        if st["y_new"] > limit:
+            rec.update(decision="unexplained",
+                       reason=(f"the best payload ({m:.3g} kg) leaves {st['y_new']:.4g} pulses^2, "
+                               f"more than {INADEQUATE_FACTOR:g} quantisation floors "
+                               f"({floor:.4g})"))
+            self._unexplained(k1, rec)
+            return
+        if not _refines(m, self.payload_mass_kg) and m > REFINEMENT_KG:
+            # the rival (step 3): a change of the drive friction under the model in use
+            fr = self._identify_friction(wlog, self.prior, beta=self.beta, window_s=window,
+                                         currents="logged", workers=1)
+            if fr.success:
+                z = vuong_residual_statistic(est.residuals_pulses, fr.residuals_pulses)
+                rec.update(friction_z=float(z), friction_y=float(fr.fun),
+                           friction_factors=dict(viscous=fr.viscous_factor.tolist(),
+                                                 coulomb=fr.coulomb_factor.tolist()))
+                # once the run shows a friction change (this episode's windows), the payload
+                # must explain the window significantly better than friction; before, friction
+                # must explain it significantly better to stop the update
+                suspect = self._friction_named or "friction" in self._causes
+                if z > (-self._z_threshold if suspect else self._z_threshold):
+                    rec.update(decision="friction", cause="friction",
+                               reason=(f"a friction change (viscous x"
+                                       + " / x".join(f"{v:.3g}" for v in fr.viscous_factor)
+                                       + ", Coulomb x"
+                                       + " / x".join(f"{v:.3g}" for v in fr.coulomb_factor)
+                                       + f", {fr.fun:.4g} pulses^2) explains the window better "
+                                       f"than the payload ({m:.3g} kg, {st['y_new']:.4g}): "
+                                       f"Vuong z {z:.3g} > "
+                                       f"{(-1 if suspect else 1) * self._z_threshold:.3g}"))
+                    self._unexplained(k1, rec)
+                    return
+        self._odd = 0
+        self._causes = []
+        if self._rejected is not None and _same_payload(m, self._rejected):
+            rec.update(decision="held",
+                       reason=f"{m:.3g} kg is the payload a rollback rejected "
+                              f"({self._rejected:.3g} kg); held until a window shows no change")
+            self._agree = []
+            return
+        self._agree = (self._agree + [(m, est.beta, payload)])[-ARM_PERSISTENCE_WINDOWS:]
+        if self._cautious and not (len(self._agree) == ARM_PERSISTENCE_WINDOWS and all(
+                _same_payload(a[0], m) for a in self._agree)):
+            rec.update(decision="held",
+                       reason=f"{len(self._agree)} agreeing estimate(s) of "
+                              f"{ARM_PERSISTENCE_WINDOWS} needed after a change no payload "
+                              "explained or a rollback")
+            return
+        self._agree = []
+        self._cautious = False
+        kind = "refinement" if _refines(m, self.payload_mass_kg) else "update"
+        sd = float(est.x_std[0])
+        entry = (m, sd if np.isfinite(sd) and sd > 0 else math.nan,
+                 np.asarray(est.beta, dtype=float), payload["com_m"])
+        # a refinement installs every estimate of the payload in use since its update, pooled
+        # by their information (inverse variances of the mass; equal weights without them):
+        # single windows of a small payload scatter by 10 %
+        self._pool = (self._pool + [entry]) if kind == "refinement" else [entry]
+        sds = np.array([q[1] for q in self._pool])
+        w = 1.0 / sds ** 2 if np.all(np.isfinite(sds)) else np.ones(len(self._pool))
+        w = w / w.sum()
+        beta = np.sum([wi * q[2] for wi, q in zip(w, self._pool)], axis=0)
+        m_pool = float(np.dot(w, [q[0] for q in self._pool]))
+        com = np.sum([wi * np.asarray(q[3]) for wi, q in zip(w, self._pool)], axis=0)
+        # the effective sample is set by _identify once the window's wall time is known
+        self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com) if m_pool > 0 else None, mse)
+        rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"
+                   + (", the second half of a window spanning a change" if rec.get("half_window")
+                      else "")
+                   + (f"; {len(self._pool)} estimates pooled: {m_pool:.3g} kg"
+                      if len(self._pool) > 1 else ""))
+
+    def _unexplained(self, k1, rec) -> None:
+        """A window no plausible payload describes: reported the second time in a row."""
+        self._odd += 1
+        self._agree = []
+        self._causes.append(rec.get("cause", "unknown"))
+        if self._odd >= 2:
+            self._cautious = True
+            if not self._warned:
+                msg = (f"a change the payload model does not explain at t = {k1 * self.ts:.3f} s "
+                       f"(friction, damping, a collision?): {rec['reason']}; the model is kept")
+                cause = "friction" if "friction" in self._causes else "unknown"
+                self._friction_named = cause == "friction"
+                self._event(k1, "unexplained", msg, cause=cause)
+                warnings.warn(msg, UnmodelledChangeWarning, stacklevel=3)
+                self._warned = True
+
+    def _judge_probation(self, k0, k1, mse) -> None:
+        """Rollback: the first whole window after an update tracks clearly worse."""
+        if self._probation is None or k0 < self._probation[0]:
+            return
+        k_eff, trigger, beta_before, payload_before = self._probation
+        self._probation = None
+        if mse > self.explain_factor * max(trigger, 1.0):
+            self._rejected = self.payload_mass_kg
+            self._pool = []
+            self._install(beta_before, payload_before)
+            self.payload_history.append((k1 * self.ts, self.payload_mass_kg))
+            self._cautious = True
+            self._agree = []
+            self._event(k1, "rollback",
+                        f"tracking mean square {mse:.3g} pulses^2 after the update, "
+                        f"> {self.explain_factor:g} x {max(trigger, 1.0):.3g} before it: "
+                        f"back to {self.payload_mass_kg:.3g} kg")
+
+    # ------------------------------------------------------------------ views
+    @property
+    def payload_mass_kg(self) -> float:
+        """Mass (kg) of the payload in use (0.0 without one)."""
+        return 0.0 if self.payload is None else float(self.payload["mass_kg"])
+
+    @property
+    def fallback_t_s(self):
+        """Time (s) the inner controller's watchdog handed the arm to the P law (None: never)."""
+        return self._ctc.fallback_t_s
+
+    @property
+    def limit(self):
+        """The drive's current limit (A), per joint."""
+        return self._ctc.limit
+
+    def __repr__(self) -> str:
+        return (f"ArmAdaptiveComputedTorque({self.prior['plant'].model.name!r}, "
+                f"window_s={self.window_s:g}, payload {self.payload_mass_kg:.3g} kg)")
