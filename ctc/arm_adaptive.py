@@ -56,7 +56,13 @@ carry over to an arm whose prior is rigid:
    with its ``cause`` and an :class:`ctc.adaptive.UnmodelledChangeWarning`,
    once per episode), and from then on only
    :data:`ARM_PERSISTENCE_WINDOWS` successive agreeing estimates (one
-   payload: within 25 % + 50 g) update.
+   payload: within 25 % + 50 g) update.  A window that spans a pick-up or
+   a put-down is half old robot, half new, and no payload describes it:
+   its second half (at least 20 samples) is fitted again, and when a
+   payload describes that half significantly the decision is taken on it
+   (``half_window`` in the window's record; seed 20261301, planar draw
+   20261302: a put-down's update came 0.2 s earlier, 1 / 5 pulses after it
+   became 1 / 1).
 4. **Rollback.**  The first whole window after an update to another
    payload is a probation: when its mean squared tracking error exceeds
    ``explain_factor`` times that of the window that triggered the update
@@ -73,8 +79,8 @@ carry over to an arm whose prior is rigid:
    that payload since its update pooled by their information (the
    inverse variances of the mass; the base parameters, linear in the point
    mass's standard parameters, and the centre of mass by the same
-   weights), moves the model little and is on no probation (measured on ``benchmarks/bench_arm_adaptive.py``,
-   seed 20261201, planar draw 20261206: a refinement of a 4.97 kg tool
+   weights), moves the model little and is on no probation (measured on
+   ``benchmarks/bench_arm_adaptive.py``, seed 20261201, planar draw 20261206: a refinement of a 4.97 kg tool
    judged by the window spanning its put-down was rolled back, and the
    caution that follows a rollback delayed the put-down's update by one
    window, 17 / 5 pulses against the static CTC's 1 / 1).
@@ -189,7 +195,8 @@ class ArmAdaptiveComputedTorque:
         ``'unexplained'``, ``'friction'``, ``'failed'``; a fitted friction
         rival adds ``friction_z``, ``friction_y`` and ``friction_factors``), ``mass_kg``, ``mass_std``, ``lr``, ``threshold``,
         ``y_now``, ``y_new`` (pulses^2), ``tracking_mse`` (pulses^2),
-        ``elapsed_s`` and ``reason``.
+        ``elapsed_s``, ``reason`` and, when the decision was taken on the
+        second half of a window spanning a change, ``half_window``.
 
     Raises
     ------
