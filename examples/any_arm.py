@@ -25,12 +25,18 @@ identification chooses the model itself (``model_choice``), and the
 controller built from the result is the motor-side flexible-joint CTC
 (:class:`ctc.arm.ArmFlexibleComputedTorque`).
 
+With ``--pick-up KG`` a tool of KG kg is picked up at half the log, and the
+static CTC of the unloaded identification runs against the adaptive one
+(:class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque`: the payload
+identified on-line from windows of its own run).
+
 Run from the repository root::
 
     python examples/any_arm.py --robot planar2        # seconds
     python examples/any_arm.py --flexible             # the planar arm with compliant joints
     python examples/any_arm.py --robot puma6          # about half a minute (compiling included)
     python examples/any_arm.py --quick                # a 2 s log of the planar arm
+    python examples/any_arm.py --pick-up 2            # and a 2 kg tool picked up mid-run
 
 Writes ``out/any_arm/<robot>.{csv,json}``, ``<robot>_result.json`` and
 ``<robot>_tracking.png``.  A bad option ends with one line ``error: ...``
@@ -60,6 +66,9 @@ def parse(argv):
     p.add_argument("--quick", action="store_true", help="a 2 s log (smoke run)")
     p.add_argument("--flexible", action="store_true",
                    help="two-mass joints with backlash on the last joint (model choice, flexible CTC)")
+    p.add_argument("--pick-up", type=float, default=None, metavar="KG",
+                   help="also pick up a tool of KG kg at half the log and compare the static "
+                        "and the adaptive CTC (rigid arms)")
     p.add_argument("--out", type=Path, default=Path("out") / "any_arm",
                    help="output directory (default out/any_arm)")
     a = p.parse_args(argv)
@@ -67,6 +76,12 @@ def parse(argv):
         a.duration = 2.0
     if not (math.isfinite(a.duration) and 1.0 <= a.duration <= 60.0):
         raise ValueError(f"--duration must lie in [1, 60] s, got {a.duration}")
+    if a.pick_up is not None:
+        if not (math.isfinite(a.pick_up) and 0.0 < a.pick_up <= 9.0):
+            raise ValueError(f"--pick-up must lie in (0, 9] kg, got {a.pick_up}")
+        if a.flexible:
+            raise ValueError("--pick-up needs a rigid arm (the adaptive CTC identifies a rigid "
+                             "payload): drop --flexible")
     return a
 
 
@@ -209,20 +224,57 @@ def main(argv=None):
     report = dict(robot=args.robot, model=repr(model), names=list(res.names), truth=truth.tolist(),
                   identified=res.x.tolist(), rse=res.x_rse.tolist(), identify_s=res.elapsed_s,
                   tracking=out, flexible=bool(args.flexible), model_choice=res.to_dict()["model_choice"])
+    if args.pick_up is not None:
+        report["pick_up"], pick_rows = pick_up(args.pick_up, model, arm, truth, log, res)
+        fig_rows += pick_rows
     try:
         (args.out / f"{name}_result.json").write_text(json.dumps(report, indent=1) + "\n")
         from matplotlib.figure import Figure
 
-        fig = Figure(figsize=(3.5 * model.n_joints, 5), layout="constrained")
-        axes = fig.subplots(2, model.n_joints, squeeze=False)
+        fig = Figure(figsize=(3.5 * model.n_joints, 2.5 * len(fig_rows)), layout="constrained")
+        axes = fig.subplots(len(fig_rows), model.n_joints, squeeze=False)
+        title = f"{name}: P (top), CTC" + (
+            f", then static and adaptive CTC with {args.pick_up:g} kg picked up at "
+            f"{report['pick_up']['t_s']:.2f} s (bottom)" if args.pick_up is not None else " (bottom)")
         for row, r in zip(axes, fig_rows):
-            r.plot(currents=False, ax=row[None, :], title=f"{name}: P (top), CTC (bottom)")
+            r.plot(currents=False, ax=row[None, :], title=title)
         fig.savefig(args.out / f"{name}_tracking.png", dpi=90)
     except OSError as exc:
         print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     print(f"wrote {args.out}/{name}_result.json and {name}_tracking.png")
     return 0
+
+
+def pick_up(mass, model, arm, truth, log, res):
+    """A tool of ``mass`` kg picked up at half the log: the static CTC of the unloaded
+    identification against :class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque` (report, runs)."""
+    import plant
+    from ctc.arm import ArmComputedTorque
+    from ctc.arm_adaptive import ArmAdaptiveComputedTorque
+
+    t_pick = 0.5 * log.n_samples * log.rig.sample_time_s
+    com = (0.05, 0.02, 0.0)
+    loaded = truth + model.payload_delta(mass, com, base=arm.base)
+    k_after = int(round((t_pick + 0.5) / log.rig.sample_time_s))
+    report, rows = dict(mass_kg=mass, com_m=list(com), t_s=t_pick), []
+    for label, ctrl in (("static", ArmComputedTorque.from_result(res, log)),
+                        ("adaptive", ArmAdaptiveComputedTorque(res, log))):
+        r = plant.simulate_closed_loop(log.rig, truth, ctrl, trajectory=log.trajectory,
+                                       n_samples=log.n_samples, plant=arm, label=label,
+                                       f_schedule=[(t_pick, loaded)])
+        after = np.abs(r.e_pulses[k_after:]).max(axis=0).tolist() if k_after < r.e_pulses.shape[0] \
+            else None
+        report[label] = dict(max_abs_error_after_change_0p5s=after)
+        if label == "adaptive":
+            report[label].update(payload_history=[list(h) for h in ctrl.payload_history],
+                                 events=[dict(t_s=e["t_s"], kind=e["kind"]) for e in ctrl.events])
+        rows.append(r)
+        print(f"{mass:g} kg picked up at {t_pick:.2f} s, {label:8s} CTC: max |e| from 0.5 s after "
+              f"{after} pulses" + (f"; payload {ctrl.payload_mass_kg:.3f} kg, events "
+                                   f"{[e['kind'] for e in ctrl.events]}"
+                                   if label == "adaptive" else ""))
+    return report, rows
 
 
 if __name__ == "__main__":
