@@ -344,7 +344,7 @@ __all__ = ["AdaptiveComputedTorqueController", "DEFAULT_LATENCY_S", "UnmodelledC
            "QUANTISATION_VARIANCE", "CALIBRATION_WINDOWS", "PERSISTENCE_WINDOWS", "EVIDENT_FACTOR",
            "EVIDENT_IMPROVEMENT", "DIVERGE_FACTOR",
            "SMALL_MASS_FRACTION", "DRIVE_CHANGE_MIN", "STALE_WINDOWS",
-           "window_statistics", "residual_statistics", "vuong_statistic",
+           "window_statistics", "residual_statistics", "vuong_statistic", "same_payload",
            "vuong_residual_statistic"]
 
 #: Default identification latency (s): the per-window budget of a 100 ms window
@@ -446,18 +446,32 @@ def _integrated_autocorrelation_time(r) -> float:
     return float(min(tau, max(1.0, n / 10.0)))
 
 
-def _same_mass(a, b) -> bool:
-    """Two payload masses (kg) that are one payload: within 25 % of the larger + 50 g."""
+def same_payload(a, b) -> bool:
+    """Whether two payload masses are one payload: within 25 % of the larger + 50 g.
+
+    The supervisors' agreement rule (:class:`AdaptiveComputedTorqueController`
+    and :class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque`): single windows'
+    estimates of one payload scatter by up to a fifth of it.
+
+    Parameters
+    ----------
+    a, b : float
+        Masses (kg).
+
+    Returns
+    -------
+    bool
+    """
     return abs(a - b) <= 0.25 * max(abs(a), abs(b)) + 0.05
 
 
 def _one_payload(masses) -> bool:
     """False for three payload masses (kg), none zero (the empty gripper), of which no two
-    are one payload (:func:`_same_mass`); True otherwise (fewer than three included)."""
+    are one payload (:func:`same_payload`); True otherwise (fewer than three included)."""
     if len(masses) < 3 or min(masses) <= 0.0:
         return True
     a, b, c = masses
-    return _same_mass(a, b) or _same_mass(b, c) or _same_mass(a, c)
+    return same_payload(a, b) or same_payload(b, c) or same_payload(a, c)
 
 
 def _trial_strike(mass, m_applied, update_masses, strikes):
@@ -479,18 +493,18 @@ def _trial_strike(mass, m_applied, update_masses, strikes):
     -------
     strikes : int
         ``strikes + 1`` when the estimate is not one payload with the update on
-        trial (:func:`_same_mass`), else ``strikes``.
+        trial (:func:`same_payload`), else ``strikes``.
     inconsistent : bool
         Two disagreements in a row -- unless the second is one payload with the
         update before the one on trial (A, B, then C one payload with A: B was the
         outlier and C corroborates A, as :func:`_one_payload` reads three updates);
         a third disagreement in a row always.
     """
-    if _same_mass(mass, m_applied):
+    if same_payload(mass, m_applied):
         return strikes, False
     strikes += 1
     before = update_masses[-2] if len(update_masses) >= 2 else 0.0
-    corroborates = min(before, mass) > 0.05 and _same_mass(mass, before)
+    corroborates = min(before, mass) > 0.05 and same_payload(mass, before)
     return strikes, strikes >= 3 or (strikes >= 2 and not corroborates)
 
 
@@ -1359,7 +1373,7 @@ class AdaptiveComputedTorqueController:
         evident = significant and (
             per_value_now > EVIDENT_FACTOR * floor
             and stats["y_new"] <= (1.0 - EVIDENT_IMPROVEMENT) * stats["y_now"]
-            and not _same_mass(mass, self.payload_mass_kg))
+            and not same_payload(mass, self.payload_mass_kg))
         misfit = not first and (per_value_now > self.explain_factor * baseline or persistent
                                 or evident)
         reason = None
@@ -1448,7 +1462,7 @@ class AdaptiveComputedTorqueController:
                           f"{mass:.3g} kg): not a constant payload")
         rivals, rival = [], None
         if (decision == "update" and payload_est is not None
-                and not _same_mass(mass, self.payload_mass_kg)):
+                and not same_payload(mass, self.payload_mass_kg)):
             # the rival hypotheses (step 3): a change of the drive friction, and on a
             # two-mass arm of the joints' stiffness and damping, as many degrees of freedom
             # as the payload; the smaller output error of the two is the change
@@ -1504,7 +1518,7 @@ class AdaptiveComputedTorqueController:
                       + ", ".join(f"{m:.3g}" for m in self._update_masses[-2:] + [mass])
                       + " kg): not a constant payload")
         if (decision == "update" and payload_est is not None and not persistent
-                and not _same_mass(mass, self.payload_mass_kg)
+                and not same_payload(mass, self.payload_mass_kg)
                 and float(np.max(np.abs(e))) <= 1.0
                 and any(h["z_run"] > 0.0 for h in rivals)):
             # the arm tracks within +-1 pulse, the CTC's goal, under the model in use, and a
@@ -1674,14 +1688,14 @@ class AdaptiveComputedTorqueController:
             self._isolated = True
         if accepted:
             kind = "update"
-            if payload_est is not None and self.payload is not None and _same_mass(
+            if payload_est is not None and self.payload is not None and same_payload(
                     mass, self.payload_mass_kg):
                 kind = "refinement"
                 # a refinement of the payload in use: every estimate of that payload since
                 # it was found, pooled by their information, not the last window's alone (f
                 # is affine in the linear payload vector, so the pooled f is the pooled
                 # payload's)
-                same = [q for q in self._pool if _same_mass(q[1]["mass_kg"], mass)]
+                same = [q for q in self._pool if same_payload(q[1]["mass_kg"], mass)]
                 if mates:  # the episode's estimates of this payload, and the pool's
                     same = mates + [own] + [q for q in same
                                             if not any(q is r for r in mates + [own])]

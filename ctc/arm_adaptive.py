@@ -111,7 +111,7 @@ import warnings
 import numpy as np
 
 from .adaptive import (DEFAULT_LATENCY_S, UnmodelledChangeWarning, residual_statistics,
-                       vuong_residual_statistic)
+                       same_payload, vuong_residual_statistic)
 from .arm import ArmComputedTorque, log_envelope
 
 __all__ = ["ArmAdaptiveComputedTorque", "DEFAULT_ARM_LATENCY_S", "DEFAULT_ARM_WINDOW_S",
@@ -137,11 +137,6 @@ REFINEMENT_KG = 0.05
 def _refines(a, b) -> bool:
     """Mass ``a`` (kg) refines the payload in use of mass ``b``."""
     return abs(a - b) <= 0.05 * max(abs(a), abs(b)) + REFINEMENT_KG
-
-
-def _same_payload(a, b) -> bool:
-    """Two masses (kg) that are one payload: within 25 % of the larger + 50 g."""
-    return abs(a - b) <= 0.25 * max(abs(a), abs(b)) + 0.05
 
 
 class ArmAdaptiveComputedTorque:
@@ -494,7 +489,7 @@ class ArmAdaptiveComputedTorque:
                     return
         self._odd = 0
         self._causes = []
-        if self._rejected is not None and _same_payload(m, self._rejected):
+        if self._rejected is not None and same_payload(m, self._rejected):
             rec.update(decision="held",
                        reason=f"{m:.3g} kg is the payload a rollback rejected "
                               f"({self._rejected:.3g} kg); held until a window shows no change")
@@ -502,7 +497,7 @@ class ArmAdaptiveComputedTorque:
             return
         self._agree = (self._agree + [(m, est.beta, payload)])[-ARM_PERSISTENCE_WINDOWS:]
         if self._cautious and not (len(self._agree) == ARM_PERSISTENCE_WINDOWS and all(
-                _same_payload(a[0], m) for a in self._agree)):
+                same_payload(a[0], m) for a in self._agree)):
             rec.update(decision="held",
                        reason=f"{len(self._agree)} agreeing estimate(s) of "
                               f"{ARM_PERSISTENCE_WINDOWS} needed after a change no payload "
