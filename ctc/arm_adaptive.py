@@ -324,7 +324,7 @@ class ArmAdaptiveComputedTorque:
             self._E = np.vstack([self._E, np.zeros((grow - self._E.shape[0], self.n), np.int64)])
             self._I = np.vstack([self._I, np.zeros((grow - self._I.shape[0], self.n))])
         self._E[k] = np.asarray(e_pulses, dtype=np.int64)
-        self._I[k] = np.clip(i, -self._ctc.limit, self._ctc.limit)
+        self._I[k] = i  # the inner controller's command is within full scale already
         k1 = k + 1
         if (k1 % self.window_n == 0 and self._pending is None
                 and self._ctc.fallback_t_s is None):
