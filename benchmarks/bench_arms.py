@@ -24,7 +24,12 @@ constants, motor inertias, friction, P gains, multisine reference; seeds
 
 Usage::
 
-    python benchmarks/bench_arms.py --n 10 8 6 --seed 20261122 [--json out.json]
+    python benchmarks/bench_arms.py --n 10 8 6 --seed 20261122 [--json out.json] [--jobs 2]
+    python benchmarks/bench_arms.py --compliant --cases a.json b.json [--rst out.rst]
+
+``--jobs`` runs the draws in parallel processes (the identification times
+then share the cores); ``--cases`` summarises the ``--json`` files of
+earlier runs (e.g. one family per process) without running anything.
 
 Prints one line per draw and a summary per family (success rates, worst
 cases with their settings).  Needs the ``bench`` extra (Robotics Toolbox).
@@ -89,14 +94,15 @@ def run_case(family: str, seed: int, compliant: bool = False) -> dict:
     err, well, worst, ok_params = well_excited_check(res, beta)
     fr_err = fr_ok = None
     if not s.friction_known:  # the identified friction (joint side) against the drawn one
-        from identification.arm import friction_layout
+        from identification.friction import FRICTION_COMPONENTS, friction_layout
 
         k = np.abs(np.asarray(s.gear_ratio))
         true = np.column_stack([k ** 2 * np.asarray(s.viscous), k[:, None] * np.asarray(s.coulomb)])
-        nb = len(beta)
         errs, oks = [], []
-        for i, (j, w) in enumerate(friction_layout(log.rig)[1]):
-            est, sd, t = res.x[nb + i], res.x_std[nb + i], true[j, w]
+        for j, w in friction_layout(log.rig)[1]:
+            # by name: a flexible result's x holds the joints between beta and the friction
+            i = list(res.names).index(f"{FRICTION_COMPONENTS[w]}_{log.joint_names[j]}")
+            est, sd, t = res.x[i], res.x_std[i], true[j, w]
             errs.append(abs(est - t) / abs(t) if t else float("inf"))
             # within 15 %, or within 3 of its own standard errors (a component the log
             # hardly excites, e.g. a Coulomb level far below the viscous torque, says so)
@@ -154,6 +160,22 @@ def _table(rows):
     return "\n".join(out + [rule])
 
 
+def _line(c) -> str:
+    """One printed line per draw."""
+    return (f"{c['family']:8s} seed {c['seed']}  identify {c['identify_s']:6.1f} s  "
+            f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {c['worst_param']} "
+            f"{c['worst_err_pct']:.3f} %  params {'ok' if c['params_ok'] else 'MISS'}  "
+            f"friction {'known' if c['friction_known'] else 'unknown, %.1f %% %s' % (c['friction_err_pct'], 'ok' if c['friction_ok'] else 'MISS')}  "
+            f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'} "
+            f"[{c['controller']}]  P max|e| {c['p_max']}"
+            + (f"  joints {c['joints']}" if c["joints"] else ""))
+
+
+def _job(args):
+    family, seed, compliant = args
+    return run_case(family, seed, compliant=compliant)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, nargs=3, default=(6, 4, 3), metavar=("PLANAR2", "PUMA123", "PUMA6"),
@@ -163,19 +185,33 @@ def main(argv=None):
     ap.add_argument("--compliant", action="store_true",
                     help="compliant joints (two-mass, half with backlash; independent_arm.draw)")
     ap.add_argument("--rst", type=Path, help="write the summary as reStructuredText (docs/figures)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="draws run in parallel processes (identification times then share the cores)")
+    ap.add_argument("--cases", type=Path, nargs="+", metavar="JSON",
+                    help="summarise the cases of earlier runs' --json files (same seed and "
+                         "--compliant) instead of running draws")
     a = ap.parse_args(argv)
-    cases = []
-    for family, n in zip(ia.FAMILIES, a.n):
-        for i in range(n):
-            c = run_case(family, a.seed + i, compliant=a.compliant)
-            cases.append(c)
-            print(f"{family:8s} seed {c['seed']}  identify {c['identify_s']:6.1f} s  "
-                  f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {c['worst_param']} "
-                  f"{c['worst_err_pct']:.3f} %  params {'ok' if c['params_ok'] else 'MISS'}  "
-                  f"friction {'known' if c['friction_known'] else 'unknown, %.1f %% %s' % (c['friction_err_pct'], 'ok' if c['friction_ok'] else 'MISS')}  "
-                  f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'} "
-                  f"[{c['controller']}]  P max|e| {c['p_max']}"
-                  + (f"  joints {c['joints']}" if c["joints"] else ""), flush=True)
+    if a.cases:
+        cases = []
+        for path in a.cases:
+            try:
+                d = json.loads(path.read_text())
+                cases += d["cases"]
+                a.seed = int(d["seed"])
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                print(f"bench_arms: cannot read cases from {path}: {exc}", file=sys.stderr)
+                return 2
+        if any(bool(c.get("compliant")) != a.compliant for c in cases):
+            print("bench_arms: the cases' --compliant differs from this call's", file=sys.stderr)
+            return 2
+        order = {f: i for i, f in enumerate(ia.FAMILIES)}
+        cases.sort(key=lambda c: (order[c["family"]], c["seed"]))
+        for c in cases:
+            print(_line(c))
+    else:
+        jobs = [(family, a.seed + i, a.compliant) for family, n in zip(ia.FAMILIES, a.n)
+                for i in range(n)]
+        cases = ia.run_jobs(_job, jobs, a.jobs, _line)
     rows = [("family", "draws", "well-excited within 1 %", "unknown friction within 15 %",
              "... or within 3 std",
              "CTC +-1 pulse after 0.1 s", "identify median / max (s)", "worst well-excited error")]
@@ -228,7 +264,7 @@ def main(argv=None):
         tmp = a.rst.with_name(a.rst.name + ".tmp")
         tmp.write_text("\n".join(text) + "\n")
         tmp.replace(a.rst)
-    if a.json:
+    if a.json and not a.cases:
         a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps(dict(seed=a.seed, cases=cases), indent=1,
                                      default=lambda o: o.item() if hasattr(o, "item") else str(o)))

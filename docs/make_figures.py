@@ -73,9 +73,11 @@ it in ``optimisers``):
     independent simulator (``figures/arms.rst``), and
     ``examples/any_arm.py --robot planar2`` (``figures/any_arm.txt``).
 ``arms_compliant``
-    ``benchmarks/bench_arms.py --compliant --n 6 4 0 --seed 20261122``: the
-    same arms with two-mass joints, half with backlash
-    (``figures/arms_compliant.rst``; about an hour on 2 cores).
+    ``benchmarks/bench_arms.py --compliant --n 6 0 0 --seed 20261701 --jobs 2``:
+    planar two-link arms with two-mass joints, half with backlash
+    (``figures/arms_compliant.rst``; about 25 min on 2 cores; seeds 20261122
+    to 20261127 were this benchmark's development draws; ``--n 0 3 0`` adds
+    PUMA joints 1-3, about 15 min a draw).
 ``arm_payload``
     ``benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2``: a
     payload on the last link of planar two-link arms and PUMA joints 1-3
@@ -351,8 +353,8 @@ def arms(ctx):
 
 
 def arms_compliant(ctx):
-    q = ["--n", "1", "1", "0"] if ctx["quick"] else ["--n", "6", "4", "0"]
-    text, wall = _run(["benchmarks/bench_arms.py", "--compliant", *q, "--seed", "20261122",
+    q = ["--n", "1", "1", "0"] if ctx["quick"] else ["--n", "6", "0", "0", "--jobs", "2"]
+    text, wall = _run(["benchmarks/bench_arms.py", "--compliant", *q, "--seed", "20261701",
                        "--rst", ctx["raw"] / "arms_compliant.rst"], ctx["raw"], "bench_arms_compliant",
                       timeout=3 * 3600)
     return {"printed": text.splitlines()[-20:], "wall_s": wall}

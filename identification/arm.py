@@ -57,6 +57,8 @@ from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
 from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
+from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, RESTART_FRACTION
+from .friction import FRICTION_COMPONENTS, friction_layout
 from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
 from .refinement import DEFAULT_GAIN, refine
@@ -254,7 +256,7 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
     -------
     dict
         ``x`` (r + u,): beta, then the u unknown friction components
-        (joint side, :func:`identification.arm.friction_layout`); ``x_std``, ``cov`` (r + u,
+        (joint side, :func:`identification.friction.friction_layout`); ``x_std``, ``cov`` (r + u,
         r + u), ``cutoff_hz``, ``n_equations``, ``residual_rms_Nm`` (n,),
         ``condition_number``.
 
@@ -341,34 +343,6 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
                 condition_number=float(sv[0] / sv[-1]))
 
 
-#: Joint-side friction components of a joint, in the lane order of
-#: :func:`plant.simulation.arm.arm_plant` (``lane_friction``).
-FRICTION_COMPONENTS = ("viscous", "coulomb_pos", "coulomb_neg")
-
-
-def friction_layout(rig):
-    """The rig's known joint-side friction (n, 3) and its unknown components.
-
-    Parameters
-    ----------
-    rig : plant.Rig
-
-    Returns
-    -------
-    known : ndarray, shape (n, 3)
-        Joint-side viscous, Coulomb +, Coulomb - (zero where unknown).
-    unknown : list of (int, int)
-        ``(joint, component)`` of each unknown value (component 0 viscous,
-        1 Coulomb +, 2 Coulomb -), in the order they follow beta.
-    """
-    c = rig_constants(rig)
-    known = np.column_stack([c.viscous, c.coulomb_pos, c.coulomb_neg])
-    comps = ([0] if rig.viscous_friction_Nms_per_rad is None else []) + \
-        ([1, 2] if rig.coulomb_friction_Nm is None else [])
-    unknown = [(j, w) for j in range(known.shape[0]) for w in comps]
-    return known, unknown
-
-
 def _lane_friction(rig, X, r):
     """Lane parameters ``[beta, joint-side friction (3 n)]`` from ``X = [beta, unknown]`` (m, r + u)."""
     known, unknown = friction_layout(rig)
@@ -423,7 +397,7 @@ class ArmPredictionErrorProblem:
     to_lanes : callable, optional
         Maps the searched vectors X (m, k) to the plant's rows (m,
         ``plant.n_parameters``) (default: beta, then the unknown friction
-        into the rig's, :func:`friction_layout`).
+        into the rig's, :func:`~identification.friction.friction_layout`).
     feasible : callable, optional
         ``feasible(X) -> (m,) bool``: candidates outside it are not
         simulated and get the failed candidate's residuals (e.g. a link
@@ -723,7 +697,14 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         (the better end wins).  Both GAs are :func:`identification.identify`'s
         (same settings, encoding, random stream, objective and failure
         penalty): on the PUMA 560 links 2-3 instance with the sidecar's box
-        they give its f for the same seed.
+        they give its f for the same seed.  With either start, a refinement
+        that explains less than 90 % of the log's errors
+        (:data:`~identification.flexible.RESTART_FRACTION` of ``sum e^2``: a
+        wrong basin, e.g. IDIM-LS on a compliant arm whose motor encoders
+        ring) is run again from the same starts through the predictor-gain
+        continuation :data:`~identification.flexible.CONTINUATION_GAINS`
+        (strongly corrected replays first); the better end is kept and
+        ``warnings`` says so.
     plant : plant.simulation.arm.ArmPlant, optional
         The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     gain : float
@@ -886,6 +867,31 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
                              jac=None, residuals=None)
     else:
         ref = refine(problem, starts, bounds, max_iter=max_iter, ftol=ftol)
+        energy = float(np.sum(np.asarray(log.e_pulses, dtype=float) ** 2))
+        if not (ref.fun <= RESTART_FRACTION * energy):
+            # the refinement explains less than 90 % of the log's errors: a wrong basin, not a
+            # model-form limit (a compliant arm whose motor encoders ring leaves IDIM-LS far
+            # off).  Again from the same starts through the predictor-gain continuation of the
+            # flexible fit (strongly corrected replays first, few local minima); the better
+            # of the two is kept.
+            x_c = starts
+            nfev_c = 0
+            for g in CONTINUATION_GAINS:
+                stage = refine(ArmPredictionErrorProblem(log, sim_plant, gain=g, substeps=substeps,
+                                                         workers=workers),
+                               x_c, bounds, max_iter=max_iter, ftol=CONTINUATION_FTOL)
+                nfev_c += int(stage.nfev)
+                x_c = np.asarray(stage.x, dtype=float)[None]
+            cont = refine(problem, x_c, bounds, max_iter=max_iter, ftol=ftol)
+            cont.nfev = int(cont.nfev) + nfev_c
+            if cont.fun < ref.fun:
+                notes.append(f"the refinement explained {1 - ref.fun / energy:.1%} of the log's "
+                             f"errors (a wrong basin); refined again through the predictor-gain "
+                             f"continuation {CONTINUATION_GAINS}: {1 - cont.fun / energy:.1%}")
+                cont.nfev += int(ref.nfev)
+                ref = cont
+            else:
+                ref.nfev = int(ref.nfev) + int(cont.nfev)
     x = np.asarray(ref.x, dtype=float)
     ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
     n = log.n_joints
@@ -1007,8 +1013,12 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
         bbox = bspace.bounds(bounds[:nb])
         bat = problem_at(bspace, bbox)
         starts = bspace.with_backlash(flex["x"], (0.0,) + ARM_BACKLASH_GRID)
-        bl = fit_flexible_arm(bspace, bat, bbox, starts=starts, mask=fit_mask, max_iter=max_iter,
-                              ftol=ftol, continuation=CONTINUATION_BACKLASH)
+        # and the link-mode pool at each width: a spring fitted without the backlash is
+        # softer than the gearbox (the dead zone passes for compliance), so its point alone
+        # can miss the backlash basin
+        bpool = bspace.pool(res.beta, res.x[nb:], widths=ARM_BACKLASH_GRID)
+        bl = fit_flexible_arm(bspace, bat, bbox, starts=starts, pool=bpool, mask=fit_mask,
+                              max_iter=max_iter, ftol=ftol, continuation=CONTINUATION_BACKLASH)
         c_bl, r_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held, residuals=True)
         choice["held_back_cost_backlash_pulses2"] = c_bl
         t = _paired_t(r_flex, r_bl, log)

@@ -51,7 +51,8 @@ from plant.logs.rig import p_law_current, rig_constants
 from plant.simulation.arm import ArmPlant, arm_plant, replay_arm
 from plant.simulation.core import cell_centre
 
-from .arm import ARM_REFINE_SUBSTEPS, friction_layout
+from .arm import ARM_REFINE_SUBSTEPS
+from .friction import friction_layout
 from .refinement import DEFAULT_GAIN, refine
 from .result_schema import jsonable
 from .uncertainty import sandwich_covariance

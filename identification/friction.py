@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from plant.logs.rig import rig_constants
 from plant.simulation.friction import FRICTION_NAMES, RIGID_FRICTION, friction_fields, friction_vector
 
 from .parameters import BaseParameters, HeldModelChange, Parameterisation, check_bounds
 
 __all__ = ["FrictionParameters", "FrictionChangeParameters", "unknown_friction_indices", "default_friction_bounds",
-           "friction_entries", "full_friction"]
+           "friction_entries", "full_friction", "FRICTION_COMPONENTS", "friction_layout"]
 
 
 def unknown_friction_indices(rig) -> list:
@@ -396,3 +397,30 @@ class FrictionChangeParameters(HeldModelChange):
                            z + 0.25 * span * np.array([1.0, 1.0, -1.0, -1.0])])
         return np.clip(starts, b[:, 0], b[:, 1])
 
+
+#: Joint-side friction components of a joint, in the lane order of
+#: :func:`plant.simulation.arm.arm_plant` (``lane_friction``).
+FRICTION_COMPONENTS = ("viscous", "coulomb_pos", "coulomb_neg")
+
+
+def friction_layout(rig):
+    """The rig's known joint-side friction (n, 3) and its unknown components.
+
+    Parameters
+    ----------
+    rig : plant.Rig
+
+    Returns
+    -------
+    known : ndarray, shape (n, 3)
+        Joint-side viscous, Coulomb +, Coulomb - (zero where unknown).
+    unknown : list of (int, int)
+        ``(joint, component)`` of each unknown value (component 0 viscous,
+        1 Coulomb +, 2 Coulomb -), in the order they follow beta.
+    """
+    c = rig_constants(rig)
+    known = np.column_stack([c.viscous, c.coulomb_pos, c.coulomb_neg])
+    comps = ([0] if rig.viscous_friction_Nms_per_rad is None else []) + \
+        ([1, 2] if rig.coulomb_friction_Nm is None else [])
+    unknown = [(j, w) for j in range(known.shape[0]) for w in comps]
+    return known, unknown
