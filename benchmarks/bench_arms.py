@@ -171,6 +171,15 @@ def _line(c) -> str:
             + (f"  joints {c['joints']}" if c["joints"] else ""))
 
 
+def _write_cases(path, seed, cases):
+    """Write ``{"seed", "cases"}`` to path (whole, or not at all)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(dict(seed=seed, cases=cases), indent=1,
+                              default=lambda o: o.item() if hasattr(o, "item") else str(o)))
+    tmp.replace(path)
+
+
 def _job(args):
     family, seed, compliant = args
     return run_case(family, seed, compliant=compliant)
@@ -181,7 +190,7 @@ def main(argv=None):
     ap.add_argument("--n", type=int, nargs=3, default=(6, 4, 3), metavar=("PLANAR2", "PUMA123", "PUMA6"),
                     help="draws per family")
     ap.add_argument("--seed", type=int, default=20261122, help="first seed (draw i uses seed + i)")
-    ap.add_argument("--json", type=Path, help="write the cases to this JSON file")
+    ap.add_argument("--json", type=Path, help="write the cases to this JSON file (after every draw)")
     ap.add_argument("--compliant", action="store_true",
                     help="compliant joints (two-mass, half with backlash; independent_arm.draw)")
     ap.add_argument("--rst", type=Path, help="write the summary as reStructuredText (docs/figures)")
@@ -211,7 +220,15 @@ def main(argv=None):
     else:
         jobs = [(family, a.seed + i, a.compliant) for family, n in zip(ia.FAMILIES, a.n)
                 for i in range(n)]
-        cases = ia.run_jobs(_job, jobs, a.jobs, _line)
+        done = []
+
+        def report(c):  # the cases so far on disk after every draw: a stopped run keeps them
+            done.append(c)
+            if a.json:
+                _write_cases(a.json, a.seed, done)
+            return _line(c)
+
+        cases = ia.run_jobs(_job, jobs, a.jobs, report)
     rows = [("family", "draws", "well-excited within 1 %", "unknown friction within 15 %",
              "... or within 3 std",
              "CTC +-1 pulse after 0.1 s", "identify median / max (s)", "worst well-excited error")]
@@ -264,10 +281,6 @@ def main(argv=None):
         tmp = a.rst.with_name(a.rst.name + ".tmp")
         tmp.write_text("\n".join(text) + "\n")
         tmp.replace(a.rst)
-    if a.json and not a.cases:
-        a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps(dict(seed=a.seed, cases=cases), indent=1,
-                                     default=lambda o: o.item() if hasattr(o, "item") else str(o)))
     return 0
 
 
