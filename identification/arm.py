@@ -61,7 +61,7 @@ from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, RESTART_FRACTION
 from .friction import FRICTION_COMPONENTS, friction_layout
 from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
-from .refinement import DEFAULT_GAIN, refine
+from .refinement import DEFAULT_GAIN, refine, refine_through_gains
 from .result_schema import jsonable
 from .uncertainty import RSE_WARN, sandwich_covariance
 
@@ -874,16 +874,11 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
             # off).  Again from the same starts through the predictor-gain continuation of the
             # flexible fit (strongly corrected replays first, few local minima); the better
             # of the two is kept.
-            x_c = starts
-            nfev_c = 0
-            for g in CONTINUATION_GAINS:
-                stage = refine(ArmPredictionErrorProblem(log, sim_plant, gain=g, substeps=substeps,
-                                                         workers=workers),
-                               x_c, bounds, max_iter=max_iter, ftol=CONTINUATION_FTOL)
-                nfev_c += int(stage.nfev)
-                x_c = np.asarray(stage.x, dtype=float)[None]
-            cont = refine(problem, x_c, bounds, max_iter=max_iter, ftol=ftol)
-            cont.nfev = int(cont.nfev) + nfev_c
+            cont = refine_through_gains(
+                lambda g: problem if g == gain else ArmPredictionErrorProblem(
+                    log, sim_plant, gain=g, substeps=substeps, workers=workers),
+                starts, bounds, CONTINUATION_GAINS + (gain,), max_iter=max_iter, ftol=ftol,
+                stage_ftol=CONTINUATION_FTOL)
             if cont.fun < ref.fun:
                 notes.append(f"the refinement explained {1 - ref.fun / energy:.1%} of the log's "
                              f"errors (a wrong basin); refined again through the predictor-gain "

@@ -55,7 +55,7 @@ from plant.simulation.arm import arm_plant, link_mode_bound
 
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA
 from .friction import FRICTION_COMPONENTS, friction_layout
-from .refinement import DEFAULT_GAIN, MaskedProblem, refine
+from .refinement import DEFAULT_GAIN, MaskedProblem, refine_through_gains
 
 __all__ = ["ArmFlexibleSpace", "fit_flexible_arm", "MAX_MODE_HZ", "N_STARTS", "ARM_BACKLASH_GRID",
            "IA_FRACTION_BOUNDS", "H_REAL",
@@ -480,12 +480,7 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
         nfev += P.shape[0]
         c = np.einsum("ij,ij->i", R, R)
         S = np.vstack([S, P[np.argsort(c, kind="stable")[:max(1, n_starts)]]])
-    x = None
-    ref = None
-    for i, g in enumerate(gains):
-        last = i == len(gains) - 1
-        ref = refine(problem(g), S if x is None else x[None], box, max_iter=max_iter,
-                     ftol=ftol if last else CONTINUATION_FTOL)
-        nfev += int(ref.nfev)
-        x = np.asarray(ref.x, dtype=float)
-    return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev)
+    ref = refine_through_gains(problem, S, box, gains, max_iter=max_iter, ftol=ftol,
+                               stage_ftol=CONTINUATION_FTOL)
+    x = np.asarray(ref.x, dtype=float)
+    return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev + int(ref.nfev))

@@ -36,7 +36,7 @@ from plant import STATUS_OK
 
 from .filtering import apply_lowpass, lowpass_sos
 
-__all__ = ["PredictionErrorProblem", "RefineResult", "refine", "DEFAULT_GAIN", "MaskedProblem",
+__all__ = ["PredictionErrorProblem", "RefineResult", "refine", "refine_through_gains", "DEFAULT_GAIN", "MaskedProblem",
            "held_back_mask", "HOLD_BLOCK_S", "HOLD_EVERY"]
 
 #: Length (s) of the held-back blocks of the model choice (:func:`held_back_mask`).
@@ -263,6 +263,46 @@ def _lm_step(J, r, lam, x, lo, hi):
         except np.linalg.LinAlgError:
             step[free] = -g[free] / (d[free] * (1.0 + lam))
     return np.clip(x + step, lo, hi)
+
+
+def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol=1e-10,
+                         stage_ftol=1e-4):
+    """:func:`refine` through a continuation in the predictor's output-injection gain.
+
+    Each gain's refinement starts at the previous one's optimum (a homotopy:
+    strongly corrected replays first, few local minima; L. Ljung, *System
+    Identification*, 2nd ed., sec. 7.3); the last gain's result is returned.
+
+    Parameters
+    ----------
+    problem_at : callable
+        ``problem_at(gain)`` -> the prediction-error problem at that gain.
+    starts : array_like, shape (n_starts, k)
+        Start points of the first gain.
+    bounds : array_like, shape (k, 2)
+    gains : sequence of float
+        Gains in order; the last is the final fit's.
+    max_iter : int
+    ftol : float
+        Tolerance of the last gain's refinement.
+    stage_ftol : float
+        Tolerance of the intermediate ones.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+        The last refinement's, ``nfev`` summed over the gains.
+    """
+    x = np.atleast_2d(np.asarray(starts, dtype=float))
+    nfev = 0
+    ref = None
+    for i, g in enumerate(gains):
+        last = i == len(gains) - 1
+        ref = refine(problem_at(g), x, bounds, max_iter=max_iter, ftol=ftol if last else stage_ftol)
+        nfev += int(ref.nfev)
+        x = np.asarray(ref.x, dtype=float)[None]
+    ref.nfev = nfev
+    return ref
 
 
 def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, callback=None):
