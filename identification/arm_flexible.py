@@ -381,13 +381,11 @@ class ArmFlexibleSpace:
         r, n = self.r, self.n
         qs = self.configurations[::max(1, len(self.configurations) // 16)]
         w_max = 2 * H_OMEGA * int(substeps) / self.log.rig.sample_time_s
-        cols = self.plant.motor_inertia_columns
-        out = np.zeros(X.shape[0], dtype=bool)
-        for i, x in enumerate(X):
-            link = x[:r] - x[r + 2 * n:r + 3 * n] @ cols
-            D = inertia_matrices(self.rigid, link, qs)
-            if np.all(np.linalg.eigvalsh(D)[:, 0] > 0):
-                out[i] = link_mode_bound(x[r:r + n], D) <= w_max
+        links = X[:, :r] - X[:, r + 2 * n:r + 3 * n] @ self.plant.motor_inertia_columns
+        D = inertia_matrices(self.rigid, links, qs)  # (m, p, n, n)
+        out = np.all(np.linalg.eigvalsh(D)[:, :, 0] > 0, axis=1)
+        for i in np.flatnonzero(out):
+            out[i] = link_mode_bound(X[i, r:r + n], D[i]) <= w_max
         return out
 
 
@@ -401,10 +399,15 @@ def _configurations(log, n_points=64) -> np.ndarray:
 def inertia_matrices(plant, beta, q, eig=False) -> np.ndarray:
     """Inertia matrices ``D(q; beta)`` of an arm at configurations q, shape (p, n, n).
 
+    One call of the plant's casadi dynamics function mapped over the
+    configurations (:meth:`casadi.Function.map`; the same expressions, so
+    the same numbers as one call per configuration).
+
     Parameters
     ----------
     plant : plant.simulation.arm.ArmPlant
-    beta : array_like, shape (r,)
+    beta : array_like, shape (r,) or (m, r)
+        Base parameters; a batch of m gives shape (m, p, n, n) (or (m, p)).
     q : array_like, shape (p, n)
     eig : bool
         Return the smallest eigenvalue per configuration instead, shape (p,).
@@ -412,15 +415,33 @@ def inertia_matrices(plant, beta, q, eig=False) -> np.ndarray:
     fn = plant.dynamics_function
     n = plant.n_joints
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    beta = np.asarray(beta, dtype=float)[:plant.base.rank]
+    beta = np.asarray(beta, dtype=float)
+    batch = beta.ndim == 2
+    B = np.atleast_2d(beta)[:, :plant.base.rank]
+    m, p = B.shape[0], q.shape[0]
+    sc = np.stack([np.sin(q), np.cos(q)], axis=2).reshape(p, 2 * n).T  # (2n, p)
+    lower = np.asarray(_mapped(fn, m * p)(np.tile(sc, (1, m)), np.zeros((n, 1)),
+                                          np.repeat(B.T, p, axis=1))[0])  # (n(n+1)/2, m p)
     il = np.tril_indices(n)
-    out = np.zeros((q.shape[0], n, n))
-    for i, qi in enumerate(q):
-        sc = np.column_stack([np.sin(qi), np.cos(qi)]).reshape(-1)
-        lower = np.asarray(fn(sc, np.zeros(n), beta)[0]).ravel()
-        out[i][il] = lower
-        out[i] = out[i] + np.tril(out[i], -1).T
-    return np.linalg.eigvalsh(out)[:, 0] if eig else out
+    out = np.zeros((m * p, n, n))
+    out[:, il[0], il[1]] = lower.T
+    out = out + np.tril(out, -1).transpose(0, 2, 1)
+    out = out.reshape(m, p, n, n) if batch else out
+    return np.linalg.eigvalsh(out)[..., 0] if eig else out
+
+
+_MAPPED = {}
+
+
+def _mapped(fn, count):
+    """``fn.map(count)``, kept per function and count."""
+    key = (id(fn), int(count))
+    f = _MAPPED.get(key)
+    if f is None or f[0] is not fn:
+        if len(_MAPPED) > 64:
+            _MAPPED.clear()
+        f = _MAPPED[key] = (fn, fn.map(int(count)))
+    return f[1]
 
 
 def diagonal_inertias(plant, beta, q) -> np.ndarray:

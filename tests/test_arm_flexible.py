@@ -317,3 +317,32 @@ def test_watchdog_hands_a_wrong_model_to_the_p_law(compliant):
     assert np.all(r.max_abs_error(0.1) <= 2 * np.abs(log.e_pulses).max(axis=0))
     with pytest.raises(ValueError, match="envelope"):
         ArmComputedTorque(res.plant, res.beta, res.rig, log.trajectory, envelope=[1.0])
+
+
+def test_inertia_matrices_batch_is_the_model_inertia_matrix():
+    """identification.arm_flexible.inertia_matrices (one mapped casadi call for a batch of
+    base-parameter vectors and configurations) gives, for each, the very numbers of its
+    unbatched call, the robot model's D(q) at the model's own beta, and
+    plant.simulation.arm.link_mode_bound the largest mode over the configurations."""
+    import math
+
+    from identification.arm_flexible import inertia_matrices
+    from plant.simulation.arm import link_mode_bound
+
+    model = planar_arm()
+    rigid = arm_plant(model)
+    beta = rigid.beta()
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-2.0, 2.0, (7, 2))
+    B = beta + 0.01 * rng.standard_normal((3, beta.size)) * np.abs(beta)
+    B[0] = beta
+    D = inertia_matrices(rigid, B, q)
+    assert D.shape == (3, 7, 2, 2)
+    for i, b in enumerate(B):
+        assert np.array_equal(D[i], inertia_matrices(rigid, b, q))
+    assert np.allclose(D[0], [model.inertia_matrix(qj) for qj in q], rtol=1e-12, atol=1e-14)
+    assert np.array_equal(D, D.transpose(0, 1, 3, 2))
+    log10_k = np.array([4.0, 3.5])
+    k = np.sqrt(10.0 ** log10_k)
+    per_q = [np.linalg.eigvalsh(k[:, None] * np.linalg.inv(Dq) * k[None, :])[-1] for Dq in D[0]]
+    assert link_mode_bound(log10_k, D[0]) == math.sqrt(max(per_q))

@@ -410,8 +410,8 @@ def link_mode_bound(log10_k, inertia) -> float:
     """
     k = np.sqrt(10.0 ** np.asarray(log10_k, dtype=float))
     D = np.asarray(inertia, dtype=float).reshape(-1, k.size, k.size)
-    return math.sqrt(max(float(np.linalg.eigvalsh(k[:, None] * np.linalg.inv(Dq) * k[None, :])[-1])
-                         for Dq in D))
+    return math.sqrt(float(np.max(np.linalg.eigvalsh(k[:, None] * np.linalg.inv(D) * k[None, :])
+                                  [:, -1])))
 
 
 
