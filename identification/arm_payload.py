@@ -174,16 +174,17 @@ class ArmPayloadProblem:
         X = np.asarray(X, dtype=float)
         single = X.ndim == 1
         X = np.atleast_2d(X)
-        R = np.full((X.shape[0], self.ref.size), self.bound)
         n, p = self.n, self.n_model
-        for j, x in enumerate(X):  # each row has its own start state
-            q0 = self.q0 + (x[p + n:p + 2 * n] / self.spr if x.size >= p + 2 * n else 0.0)
-            sim = replay_arm(self.sim_plant, self.lane(x), self.log.rig, self.ref, self.e,
-                             self.i, gain=self.gain, substeps=self.substeps, q0=q0,
-                             qd0=x[p:p + n], bound=self.bound, workers=self.workers)
-            r = sim.errors[0].reshape(-1)
-            if sim.status[0] == 0 and np.all(np.isfinite(r)):
-                R[j] = r
+        if X.shape[1] != p + 2 * n:
+            raise ValueError(f"a row of X holds {p + 2 * n} values, got {X.shape[1]}")
+        # each row has its own start state: one batch, a lane per row
+        starts = np.hstack([self.q0 + X[:, p + n:p + 2 * n] / self.spr, X[:, p:p + n]])
+        sim = replay_arm(self.sim_plant, np.vstack([self.lane(x) for x in X]), self.log.rig,
+                         self.ref, self.e, self.i, gain=self.gain, substeps=self.substeps,
+                         initial_state=starts, bound=self.bound, workers=self.workers)
+        R = sim.errors.reshape(X.shape[0], -1).copy()
+        bad = (sim.status != 0) | ~np.all(np.isfinite(R), axis=1)
+        R[bad] = self.bound
         self.nfev += X.shape[0]
         return R[0] if single else R
 

@@ -173,6 +173,25 @@ def test_arm_replay_prediction_errors_are_small_at_the_truth(arm):
     assert rms[0] < 0.5 < rms[1]
 
 
+def test_arm_replay_per_candidate_start_states_are_separate_runs(arm):
+    """replay_arm(initial_state=...) starts each lane from its own state: the numbers of a
+    batch are those of one run per candidate from q0, qd0 (a lane does not depend on the
+    others); a start state of the wrong shape or not finite is a one-line error."""
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 400)
+    B = np.vstack([arm.beta(), 1.02 * arm.beta(), 0.97 * arm.beta()])
+    X0 = np.array([[0.3, -0.2, 0.0, 0.0], [0.301, -0.2, 0.05, -0.02], [0.299, -0.201, -0.1, 0.1]])
+    args = (log.rig, log.reference_counts(), log.e_pulses, log.i_A)
+    batch = replay_arm(arm, B, *args, gain=0.02, initial_state=X0)
+    for j in range(3):
+        one = replay_arm(arm, B[j], *args, gain=0.02, q0=X0[j, :2], qd0=X0[j, 2:])
+        assert np.array_equal(batch.errors[j], one.errors[0])
+        assert batch.objective[j] == one.objective[0] and batch.status[j] == one.status[0]
+    with pytest.raises(ValueError, match="initial_state"):
+        replay_arm(arm, B, *args, gain=0.02, initial_state=X0[:, :3])
+    with pytest.raises(ValueError, match="initial_state"):
+        replay_arm(arm, B, *args, gain=0.02, initial_state=np.full(4, np.nan))
+
+
 def test_bad_inputs_give_one_line_errors(arm):
     from ctc.arm import ArmComputedTorque
 

@@ -573,17 +573,26 @@ class ArmSimulation:
 
 
 def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0, qd0, k_start,
-         bound, cap=None, workers=None):
+         bound, cap=None, workers=None, initial_state=None):
     if not isinstance(plant, ArmPlant):
         raise ValueError(f"plant must be an ArmPlant (plant.simulation.arm.arm_plant), got {type(plant).__name__}")
     n = plant.n_joints
+    if initial_state is not None and q0 is None and qd0 is None:
+        q0 = qd0 = np.zeros(n)  # every lane starts from its own state
     c = rig_constants(rig, q0=q0, qd0=qd0)
     if len(c.pulses_per_rad) != n:
         raise ValueError(f"the rig has {len(c.pulses_per_rad)} joints, the robot {n}")
     Pall = plant.lane_parameters(B)
     m = Pall.shape[1]
     x0 = plant.initial_state(c)
-    if not np.all(np.isfinite(x0)):
+    X0 = None
+    if initial_state is not None:
+        X0 = np.asarray(initial_state, dtype=float)
+        if X0.shape not in ((x0.size,), (m, x0.size)) or not np.all(np.isfinite(X0)):
+            raise ValueError(f"initial_state must be finite, shape ({x0.size},) or ({m}, {x0.size}), "
+                             f"got {X0.shape}")
+        X0 = np.ascontiguousarray(np.broadcast_to(X0, (m, x0.size)))
+    elif not np.all(np.isfinite(x0)):
         raise ValueError("the rig has no start state: give q0 and qd0")
     ref = np.ascontiguousarray(ref, dtype=float)
     nt = ref.shape[0]
@@ -607,6 +616,8 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
 
     def chunk(lo, hi):  # one chunk of candidates in its own lanes (the kernel releases the GIL)
         lanes = new_lanes(Pall, lo, hi, x0, n_inputs=n, n_angles=n)
+        if X0 is not None:
+            lanes.X[:] = X0[lanes.idx].T
         _arm_run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
                  float(gain), bound, cap, out, bool(errors), obj, status, compared, hi - lo,
                  int(plant.encoder_row), np.zeros((0, lanes.X.shape[1])))
@@ -687,7 +698,8 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
 
 
 def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS, errors=True,
-               q0=None, qd0=None, k_start=0, bound=None, workers=None) -> ArmSimulation:
+               q0=None, qd0=None, k_start=0, bound=None, workers=None,
+               initial_state=None) -> ArmSimulation:
     """One-step-ahead predictor of a logged run: logged current plus output injection.
 
     The current ``i_log + P gain (m - c)`` is held over each sample, with
@@ -713,10 +725,22 @@ def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS,
         Divergence bound on ``abs(ref - c)`` (pulses; default 1e12): a
         candidate beyond it fails (penalty of :class:`ArmSimulation`; its
         remaining prediction errors are ``bound``).
+    initial_state : array_like, shape (m, n_states) or (n_states,), optional
+        Each candidate's own start state (the plant's state layout: ``(q,
+        qd)``, then the motors' ``(th, thd)`` of a two-mass arm; rad,
+        rad/s), instead of ``q0``, ``qd0`` for all -- a window's start state
+        refined per candidate (:class:`identification.arm_payload.ArmPayloadProblem`).
+        A lane's numbers do not depend on the other lanes of its batch.
 
     Returns
     -------
     ArmSimulation
+
+    Raises
+    ------
+    ValueError
+        As :func:`simulate_arm`; an ``initial_state`` of another shape or not finite.
     """
     return _run(plant, B, rig, ref, e_log, i_log, replay=True, gain=gain, substeps=substeps,
-                errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, workers=workers)
+                errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, workers=workers,
+                initial_state=initial_state)
