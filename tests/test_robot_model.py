@@ -302,6 +302,20 @@ def test_payload_on_the_last_link_against_robotics_toolbox():
         puma.payload_parameters(-1.0)
 
 
+def test_point_mass_payload_is_a_body_without_inertia():
+    """A point mass (no inertia given: the on-line search's payload) gives the standard
+    parameters of a body with zero inertia about its centre of mass, to the bit; bad masses
+    and centres of mass are one-line errors."""
+    puma = RobotModel.puma560(active=(0, 1, 2))
+    for m, c in ((0.0, (0.0, 0.0, 0.0)), (2.5, (0.02, -0.03, 0.1)), (0.7, (-0.2, 0.0, 0.05))):
+        assert np.array_equal(puma.payload_parameters(m, c),
+                              puma.payload_parameters(m, c, np.zeros((3, 3))))
+    with pytest.raises(ValueError, match="mass"):
+        puma.payload_parameters(float("nan"))
+    with pytest.raises(ValueError, match="centre of mass"):
+        puma.payload_parameters(1.0, (0.1, 0.2))
+
+
 def test_payload_in_the_papers_basis_is_eq3():
     """Links 2-3 with the wrist locked: the payload's shift of f1..f9 has the paper's
     structure (plant.robot.payload.payload_delta_matrix, eq. 3) for a tool given in the

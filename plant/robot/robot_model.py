@@ -189,10 +189,15 @@ class Link:
         The inertia about the frame origin is the inertia about the centre
         of mass plus ``M (|c|^2 1 - c c^T)`` (parallel axes, Steiner).
         """
-        c = np.asarray(self.com)
-        i_o = np.asarray(self.inertia) + self.mass * (c @ c * np.eye(3) - np.outer(c, c))
-        return np.array([i_o[0, 0], i_o[0, 1], i_o[0, 2], i_o[1, 1], i_o[1, 2], i_o[2, 2],
-                         *(self.mass * c), self.mass])
+        return _body_parameters(self.mass, np.asarray(self.com), np.asarray(self.inertia))
+
+
+def _body_parameters(mass, c, inertia) -> np.ndarray:
+    """``XX XY XZ YY YZ ZZ MX MY MZ M`` (10,) of a body of ``mass`` with centre of mass ``c``
+    (3,) and inertia (3, 3) about it, about the frame origin (Steiner)."""
+    i_o = inertia + mass * (c @ c * np.eye(3) - np.outer(c, c))
+    return np.array([i_o[0, 0], i_o[0, 1], i_o[0, 2], i_o[1, 1], i_o[1, 2], i_o[2, 2],
+                     *(mass * c), mass])
 
 
 @dataclass(frozen=True)
@@ -541,11 +546,20 @@ class RobotModel:
             As :class:`Link` (a negative or non-finite mass, a malformed
             centre of mass or inertia).
         """
-        body = Link(mass=mass_kg, com=com_m,
-                    inertia=(0.0,) * 6 if inertia_kgm2 is None else inertia_kgm2)
+        if inertia_kgm2 is None:  # a point mass (the on-line search's, once per candidate)
+            m = float(mass_kg)
+            c = np.asarray(com_m, dtype=float).reshape(-1)
+            if not math.isfinite(m) or m < 0:
+                raise ValueError(f"the payload's mass must be finite and >= 0, got {mass_kg!r}")
+            if c.shape != (3,) or not np.all(np.isfinite(c)):
+                raise ValueError(f"the payload's centre of mass must be 3 finite numbers, "
+                                 f"got {com_m!r}")
+            body = _body_parameters(m, c, np.zeros((3, 3)))
+        else:
+            body = Link(mass=mass_kg, com=com_m, inertia=inertia_kgm2).standard_parameters()
         dp = np.zeros(len(self.standard_parameter_names))
         k = self._moving.index(len(self.links) - 1)
-        dp[10 * k:10 * k + 10] = body.standard_parameters()
+        dp[10 * k:10 * k + 10] = body
         return dp
 
     def payload_delta(self, mass_kg, com_m=(0.0, 0.0, 0.0), inertia_kgm2=None, *,
