@@ -150,6 +150,7 @@ class ArmComputedTorque:
         self.torque_per_amp = np.asarray(c.torque_per_amp)
         self.limit = c.current_limit
         self._dyn = plant.dynamics_function
+        self._il = np.tril_indices(self.n)
         q, _, _ = trajectory.evaluate(np.zeros(1))
         if np.asarray(q).shape != (1, self.n):
             raise ValueError(f"the trajectory has {np.asarray(q).shape[1]} joints, the robot {self.n}")
@@ -287,11 +288,16 @@ class ArmComputedTorque:
         sc[0::2] = np.sin(q)
         sc[1::2] = np.cos(q)
         lower, nvec = self._dyn(sc, qd, self.beta)
-        lower = np.asarray(lower).ravel()
+        return self._symmetric(np.asarray(lower).ravel()), np.asarray(nvec).ravel()
+
+    def _symmetric(self, lower):
+        """The symmetric (n, n) matrix of a lower triangle given row by row (+ 0.0: a signed
+        zero comes out as the sum of the two triangles gave it)."""
+        il = self._il
         D = np.zeros((self.n, self.n))
-        D[np.tril_indices(self.n)] = lower
-        D = D + np.tril(D, -1).T
-        return D, np.asarray(nvec).ravel()
+        D[il] = lower
+        D[il[1], il[0]] = lower
+        return D + 0.0
 
     def reset(self):
         """Observer at the reference's start (the robot starts on it), no previous command;
@@ -421,6 +427,9 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         self.K, self.D, self.Ia, self.b = (vals[k] for k in ("stiffness", "damping",
                                                              "motor_inertia", "backlash"))
         self.link_beta = self.beta - self.Ia @ plant.motor_inertia_columns
+        # the link model is evaluated 4 link_substeps times a sample: the compiled kernel of
+        # the plant's dynamics (the same numbers as the casadi function), compiled here
+        self._link_dyn = plant.dynamics_kernel
         q0 = np.asarray(trajectory.evaluate(np.zeros(1))[0])[0]
         Dl, _ = self._link_terms(q0, np.zeros(n))
         if np.any(np.linalg.eigvalsh(Dl) <= 0):
@@ -481,10 +490,8 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         sc = np.empty(2 * self.n)
         sc[0::2] = np.sin(q)
         sc[1::2] = np.cos(q)
-        lower, nvec = self._dyn(sc, qd, self.link_beta)
-        D = np.zeros((self.n, self.n))
-        D[np.tril_indices(self.n)] = np.asarray(lower).ravel()
-        return D + np.tril(D, -1).T, np.asarray(nvec).ravel()
+        lower, nvec = self._link_dyn(sc, np.asarray(qd, dtype=float), self.link_beta)
+        return self._symmetric(lower), nvec
 
     def reset(self):
         """Motor observer at the reference's start; link estimate set at the first sample."""
@@ -501,7 +508,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         m = th + v * s + 0.5 * a * s * s
         d = m - q
         hb = 0.5 * self.b
-        ts = self.K * (d - np.clip(d, -hb, hb)) + self.D * (v + a * s - w)
+        ts = self.K * (d - np.minimum(np.maximum(d, -hb), hb)) + self.D * (v + a * s - w)
         Dl, nl = self._link_terms(q, w)
         return np.linalg.solve(Dl, ts - nl), ts
 

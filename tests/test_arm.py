@@ -192,6 +192,25 @@ def test_arm_replay_per_candidate_start_states_are_separate_runs(arm):
         replay_arm(arm, B, *args, gain=0.02, initial_state=np.full(4, np.nan))
 
 
+def test_compiled_dynamics_kernel_gives_the_casadi_functions_numbers():
+    """ArmPlant.dynamics_kernel (numba, generated from the casadi function's instructions)
+    returns the casadi dynamics function's D lower triangle and n(q, qd) to the bit, for the
+    planar arm and the three-joint PUMA 560."""
+    rng = np.random.default_rng(11)
+    for model in (planar_arm(), RobotModel.puma560(active=(0, 1, 2))):
+        arm = arm_plant(model)
+        n, fn, kernel = arm.n_joints, arm.dynamics_function, arm.dynamics_kernel
+        for _ in range(20):
+            q = rng.uniform(-3.0, 3.0, n)
+            sc = np.column_stack([np.sin(q), np.cos(q)]).reshape(-1)
+            qd = 3.0 * rng.standard_normal(n)
+            beta = arm.beta() * (1.0 + 0.1 * rng.standard_normal(arm.base.rank))
+            lower, nvec = fn(sc, qd, beta)
+            k_lower, k_nvec = kernel(sc, qd, beta)
+            assert np.array_equal(np.asarray(lower).ravel(), k_lower)
+            assert np.array_equal(np.asarray(nvec).ravel(), k_nvec)
+
+
 def test_bad_inputs_give_one_line_errors(arm):
     from ctc.arm import ArmComputedTorque
 

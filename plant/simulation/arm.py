@@ -215,6 +215,24 @@ class ArmPlant(Plant):
             fn = _DYNAMICS[type(self.kind)] = _dynamics_function(self.model, self.base)
         return fn
 
+    @property
+    def dynamics_kernel(self):
+        """:attr:`dynamics_function` compiled by numba: ``(sc, qd, beta) -> (lower, n)``.
+
+        ``sc`` (2 n,), ``qd`` (n,) and ``beta`` (r,) float arrays; ``lower``
+        (n (n + 1) / 2,) and ``n`` (n,) new arrays.  The casadi function's
+        instructions in its own order (:func:`plant.robot.codegen.function_source`),
+        so the numbers are the casadi function's, at a few microseconds a
+        call instead of a hundred -- for a controller's law, which evaluates
+        its model several times a sample.  Compiled on first use and kept per
+        robot.
+        """
+        fn = _DYNAMICS_KERNELS.get(type(self.kind))
+        if fn is None:
+            fn = _DYNAMICS_KERNELS[type(self.kind)] = _dynamics_kernel(
+                self.dynamics_function, self.n_joints, self.base.rank)
+        return fn
+
     def beta(self, p=None) -> np.ndarray:
         """Base parameters of standard parameters ``p`` (default the model's own), shape (r,).
 
@@ -248,6 +266,22 @@ def _dynamics_function(model, base) -> ca.Function:
     if hasattr(ca, "cse"):
         outs = [ca.cse(o) for o in outs]
     return ca.Function("arm_dynamics", [sc, qd, beta], outs)
+
+
+def _dynamics_kernel(fn, n, r):
+    """numba function of :attr:`ArmPlant.dynamics_kernel` (compiled here, not at first call)."""
+    lines, (lower, nvec) = function_source(fn, "g")
+    src = (["def dyn(in0, in1, in2):"] + lines
+           + [f"    lower = np.empty({len(lower)})"]
+           + [f"    lower[{k}] = {v}" for k, v in enumerate(lower)]
+           + [f"    nvec = np.empty({len(nvec)})"]
+           + [f"    nvec[{k}] = {v}" for k, v in enumerate(nvec)]
+           + ["    return lower, nvec"])
+    scope = {"math": math, "np": np}
+    exec(compile("\n".join(src) + "\n", "<plant.simulation.arm dynamics>", "exec"), scope)  # noqa: S102
+    kernel = _jit(scope["dyn"])
+    kernel(np.zeros(2 * n), np.zeros(n), np.zeros(r))
+    return kernel
 
 
 def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
@@ -319,6 +353,7 @@ def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
 
 _PLANTS: dict = {}
 _DYNAMICS: dict = {}
+_DYNAMICS_KERNELS: dict = {}
 
 
 def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPlant:
