@@ -400,7 +400,7 @@ def inertia_matrices(plant, beta, q, eig=False) -> np.ndarray:
     """Inertia matrices ``D(q; beta)`` of an arm at configurations q, shape (p, n, n).
 
     One call of the plant's casadi dynamics function mapped over the
-    configurations (:meth:`casadi.Function.map`; the same expressions, so
+    configurations (casadi's ``Function.map``; the same expressions, so
     the same numbers as one call per configuration).
 
     Parameters
