@@ -291,8 +291,8 @@ class ArmComputedTorque:
         return self._symmetric(np.asarray(lower).ravel()), np.asarray(nvec).ravel()
 
     def _symmetric(self, lower):
-        """The symmetric (n, n) matrix of a lower triangle given row by row (+ 0.0: a signed
-        zero comes out as the sum of the two triangles gave it)."""
+        """The symmetric (n, n) matrix of a lower triangle given row by row (``+ 0.0`` turns a
+        -0.0 into 0.0, as adding the two triangles did)."""
         il = self._il
         D = np.zeros((self.n, self.n))
         D[il] = lower

@@ -170,6 +170,12 @@ class ArmPayloadProblem:
         Returns
         -------
         ndarray, shape (m, (k1 - k0) n) or ((k1 - k0) n,)
+            ``bound`` throughout a row whose simulation failed.
+
+        Raises
+        ------
+        ValueError
+            Rows of another length than ``n_model + 2 n``.
         """
         X = np.asarray(X, dtype=float)
         single = X.ndim == 1
