@@ -67,6 +67,12 @@ it in ``optimisers``):
     ``benchmarks/bench_changes.py --n 60 --seed 20261122 --jobs 2``: mid-run
     changes on the independent simulator, P / static CTC / adaptive CTC
     (``figures/changes.rst``, ``figures/changes.txt``).
+``changes_updates``
+    ``benchmarks/bench_changes.py --n 60 --cases ... --seed 20261122 --jobs 2``
+    on the cases of ``changes`` in which the adaptive CTC made an update
+    (``CHANGES_UPDATE_CASES``: 18 flexible, 17 rigid), the check of a change
+    to how an update pools its evidence
+    (``figures/changes_updates_flexible.rst``, ``figures/changes_updates_rigid.rst``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -120,7 +126,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "arms", "arms_compliant", "arm_payload", "arm_adaptive")
+            "robustness", "changes", "changes_updates", "arms", "arms_compliant", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -339,6 +345,28 @@ def changes(ctx):
     text, wall = _run(["benchmarks/bench_changes.py", *q, "--seed", "20261122", "--jobs", "2",
                        "--rst", ctx["raw"] / "changes.rst"], ctx["raw"], "bench_changes")
     return {"printed": text.splitlines()[-30:], "wall_s": wall}
+
+
+#: The cases of ``changes`` (seed 20261122) in which the adaptive CTC installed a model
+#: (an ``'update'`` event in ``figures/changes.txt``), flexible then rigid robots: the
+#: supervisor's pooling acts at an update only, so a change to it is rerun on these.
+CHANGES_UPDATE_CASES = {
+    "flexible": "5,6,7,9,15,18,29,30,31,36,37,38,41,46,49,54,55,57",
+    "rigid": "2,3,4,11,16,17,20,24,25,26,27,34,39,42,48,50,58",
+}
+
+
+def changes_updates(ctx):
+    out = {}
+    for joints, cases in CHANGES_UPDATE_CASES.items():
+        if ctx["quick"]:
+            cases = cases.split(",")[0]
+        name = f"changes_updates_{joints}"
+        text, wall = _run(["benchmarks/bench_changes.py", "--n", "60", "--cases", cases,
+                           "--seed", "20261122", "--jobs", "2", "--rst", ctx["raw"] / f"{name}.rst"],
+                          ctx["raw"], name, timeout=2 * 3600)
+        out[joints] = {"printed": text.splitlines()[-30:], "wall_s": wall}
+    return out
 
 
 def arms(ctx):

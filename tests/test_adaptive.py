@@ -195,11 +195,11 @@ def test_flexible_prior_flexible_inner_loop_and_payload(drill_log, drill_result)
     """Issue 21 item 2: a flexible prior runs the flexible-joint CTC, and the payload is
     identified through the two-mass plant with it in the loop (a 2 kg pick-up at 1.0 s on
     the identified two-mass robot): the arm tracks within +-1 pulse again from 0.5 s after
-    the pick-up with the mass within 10 %.  (The issue's 5 % is a rate over many changes,
-    measured by benchmarks/bench_changes.py.  This one update read within 5 % on the
-    machines of earlier runs and reads 2.10 kg on a machine with other packages -- numba
-    0.68.1, casadi 3.8.2 -- and CPU, with the code of those runs too: the prior is a GA
-    identification whose compiled arithmetic differs in the last bits.)"""
+    the pick-up with the mass within 5 %, and no other change is reported.  The update
+    comes from PERSISTENCE_WINDOWS agreeing windows (the fast loop keeps each one's
+    residual near the baseline) and installs their pooled estimate: the last window alone
+    read 2.10 kg, and the 5 % missed payload then read as a stiffness change of the joints
+    (x1.17 / x0.57) -- a false report."""
     import warnings as _w
 
     from ctc.flexible import FlexibleJointComputedTorqueController
@@ -225,7 +225,10 @@ def test_flexible_prior_flexible_inner_loop_and_payload(drill_log, drill_result)
     assert np.all(before <= 1), before  # no false update before the pick-up
     assert all(m <= 0.05 for t, m in adaptive.payload_history if t < 1.0)
     assert adaptive.payload_history, adaptive.identifications
-    assert adaptive.payload_mass_kg == pytest.approx(2.0, rel=0.10)
+    assert adaptive.payload_mass_kg == pytest.approx(2.0, rel=0.05)
+    update = next(i for i in adaptive.identifications if i["accepted"])
+    assert update["pooled"] >= 2, update  # the agreeing windows' evidence, not the last one's
+    assert not [e for e in adaptive.events if e["kind"] == "unexplained"], adaptive.events
     assert np.all(np.isfinite(r.i_A)) and np.abs(r.i_A).max() <= drill_log.rig.current_full_scale_A
     # the robust (fast) design keeps this pick-up's residual near the baseline: the update
     # comes from successive significant windows agreeing on the mass (PERSISTENCE_WINDOWS)
@@ -362,6 +365,8 @@ def test_a_refinement_weighs_each_estimate_by_its_information(paper_log, prior):
     W = [np.linalg.inv(c) for c in covs]
     expected = np.linalg.solve(sum(W), sum(w @ v for w, v in zip(W, P)))
     np.testing.assert_allclose(payload["vector"], expected, rtol=1e-9)
+    # the pooled vector's covariance: the inverse of the summed information
+    np.testing.assert_allclose(payload["vector_cov"], np.linalg.inv(sum(W)), rtol=1e-9)
     assert abs(payload["com_m"][0]) < 0.02 < abs(P[:, 1].mean() / P[:, 0].mean())
     np.testing.assert_allclose(f, prior + np.asarray(payload["vector"]) @ payload_delta_matrix(a3).T,
                                rtol=1e-12, atol=1e-12)
@@ -369,6 +374,7 @@ def test_a_refinement_weighs_each_estimate_by_its_information(paper_log, prior):
     np.testing.assert_allclose(_pooled(same, a3=a3)[1]["vector"], P.mean(axis=0), rtol=1e-9)
     # without covariances (or a3): the plain mean
     np.testing.assert_allclose(_pooled(same)[1]["vector"], P.mean(axis=0), rtol=1e-12)
+    assert _pooled(same)[1]["vector_cov"] is None
 
 
 def test_one_payload_test_holds_its_false_alarm_rate():
