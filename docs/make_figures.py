@@ -84,6 +84,11 @@ it in ``optimisers``):
     (``figures/arms_compliant.rst``; about 25 min on 2 cores; seeds 20261122
     to 20261127 were this benchmark's development draws; ``--n 0 3 0`` adds
     PUMA joints 1-3, about 15 min a draw).
+``arms_compliant_puma123``
+    ``benchmarks/bench_arms.py --compliant --n 0 2 0 --seed 20261801 --jobs 2``:
+    PUMA 560 joints 1-3 with two-mass joints and backlash, two draws of a
+    seed declared before looking (``figures/arms_compliant_puma123_20261801.txt``;
+    about 36 min a draw, the two sharing 2 cores).
 ``arm_payload``
     ``benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2``: a
     payload on the last link of planar two-link arms and PUMA joints 1-3
@@ -126,7 +131,8 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "changes_updates", "arms", "arms_compliant", "arm_payload", "arm_adaptive")
+            "robustness", "changes", "changes_updates", "arms", "arms_compliant",
+            "arms_compliant_puma123", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -386,6 +392,13 @@ def arms_compliant(ctx):
                        "--rst", ctx["raw"] / "arms_compliant.rst"], ctx["raw"], "bench_arms_compliant",
                       timeout=3 * 3600)
     return {"printed": text.splitlines()[-20:], "wall_s": wall}
+
+
+def arms_compliant_puma123(ctx):
+    q = ["--n", "0", "1", "0"] if ctx["quick"] else ["--n", "0", "2", "0", "--jobs", "2"]
+    text, wall = _run(["benchmarks/bench_arms.py", "--compliant", *q, "--seed", "20261801"],
+                      ctx["raw"], "arms_compliant_puma123_20261801", timeout=3 * 3600)
+    return {"printed": text.splitlines()[-10:], "wall_s": wall}
 
 
 def arm_payload(ctx):
