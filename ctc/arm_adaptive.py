@@ -56,7 +56,8 @@ carry over to an arm whose prior is rigid:
    with its ``cause`` and an :class:`ctc.adaptive.UnmodelledChangeWarning`,
    once per episode), and from then on only
    :data:`ARM_PERSISTENCE_WINDOWS` successive agreeing estimates (one
-   payload: within 25 % + 50 g) update.  A window that spans a pick-up or
+   payload: within 25 % + 50 g) update, and they install their estimates
+   pooled by information (as a refinement's, step 4), not the last alone.  A window that spans a pick-up or
    a put-down is half old robot, half new, and no payload describes it:
    its second half (at least 20 samples) is fitted again, and when a
    payload describes that half significantly the decision is taken on it
@@ -132,6 +133,35 @@ ARM_PERSISTENCE_WINDOWS = 2
 #: A new estimate whose mass is within this many kg (plus 5 %) of the payload in use
 #: refines it: installed without probation (step 4).
 REFINEMENT_KG = 0.05
+
+
+def _pooled(entries):
+    """Estimates ``(mass, mass std, beta, com)`` pooled by their information.
+
+    Parameters
+    ----------
+    entries : list of tuple
+        Each ``(m, sd, beta, com)``: the mass (kg), its standard error (kg, NaN when
+        unknown), the loaded arm's base parameters ``(p,)`` and the centre of mass
+        ``(3,)`` (m, last link's frame).
+
+    Returns
+    -------
+    beta : ndarray, shape (p,)
+    mass_kg : float
+    com_m : ndarray, shape (3,)
+        The weighted means, weights ``1 / sd**2`` (equal weights when a standard error is
+        unknown): the base parameters are linear in the point mass's standard parameters,
+        so the pooled ``beta`` is the pooled payload's (for the centre of mass as a
+        first-moment mean, to first order).
+    """
+    sds = np.array([q[1] for q in entries], dtype=float)
+    w = 1.0 / sds ** 2 if np.all(np.isfinite(sds)) else np.ones(len(entries))
+    w = w / w.sum()
+    beta = np.sum([wi * np.asarray(q[2], dtype=float) for wi, q in zip(w, entries)], axis=0)
+    m = float(np.dot(w, [q[0] for q in entries]))
+    com = np.sum([wi * np.asarray(q[3], dtype=float) for wi, q in zip(w, entries)], axis=0)
+    return beta, m, com
 
 
 def _refines(a, b) -> bool:
@@ -299,7 +329,7 @@ class ArmAdaptiveComputedTorque:
         self._rejected = None  # the mass (kg) a rollback rejected, until a window shows no change
         self._probation = None  # (k_from, trigger_mse, previous beta, previous payload)
         self._cautious = False  # after a rollback or an unexplained change: agreeing estimates
-        self._agree = []  # the latest successive significant estimates (mass, beta, payload)
+        self._agree = []  # the latest successive significant estimates (m, sd, beta, com)
         self._pool = []  # estimates of the payload in use since its update (m, sd, beta, com)
         self._odd = 0  # successive windows a payload does not describe
         self._causes = []  # their causes ('friction', 'unknown')
@@ -495,7 +525,10 @@ class ArmAdaptiveComputedTorque:
                               f"({self._rejected:.3g} kg); held until a window shows no change")
             self._agree = []
             return
-        self._agree = (self._agree + [(m, est.beta, payload)])[-ARM_PERSISTENCE_WINDOWS:]
+        sd = float(est.x_std[0])
+        entry = (m, sd if np.isfinite(sd) and sd > 0 else math.nan,
+                 np.asarray(est.beta, dtype=float), payload["com_m"])
+        self._agree = (self._agree + [entry])[-ARM_PERSISTENCE_WINDOWS:]
         if self._cautious and not (len(self._agree) == ARM_PERSISTENCE_WINDOWS and all(
                 same_payload(a[0], m) for a in self._agree)):
             rec.update(decision="held",
@@ -503,22 +536,18 @@ class ArmAdaptiveComputedTorque:
                               f"{ARM_PERSISTENCE_WINDOWS} needed after a change no payload "
                               "explained or a rollback")
             return
+        # the estimates this update rests on: the agreeing ones after a caution (each was
+        # held, none installed), else this window's
+        agreed = self._agree if self._cautious else [entry]
         self._agree = []
         self._cautious = False
         kind = "refinement" if _refines(m, self.payload_mass_kg) else "update"
-        sd = float(est.x_std[0])
-        entry = (m, sd if np.isfinite(sd) and sd > 0 else math.nan,
-                 np.asarray(est.beta, dtype=float), payload["com_m"])
-        # a refinement installs every estimate of the payload in use since its update, pooled
-        # by their information (inverse variances of the mass; equal weights without them):
-        # single windows of a small payload scatter by 10 %
-        self._pool = (self._pool + [entry]) if kind == "refinement" else [entry]
-        sds = np.array([q[1] for q in self._pool])
-        w = 1.0 / sds ** 2 if np.all(np.isfinite(sds)) else np.ones(len(self._pool))
-        w = w / w.sum()
-        beta = np.sum([wi * q[2] for wi, q in zip(w, self._pool)], axis=0)
-        m_pool = float(np.dot(w, [q[0] for q in self._pool]))
-        com = np.sum([wi * np.asarray(q[3]) for wi, q in zip(w, self._pool)], axis=0)
+        # a refinement installs every estimate of the payload in use since its update, an
+        # update the estimates it rests on, pooled by their information (inverse variances
+        # of the mass; equal weights without them): single windows of a small payload
+        # scatter by 10 %
+        self._pool = (self._pool + agreed) if kind == "refinement" else list(agreed)
+        beta, m_pool, com = _pooled(self._pool)
         # the effective sample is set by _identify once the window's wall time is known
         self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com) if m_pool > 0 else None, mse)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"

@@ -143,6 +143,36 @@ def test_an_update_that_tracks_worse_is_rolled_back(setting):
     assert any("rollback rejected" in rec["reason"] for rec in c.identifications)
 
 
+def test_a_cautious_update_installs_its_agreeing_estimates_pooled(setting):
+    """After a change no payload explained, a pick-up updates on
+    ARM_PERSISTENCE_WINDOWS agreeing windows, and the model installed is their estimates
+    pooled by information, not the last window's alone; the pooled mass is the tool's."""
+    from ctc.arm_adaptive import ARM_PERSISTENCE_WINDOWS
+
+    arm, rig, log, prior, loaded = setting
+    c = ArmAdaptiveComputedTorque(prior, log)
+    real_decide = c._decide
+
+    def cautious_decide(*args):
+        # the state after an unexplained change, until the pick-up's first estimate
+        if not any(rec["decision"] == "held" for rec in c.identifications):
+            c._cautious = True
+        real_decide(*args)
+
+    c._decide = cautious_decide
+    _run(setting, c, schedule=[(T_CHANGE, loaded)])
+    recs = c.identifications
+    i = next(j for j, rec in enumerate(recs) if rec["decision"] == "update")
+    agreeing = recs[i - ARM_PERSISTENCE_WINDOWS + 1:i + 1]
+    assert [rec["decision"] for rec in agreeing[:-1]] == ["held"] * (ARM_PERSISTENCE_WINDOWS - 1)
+    m = np.array([rec["mass_kg"] for rec in agreeing])
+    assert np.ptp(m) > 0  # the last estimate alone would not pass
+    w = 1.0 / np.array([rec["mass_std"] for rec in agreeing]) ** 2
+    assert f"{ARM_PERSISTENCE_WINDOWS} estimates pooled" in recs[i]["reason"]
+    assert c.payload_history[1][1] == pytest.approx(np.dot(w, m) / w.sum(), rel=1e-12)
+    assert c.payload_mass_kg == pytest.approx(TOOL["mass_kg"], rel=0.02)
+
+
 def test_bad_priors_and_options_are_refused_with_one_line(setting):
     _, _, log, prior, _ = setting
     flexible = type(prior)(dict(prior))
