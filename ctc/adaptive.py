@@ -1106,8 +1106,9 @@ class AdaptiveComputedTorqueController:
         self._probation = None  # (f of the update, tracking mse of the window that triggered it)
         self._pending_trigger_mse = None
         self._suspect = False  # the last identified window was significant but unexplained
-        self._significant_run = []  # masses (kg) of the latest successive significant estimates
-        self._run_estimates = []  # their (f, payload) when measured (else None), same order
+        # the latest successive significant estimates: (mass in kg, (f, payload) when
+        # measured, else None)
+        self._significant_run = []
         self._rival_run = []  # whether friction beat the payload, the same windows' (step 3)
         self._drive_run = []  # ln stiffness factors of the latest successive significant drive checks
         self._drive_calibration = []  # ln stiffness factors of the calibration windows
@@ -1377,11 +1378,10 @@ class AdaptiveComputedTorqueController:
         # no-change baseline, or PERSISTENCE_WINDOWS successive windows find the same
         # payload, another than the model's, significant (a change a fast loop keeps
         # near the baseline)
-        run = (self._significant_run + [mass])[-PERSISTENCE_WINDOWS:] if (
+        run = ([m for m, _ in self._significant_run] + [mass])[-PERSISTENCE_WINDOWS:] if (
             significant and not first) else []
-        self._significant_run = run
         # the run's earlier windows' estimates: the evidence a persistent update installs
-        run_before = [o for o in self._run_estimates[-(PERSISTENCE_WINDOWS - 1):]
+        run_before = [o for _, o in self._significant_run[-(PERSISTENCE_WINDOWS - 1):]
                       if o is not None] if len(run) > 1 else []
         persistent = len(run) == PERSISTENCE_WINDOWS and all(
             _agree_off_model(a, b, self.payload_mass_kg) for a, b in zip(run, run[1:]))
@@ -1435,8 +1435,9 @@ class AdaptiveComputedTorqueController:
             # every window's significant, plausible, explaining estimate is a measurement of
             # the payload the robot carries: pooled for refinements (step 3)
             self._pool.append(own)
-        self._run_estimates = ((self._run_estimates + [own if measured else None])[-len(run):]
-                               if run else [])
+        self._significant_run = (
+            (self._significant_run + [(run[-1], own if measured else None)])[-len(run):]
+            if run else [])
         mates = []
         if decision == "update" and payload_est is not None:
             # an update installs the episode's evidence, not one window's: the estimates
