@@ -9,7 +9,11 @@ Measures, on the bundled paper log:
   :func:`plant.simulation.closed_loop.simulate_closed_loop` for P and CTC;
 * the casadi evaluation (:func:`ctc.evaluate.evaluate_ctc`): graph build and
   run over the whole log;
-* :func:`ctc.design.design_gains`.
+* :func:`ctc.design.design_gains`;
+* one call of ``ctc.arm.ArmComputedTorque`` (any serial arm's CTC, in
+  Python around one evaluation of the robot model's casadi function) for the
+  planar two-link arm, the PUMA 560 joints 1-3 and the six-joint PUMA 560 of
+  ``examples/any_arm.py``, and its closed loop on the arm's plant.
 
 The model f is the centre of the sidecar's search ranges (no truth file
 needed; timing does not depend on f).  JIT compilation is timed separately
@@ -19,8 +23,10 @@ Run from the repository root: ``python benchmarks/bench_ctc.py``.
 """
 from __future__ import annotations
 
+import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -44,6 +50,32 @@ def best_of(fn, repeat=5):
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+def arm_rows(n_calls=3000, n_samples=2000):
+    """Rows of the arm CTC's per-sample call and closed loop (robots of examples/any_arm.py)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
+    from any_arm import reference, rig_for, robot
+
+    from ctc.arm import ArmComputedTorque
+    from plant.simulation.arm import arm_plant
+
+    rows = []
+    for name in ("planar2", "puma123", "puma6"):
+        model = robot(name)
+        arm, rig, traj = arm_plant(model), rig_for(model), reference(model.n_joints)
+        c = ArmComputedTorque(arm, arm.beta(), rig, traj)
+        q0 = np.asarray(traj.position(np.zeros(1)), dtype=float)[0]
+        e = np.zeros(model.n_joints, dtype=np.int64)
+        c(0, 0.0, q0, e)  # first call outside the timing
+        dt = min(per_call(lambda k: c(k, k * c.ts, q0, e), n_calls) for _ in range(3))
+        rows.append((f"arm CTC __call__, {name} ({model.n_joints} joints)", dt * 1e6, "us"))
+        simulate_closed_loop(rig, arm.beta(), c, trajectory=traj, n_samples=10, plant=arm)  # compile
+        rows.append((f"arm closed loop CTC, {name}, {n_samples} samples",
+                     best_of(lambda: simulate_closed_loop(rig, arm.beta(), c, trajectory=traj,
+                                                          n_samples=n_samples, plant=arm), 3) * 1e3,
+                     "ms"))
+    return rows
 
 
 def main():
@@ -87,11 +119,12 @@ def main():
     rows.append(("casadi evaluation, 5215 samples (build + run)",
                  best_of(lambda: evaluate_ctc(ctc, f, substeps=32), 3) * 1e3, "ms"))
     rows.append(("design_gains (observer)", best_of(lambda: design_gains(log.rig), 5) * 1e3, "ms"))
+    rows += arm_rows()
 
     print(f"first CTC build + call (includes JIT load/compile): {t_first * 1e3:.1f} ms")
-    print(f"{'measure':<48} {'value':>10}")
+    print(f"{'measure':<52} {'value':>10}")
     for name, v, unit in rows:
-        print(f"{name:<48} {v:>8.2f} {unit}")
+        print(f"{name:<52} {v:>8.2f} {unit}")
     budget = rows[0][1]
     print(f"\nCTC per-sample call: {budget:.2f} us = {budget / 700 * 100:.2f} % of the 0.7 ms sample (target <= 20 us)")
 

@@ -20,7 +20,10 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
   robot model's, instantiated with beta: the same casadi expressions in the
   joints' sines and cosines that the plant of :mod:`plant.simulation.arm` compiles
   (Craig, *Introduction to Robotics*, sec. 10.5; Spong, Hutchinson &
-  Vidyasagar, *Robot Modeling and Control*, sec. 8.3);
+  Vidyasagar, *Robot Modeling and Control*, sec. 8.3), evaluated through
+  the casadi function's call buffer (its numbers, at 0.14-0.19 ms a
+  sample for the whole law on two to six joints instead of 0.34-0.42 ms,
+  ``benchmarks/bench_ctc.py``);
 * ``tau_f`` the sidecar's drive friction (:func:`plant.robot.model.friction_torque`),
   cancelled by feed-forward at the reference velocity;
 * ``q_hat, qd_hat`` the current observer of :mod:`ctc.design` per joint
@@ -58,8 +61,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from plant.simulation.core import cell_centre
-from plant.robot.model import friction_torque
 from plant.logs.rig import rig_constants
 
 from .contract import IdentifiedModel
@@ -89,6 +90,27 @@ def log_envelope(log) -> np.ndarray:
     ndarray, shape (n,)
     """
     return FollowingErrorLimit(log).limit_pulses
+
+
+class _CallBuffer:
+    """A casadi function's call buffer over fixed numpy arrays (``Function.buffer``).
+
+    ``arrays`` is ``(input_0, ..., input_k, (output_0, ...))``: write the inputs
+    in place, call :meth:`evaluate`, read the outputs.  The same evaluation as
+    calling the function (its virtual machine, the same numbers) without the
+    conversion of every argument and result to casadi's ``DM``: a microsecond
+    or so a call instead of 50-100 (plus the evaluation itself).
+    """
+
+    def __init__(self, fn):
+        self._buffer, self.evaluate = fn.buffer()
+        ins = [np.zeros(fn.nnz_in(k)) for k in range(fn.n_in())]
+        outs = tuple(np.zeros(fn.nnz_out(k)) for k in range(fn.n_out()))
+        for k, a in enumerate(ins):
+            self._buffer.set_arg(k, memoryview(a))
+        for k, a in enumerate(outs):
+            self._buffer.set_res(k, memoryview(a))
+        self.arrays = (*ins, outs)
 
 
 class ArmComputedTorque:
@@ -149,7 +171,11 @@ class ArmComputedTorque:
         self.spr = np.asarray(c.pulses_per_rad)
         self.torque_per_amp = np.asarray(c.torque_per_amp)
         self.limit = c.current_limit
+        # the drive friction's constants per joint (joint side), for the feed-forward
+        self._friction = tuple(np.asarray(v, dtype=float) for v in (
+            c.viscous, c.coulomb_pos, c.coulomb_neg, c.ramp_speed))
         self._dyn = plant.dynamics_function
+        self._buffer = None  # the casadi function's call buffer (built on first use)
         self._il = np.tril_indices(self.n)
         q, _, _ = trajectory.evaluate(np.zeros(1))
         if np.asarray(q).shape != (1, self.n):
@@ -283,12 +309,41 @@ class ArmComputedTorque:
         (ndarray, ndarray)
             Inertia matrix (kg m^2) and Coriolis/centrifugal plus gravity torques (N m).
         """
+        if self._buffer is None:
+            self._buffer = _CallBuffer(self._dyn)
+        sc, qd_in, beta, (lower, nvec) = self._buffer.arrays
         q = np.asarray(q, dtype=float)
-        sc = np.empty(2 * self.n)
         sc[0::2] = np.sin(q)
         sc[1::2] = np.cos(q)
-        lower, nvec = self._dyn(sc, qd, self.beta)
-        return self._symmetric(np.asarray(lower).ravel()), np.asarray(nvec).ravel()
+        qd_in[:] = qd
+        beta[:] = self.beta
+        self._buffer.evaluate()
+        return self._symmetric(lower), nvec.copy()
+
+    def __getstate__(self):
+        # the call buffer points into its own arrays: a copy (copy.deepcopy) builds its own
+        state = dict(self.__dict__)
+        state["_buffer"] = None
+        return state
+
+    def _measurement(self, q_meas) -> np.ndarray:
+        """The joint angles (n,) rad the encoders say: the centre of each count's cell
+        (:func:`plant.simulation.core.cell_centre`, per joint)."""
+        count = np.rint(np.asarray(q_meas, dtype=float) * self.spr)
+        return np.where(count > 0.0, count + 0.5, np.where(count < 0.0, count - 0.5, 0.0)) / self.spr
+
+    def _reference(self, t):
+        """The reference at ``t`` and ``t + Ts/2``: ``q_d, qd_d`` at ``t`` and ``q_m, qd_m,
+        qdd_m`` at mid-sample, each (n,)."""
+        q, qd, qdd = self.trajectory.evaluate(np.array([t, t + 0.5 * self.ts]))
+        return q[0], qd[0], q[1], qd[1], qdd[1]
+
+    def _friction_torque(self, qd) -> np.ndarray:
+        """The drive friction (n,) N m at joint rates ``qd`` (:func:`plant.robot.model.friction_torque`
+        per joint)."""
+        viscous, coulomb_pos, coulomb_neg, ramp_speed = self._friction
+        r = np.clip(qd / ramp_speed, -1.0, 1.0)
+        return -(viscous * qd + np.where(qd > 0.0, coulomb_pos, coulomb_neg) * r)
 
     def _symmetric(self, lower):
         """The symmetric (n, n) matrix of a lower triangle given row by row (``+ 0.0`` turns a
@@ -322,21 +377,17 @@ class ArmComputedTorque:
     def _law(self, k, t, q_meas, e_pulses):
         """The computed-torque law of one sample (currents (n,) A)."""
         ts = self.ts
-        count = np.rint(np.asarray(q_meas, dtype=float) * self.spr)
-        y = np.array([cell_centre(v) for v in count]) / self.spr
+        y = self._measurement(q_meas)
         # current estimator: predict with the applied acceleration, correct with y
         q_p = self.x[0] + ts * self.x[1] + 0.5 * ts * ts * self.a_prev
         w_p = self.x[1] + ts * self.a_prev
         L = self.gains.observer_gain
         r = y - q_p
         self.x = np.vstack([q_p + L[:, 0] * r, w_p + L[:, 1] * r])
-        (q_d, qd_d, _), (q_m, qd_m, qdd_m) = (
-            [v[r] for v in self.trajectory.evaluate(np.array([t, t + 0.5 * ts]))] for r in (0, 1))
+        q_d, qd_d, q_m, qd_m, qdd_m = self._reference(t)
         a = qdd_m + self.gains.Kv * (qd_d - self.x[1]) + self.gains.Kp * (q_d - self.x[0])
         D, nv = self.terms(self.x[0] + (q_m - q_d), qd_m)
-        tf = np.array([friction_torque(qd_m[j], self.c.viscous[j], self.c.coulomb_pos[j],
-                                       self.c.coulomb_neg[j], self.c.ramp_speed[j])
-                       for j in range(self.n)])
+        tf = self._friction_torque(qd_m)
         tau = D @ a + nv - tf
         i = tau / self.torque_per_amp
         if np.any(np.abs(i) > self.limit):  # saturated: the observer sees what the drive gives
@@ -515,10 +566,8 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
     def _law(self, k, t, q_meas, e_pulses):
         """The flexible-joint computed-torque law of one sample (currents (n,) A)."""
         ts = self.ts
-        count = np.rint(np.asarray(q_meas, dtype=float) * self.spr)
-        y = np.array([cell_centre(v) for v in count]) / self.spr
-        (q_d, qd_d, _), (q_m, qd_m, qdd_m) = (
-            [v[r] for v in self.trajectory.evaluate(np.array([t, t + 0.5 * ts]))] for r in (0, 1))
+        y = self._measurement(q_meas)
+        q_d, qd_d, q_m, qd_m, qdd_m = self._reference(t)
         q_p = self.x[0] + ts * self.x[1] + 0.5 * ts * ts * self.a_prev
         w_p = self.x[1] + ts * self.a_prev
         if self.first:  # springs relaxed: the link where the motor is
@@ -548,9 +597,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             mean_ts += (t1 + 2 * t2 + 2 * t3 + t4) / (6.0 * self.link_substeps)
             q = q + h * w + h * h * (k1 + k2 + k3) / 6.0
             w = w + h * (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
-        tf = np.array([friction_torque(qd_m[j], self.c.viscous[j], self.c.coulomb_pos[j],
-                                       self.c.coulomb_neg[j], self.c.ramp_speed[j])
-                       for j in range(self.n)])
+        tf = self._friction_torque(qd_m)
         i = (self.Ia * a + mean_ts - tf) / self.torque_per_amp
         if not np.all(np.isfinite(i)):
             # the link model diverged (a robot far from the model): never a NaN to the drive;

@@ -148,6 +148,31 @@ def test_identify_arm_recovers_the_base_parameters(arm):
     assert np.linalg.norm(res.x - truth) < np.linalg.norm(res.x_idim - truth)
 
 
+def test_arm_ctc_model_terms_are_the_casadi_functions_numbers(arm):
+    """The CTC evaluates its model through the casadi function's call buffer: D_hat and n_hat
+    are the function's numbers to the bit, follow set_beta, and a deep copy has its own buffer."""
+    import copy
+
+    from ctc.arm import ArmComputedTorque
+
+    c = ArmComputedTorque(arm, arm.beta(), planar_rig(), TRAJ)
+    rng = np.random.default_rng(3)
+    for beta in (arm.beta(), 1.1 * arm.beta()):
+        c.set_beta(beta)
+        for q, qd in rng.uniform(-2, 2, (5, 2, 2)):
+            D, nv = c.terms(q, qd)
+            sc = np.ravel(np.column_stack([np.sin(q), np.cos(q)]))
+            lower, nvec = (np.asarray(v).ravel() for v in arm.dynamics_function(sc, qd, beta))
+            assert np.array_equal(D[np.tril_indices(2)], lower) and np.array_equal(D, D.T)
+            assert np.array_equal(nv, nvec)
+    d = copy.deepcopy(c)
+    q, qd = np.array([0.3, -0.7]), np.array([1.0, 2.0])
+    before = c.terms(q, qd)
+    d.set_beta(arm.beta())
+    assert np.array_equal(c.terms(q, qd)[0], before[0])  # the copy's model is its own
+    assert not np.array_equal(d.terms(q, qd)[0], before[0])
+
+
 def test_arm_ctc_tracks_within_a_pulse_and_p_does_not(arm):
     from ctc import PController
     from ctc.arm import ArmComputedTorque
