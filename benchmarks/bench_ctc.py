@@ -70,7 +70,8 @@ def arm_rows(n_calls=3000, n_samples=2000):
         c(0, 0.0, q0, e)  # first call outside the timing
         dt = min(per_call(lambda k: c(k, k * c.ts, q0, e), n_calls) for _ in range(3))
         rows.append((f"arm CTC __call__, {name} ({model.n_joints} joints)", dt * 1e6, "us"))
-        simulate_closed_loop(rig, arm.beta(), c, trajectory=traj, n_samples=10, plant=arm)  # compile
+        # the arm's kernels compile on the first run, outside the timing
+        simulate_closed_loop(rig, arm.beta(), c, trajectory=traj, n_samples=10, plant=arm)
         rows.append((f"arm closed loop CTC, {name}, {n_samples} samples",
                      best_of(lambda: simulate_closed_loop(rig, arm.beta(), c, trajectory=traj,
                                                           n_samples=n_samples, plant=arm), 3) * 1e3,

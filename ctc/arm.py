@@ -330,7 +330,8 @@ class ArmComputedTorque:
         """The joint angles (n,) rad the encoders say: the centre of each count's cell
         (:func:`plant.simulation.core.cell_centre`, per joint)."""
         count = np.rint(np.asarray(q_meas, dtype=float) * self.spr)
-        return np.where(count > 0.0, count + 0.5, np.where(count < 0.0, count - 0.5, 0.0)) / self.spr
+        centre = np.where(count > 0.0, count + 0.5, np.where(count < 0.0, count - 0.5, 0.0))
+        return centre / self.spr
 
     def _reference(self, t):
         """The reference at ``t`` and ``t + Ts/2``: ``q_d, qd_d`` at ``t`` and ``q_m, qd_m,
@@ -339,8 +340,8 @@ class ArmComputedTorque:
         return q[0], qd[0], q[1], qd[1], qdd[1]
 
     def _friction_torque(self, qd) -> np.ndarray:
-        """The drive friction (n,) N m at joint rates ``qd`` (:func:`plant.robot.model.friction_torque`
-        per joint)."""
+        """The drive friction (n,) N m at joint rates ``qd``
+        (:func:`plant.robot.model.friction_torque` per joint)."""
         viscous, coulomb_pos, coulomb_neg, ramp_speed = self._friction
         r = np.clip(qd / ramp_speed, -1.0, 1.0)
         return -(viscous * qd + np.where(qd > 0.0, coulomb_pos, coulomb_neg) * r)
