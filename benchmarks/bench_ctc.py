@@ -13,7 +13,10 @@ Measures, on the bundled paper log:
 * one call of ``ctc.arm.ArmComputedTorque`` (any serial arm's CTC, in
   Python around one evaluation of the robot model's casadi function) for the
   planar two-link arm, the PUMA 560 joints 1-3 and the six-joint PUMA 560 of
-  ``examples/any_arm.py``, and its closed loop on the arm's plant.
+  ``examples/any_arm.py``, and its closed loop on the arm's plant; the
+  build and one call of the flexible-joint CTC of the same arms
+  (``ctc.arm.ArmFlexibleComputedTorque``, the example's two-mass joints:
+  its link model over a sample is compiled when it is built).
 
 The model f is the centre of the sidecar's search ranges (no truth file
 needed; timing does not depend on f).  JIT compilation is timed separately
@@ -55,9 +58,9 @@ def best_of(fn, repeat=5):
 def arm_rows(n_calls=3000, n_samples=2000):
     """Rows of the arm CTC's per-sample call and closed loop (robots of examples/any_arm.py)."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
-    from any_arm import reference, rig_for, robot
+    from any_arm import flexible_joints, reference, rig_for, robot
 
-    from ctc.arm import ArmComputedTorque
+    from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
     from plant.simulation.arm import arm_plant
 
     rows = []
@@ -76,6 +79,15 @@ def arm_rows(n_calls=3000, n_samples=2000):
                      best_of(lambda: simulate_closed_loop(rig, arm.beta(), c, trajectory=traj,
                                                           n_samples=n_samples, plant=arm), 3) * 1e3,
                      "ms"))
+        stiff, damp, ia, backlash = flexible_joints(model)
+        t0 = time.perf_counter()
+        c = ArmFlexibleComputedTorque(arm, arm.beta(), rig, traj, stiffness=stiff, damping=damp,
+                                      motor_inertia=ia, backlash=backlash)
+        rows.append((f"arm flexible CTC build, {name}", (time.perf_counter() - t0) * 1e3, "ms"))
+        c(0, 0.0, q0, e)
+        dt = min(per_call(lambda k: c(k, k * c.ts, q0, e), n_calls // 3) for _ in range(3))
+        rows.append((f"arm flexible CTC __call__, {name} ({c.link_substeps} link steps)",
+                     dt * 1e6, "us"))
     return rows
 
 

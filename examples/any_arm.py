@@ -124,6 +124,20 @@ def rig_for(model, ts=1e-3, ppr=2000, kt=0.25):
                current_full_scale_A=60.0)
 
 
+def flexible_joints(model):
+    """Two-mass joints for the model: stiffness K (link modes 12-20 Hz at q = 0), damping D
+    (ratio 0.05), reflected motor inertia Ia (the model's) and backlash (2 mrad on the last
+    joint), each (n,) joint side."""
+    nj = model.n_joints
+    ia = model.standard_parameters()[-nj:]
+    link = np.diag(model.inertia_matrix(np.zeros(nj))) - ia
+    stiff = link * (2 * math.pi * np.linspace(12.0, 20.0, nj)) ** 2
+    damp = 2 * 0.05 * np.sqrt(stiff * link * ia / (link + ia))
+    backlash = np.zeros(nj)
+    backlash[-1] = 2e-3
+    return stiff, damp, ia, backlash
+
+
 def reference(n, seed=1):
     """A multisine per joint (two terms, 0.2-0.8 Hz) from rest at q = 0, quintic ramp 0.5 s."""
     from plant import Trajectory
@@ -165,13 +179,7 @@ def main(argv=None):
     robot_row = truth
     if args.flexible:  # two-mass joints: link modes 12-20 Hz, backlash 2 mrad on the last joint
         arm = arm_plant(model, flexible=True)
-        nj = model.n_joints
-        ia = model.standard_parameters()[-nj:]
-        link = np.diag(model.inertia_matrix(np.zeros(nj))) - ia
-        stiff = link * (2 * math.pi * np.linspace(12.0, 20.0, nj)) ** 2
-        damp = 2 * 0.05 * np.sqrt(stiff * link * ia / (link + ia))
-        backlash = np.zeros(nj)
-        backlash[-1] = 2e-3
+        stiff, damp, ia, backlash = flexible_joints(model)
         robot_row = np.concatenate([truth, stiff, damp, ia, backlash])
         print("flexible joints: K " + ", ".join(f"{v:.0f}" for v in stiff) + " N m/rad, backlash "
               + ", ".join(f"{1e3 * v:g}" for v in backlash) + " mrad")

@@ -346,3 +346,55 @@ def test_inertia_matrices_batch_is_the_model_inertia_matrix():
     k = np.sqrt(10.0 ** log10_k)
     per_q = [np.linalg.eigvalsh(k[:, None] * np.linalg.inv(Dq) * k[None, :])[-1] for Dq in D[0]]
     assert link_mode_bound(log10_k, D[0]) == math.sqrt(max(per_q))
+
+
+def _python_link_sample(c, th, v, a, q, w):
+    """The flexible CTC's link model over one sample written out in numpy (RK4 of
+    ``D_link(q) q'' + n_link(q, q') = tau_s``, the spring torque's RK4 mean): the reference
+    for the compiled sample."""
+    def rates(s, q, w):
+        d = th + v * s + 0.5 * a * s * s - q
+        hb = 0.5 * c.b
+        ts = c.K * (d - np.minimum(np.maximum(d, -hb), hb)) + c.D * (v + a * s - w)
+        Dl, nl = c._link_terms(q, w)
+        return np.linalg.solve(Dl, ts - nl), ts
+
+    n, h = c.link_substeps, c.ts / c.link_substeps
+    mean = np.zeros(c.n)
+    for i in range(n):
+        s0 = i * h
+        k1, t1 = rates(s0, q, w)
+        k2, t2 = rates(s0 + 0.5 * h, q + 0.5 * h * w, w + 0.5 * h * k1)
+        k3, t3 = rates(s0 + 0.5 * h, q + 0.5 * h * (w + 0.5 * h * k1), w + 0.5 * h * k2)
+        k4, t4 = rates(s0 + h, q + h * (w + 0.5 * h * k2), w + h * k3)
+        mean += (t1 + 2 * t2 + 2 * t3 + t4) / (6.0 * n)
+        q = q + h * w + h * h * (k1 + k2 + k3) / 6.0
+        w = w + h * (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
+    return q, w, mean
+
+
+def test_flexible_ctc_link_sample_is_the_rk4_of_its_link_model():
+    """The flexible CTC's compiled link sample (built with the controller) is the RK4 of its
+    link model to the last bit here (to 1e-12 anywhere), backlash dead zone included; a
+    link model that turns non-finite gives no current and restarts the link estimate."""
+    model = planar_arm()
+    rigid = arm_plant(model)
+    ia = model.standard_parameters()[-2:]
+    c = ArmFlexibleComputedTorque(rigid, rigid.beta(), RIG, TRAJ, stiffness=[3e3, 2e3],
+                                  damping=[0.5, 0.3], motor_inertia=ia, backlash=[0.0, 4e-3],
+                                  link_substeps=3)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        th, v, a, q, w = np.ascontiguousarray(rng.normal(scale=(0.5, 2.0, 20.0, 0.5, 2.0),
+                                                         size=(2, 5)).T)
+        q = th + rng.normal(scale=3e-3, size=2)  # the springs deflected across the dead zone
+        got = c._link_sample(th, v, a, q, w, c.K, c.D, 0.5 * c.b, c.link_beta,
+                             c.ts / c.link_substeps, c.link_substeps)
+        for x, y in zip(got, _python_link_sample(c, th, v, a, q, w)):
+            np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12)
+    c.reset()
+    c(0, 0.0, np.array([0.3, -0.2]), np.zeros(2))
+    assert not c.first
+    c.ql = np.array([np.nan, 0.0])
+    assert np.array_equal(c(1, c.ts, np.array([0.3, -0.2]), np.zeros(2)), np.zeros(2))
+    assert c.first  # the link estimate restarts at the motor on the next sample
