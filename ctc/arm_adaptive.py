@@ -60,10 +60,10 @@ carry over to an arm whose prior is rigid:
    pooled by information (as a refinement's, step 4), not the last alone.
    A window that spans a pick-up or a put-down is half old robot, half
    new, and no payload describes it: its second half (at least 20 samples)
-   is fitted again, and when a payload describes that half significantly the decision is taken on it
-   (``half_window`` in the window's record; seed 20261301, planar draw
-   20261302: a put-down's update came 0.2 s earlier, 1 / 5 pulses after it
-   became 1 / 1).
+   is fitted again, and when a payload describes that half significantly
+   the decision is taken on it (``half_window`` in the window's record;
+   seed 20261301, planar draw 20261302: a put-down's update came 0.2 s
+   earlier, 1 / 5 pulses after it became 1 / 1).
 4. **Rollback.**  The first whole window after an update to another
    payload is a probation: when its mean squared tracking error exceeds
    ``explain_factor`` times that of the window that triggered the update
