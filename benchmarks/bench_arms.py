@@ -114,6 +114,10 @@ def run_case(family: str, seed: int, compliant: bool = False) -> dict:
         true = dict(K=np.asarray(s.stiffness), Ia=np.asarray(s.motor_inertia) * k ** 2,
                     b=np.asarray(s.backlash))
         joints = dict(model=res.model_choice.get("model") if res.model_choice else res.model,
+                      # the chosen model's held-back cost in quantisation floors, and whether
+                      # the backlash was fitted (not when the springs reach the floor)
+                      floors=round(float((res.model_choice or {}).get("floor_ratio", float("nan"))), 3),
+                      backlash_tried="held_back_cost_backlash_pulses2" in (res.model_choice or {}),
                       K_true=true["K"].round(1).tolist(), b_true_mrad=(1e3 * true["b"]).round(3).tolist())
         if res.joint_stiffness_Nm_per_rad is not None:
             K = np.asarray(res.joint_stiffness_Nm_per_rad)

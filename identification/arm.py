@@ -746,7 +746,10 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         samples within :data:`~identification.flexible.INADEQUATE_FACTOR`
         floors) the gearbox backlash is fitted too and kept when it halves
         the held-back cost or lowers it per held-back block by more than
-        :data:`BACKLASH_T` standard errors (a paired t test).  A flexible
+        :data:`BACKLASH_T` standard errors (a paired t test); springs whose
+        held-back cost is within
+        :data:`~identification.flexible.FLOOR_FACTOR` quantisation floors
+        leave it nothing to explain, and it is not tried.  A flexible
         fit whose link model is no robot near the log's configurations
         (:meth:`~identification.arm_flexible.ArmFlexibleSpace.link_check`)
         or whose output error exceeds the rigid model's by more than a
@@ -1000,10 +1003,18 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     fspace, fbox, fat, fx, c_f = space, box, at, flex["x"], c_flex
     note = ""
     spring_chosen = c_flex < CHOICE_RATIO * c_rigid or model == "flexible"
-    if spring_chosen or not (c_flex <= limit or c_rigid <= limit):
+    # springs that predict the held-back samples to the quantisation floor leave the backlash
+    # nothing to explain (the rule that skips the springs after a rigid fit at the floor):
+    # halving their cost would fit below half the encoder's own noise
+    at_floor = c_flex <= FLOOR_FACTOR * floor_h
+    if at_floor and spring_chosen:
+        note = (f"; backlash not tried: the springs predict the held-back samples to the "
+                f"quantisation floor ({c_flex / floor_h:.3g} x {floor_h:.4g} pulses^2 <= "
+                f"{FLOOR_FACTOR:g})")
+    elif spring_chosen or not (c_flex <= limit or c_rigid <= limit):
         # the gearbox backlash (the paper's second cause of the oscillations), from the spring
-        # fit's point at a few widths: when the springs are chosen, or when neither the rigid
-        # model nor the springs predict the held-back samples to the floor
+        # fit's point at a few widths: when the springs are chosen above the floor, or when
+        # neither the rigid model nor the springs predict the held-back samples to the floor
         bspace = ArmFlexibleSpace(log, res.plant, res.beta, bounds[nb:], backlash=True)
         bbox = bspace.bounds(bounds[:nb])
         bat = problem_at(bspace, bbox)
