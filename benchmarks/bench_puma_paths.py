@@ -31,6 +31,9 @@ without a ``robot`` object) side by side:
   output error of eq. 4 (each path's GA objective: one RK4 step per
   sample), whether the best output error after every generation is the
   same, and each GA's wall time;
+* unless ``--no-kernels``: each path's compiled kernels in ns per lane
+  and RK4 step (64 lanes, one thread, the drill log): the P experiment
+  (the GA's objective), the rigid replay and the two-mass replay;
 * unless ``--no-ctc``: the largest tracking error after 0.1 s (pulses,
   joint 2 / 3) of each result's computed torque (``from_result``:
   ``ctc.ComputedTorqueController`` and ``ctc.arm.ArmComputedTorque``) on the
@@ -43,7 +46,7 @@ the library never reads them.  Not part of the test suite.
 Usage (from the repository root)::
 
     python benchmarks/bench_puma_paths.py [--logs STEM ...] [--seed 0] [--no-ctc] [--no-ga]
-                                          [--out F.json]
+                                          [--no-kernels] [--out F.json]
 """
 from __future__ import annotations
 
@@ -262,6 +265,68 @@ def print_table(rows, ctc):
             print(f"{r['log']} {r['path']}: {r['choice']}")
 
 
+def kernel_times(stem="puma560_paper_drill_flex", lanes=64, repeat=7):
+    """ns per lane and RK4 step of each path's kernels, one thread, the same candidates.
+
+    ``lanes`` candidates (the truth's f perturbed by 3 %, seed 0) on the log:
+    the P experiment at 1 step a sample (the paper's GA objective), the
+    logged-input replay at 1 step (the rigid refinement) and, with the
+    drill emulator's joints, the two-mass replay at 9 steps (the flexible
+    fit's); the best of ``repeat`` runs after one that compiles.
+    """
+    from plant.simulation.arm import reference_counts
+    from plant.simulation.plants import FlexibleJoints
+    from plant.simulation.replay import prediction_errors
+
+    f, _ = truth_of(stem)
+    joints = dict(K=[30000.0, 6000.0], D=[4.0, 0.4], Ia=[2.3242, 0.5767])
+    log, plog = load_arm_log(DATA / f"{stem}.csv"), plant.load_log(DATA / f"{stem}.csv")
+    F = f * (1 + 0.03 * np.random.default_rng(0).standard_normal((lanes, 9)))
+    J = np.tile(joints["K"] + joints["D"] + joints["Ia"], (lanes, 1))
+    B = np.hstack([F, J, np.zeros((lanes, 2))])
+    rigid, flexible = arm_plant(log.model), arm_plant(log.model, flexible=True)
+    ref = reference_counts(log.trajectory, log.rig, log.n_samples)
+    two_mass = FlexibleJoints(1.0, 0.0, 1.0)  # every lane carries its joints
+    cases = [
+        ("P experiment, 1 step (GA)", 1,
+         lambda: plant.simulate_batch(plog, F, substeps=1, workers=1, errors=False),
+         lambda: simulate_arm(rigid, F, log.rig, log.trajectory, log.n_samples,
+                              e_log=log.e_pulses, substeps=1, errors=False, workers=1)),
+        ("replay, 1 step (rigid refinement)", 1,
+         lambda: prediction_errors(plog, F, gain=0.05, substeps=1, workers=1),
+         lambda: replay_arm(rigid, F, log.rig, ref, log.e_pulses, log.i_A, gain=0.05,
+                            substeps=1, workers=1)),
+        ("two-mass replay, 9 steps (flexible fit)", 9,
+         lambda: prediction_errors(plog, F, gain=0.05, substeps=9, workers=1, plant=two_mass,
+                                   plant_parameters=dict(joints=J)),
+         lambda: replay_arm(flexible, B, log.rig, ref, log.e_pulses, log.i_A, gain=0.05,
+                            substeps=9, workers=1)),
+    ]
+    out = []
+    for name, steps, puma_fn, arm_fn in cases:
+        row = dict(kernel=name)
+        for path_name, fn in (("puma", puma_fn), ("arm", arm_fn)):
+            fn()
+            best = min(_timed(fn) for _ in range(repeat))
+            row[path_name] = 1e9 * best / (lanes * steps * log.n_samples)
+        out.append(row)
+    return out
+
+
+def _timed(fn):
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def print_kernels(rows, lanes=64):
+    print(f"\nkernels: ns per lane and RK4 step, {lanes} lanes, 1 thread, best of 7 "
+          f"(puma560_paper_drill_flex)")
+    print(f"{'kernel':42s} {'PUMA path':>10s} {'arm path':>10s} {'arm/PUMA':>9s}")
+    for r in rows:
+        print(f"{r['kernel']:42s} {r['puma']:10.1f} {r['arm']:10.1f} {r['arm'] / r['puma']:9.2f}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--logs", nargs="+", default=list(STEMS), choices=STEMS,
@@ -269,6 +334,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0, help="the PUMA path's rng (default 0)")
     ap.add_argument("--no-ctc", action="store_true", help="skip the computed-torque runs")
     ap.add_argument("--no-ga", action="store_true", help="skip the paper's GA on both paths")
+    ap.add_argument("--no-kernels", action="store_true",
+                    help="skip the kernels' ns per lane and RK4 step")
     ap.add_argument("--out", type=Path, help="write the rows as JSON")
     args = ap.parse_args(argv)
     compile_s = warm_up(args.logs)
@@ -282,9 +349,12 @@ def main(argv=None):
     print_table(rows, not args.no_ctc)
     if ga_rows:
         print_ga(ga_rows)
+    kernels = [] if args.no_kernels else kernel_times()
+    if kernels:
+        print_kernels(kernels)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     if args.out:
-        args.out.write_text(json.dumps(rows + ga_rows, indent=1) + "\n")
+        args.out.write_text(json.dumps(rows + ga_rows + kernels, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -58,27 +58,56 @@ def test_codegen_matches_casadi():
     assert np.allclose(scope["h"](v), np.asarray(f(v)).ravel(), rtol=1e-15, atol=0)
 
 
-def test_arm_plant_is_the_models_forward_dynamics(arm):
-    """The generated right-hand side solves D(q) qdd = k Kt i + tau_f - c - g of the robot model."""
-    model = arm.model
-    rig = planar_rig()
-    c = rig_constants(rig)
-    rng = np.random.default_rng(3)
-    beta = arm.beta()
-    for _ in range(5):
-        q, qd, u = rng.uniform(-2, 2, 2), rng.uniform(-3, 3, 2), rng.uniform(-2, 2, 2)
+def _rhs_against_the_model(robot, c, seed, n_states=5):
+    """The arm plant's right-hand side and the robot model's forward dynamics at random
+    states: per state (q, qd, D(q), xdot, qdd of D^-1 (k Kt i + tau_f - c - g), margin)."""
+    model, n = robot.model, robot.n_joints
+    rng = np.random.default_rng(seed)
+    beta = robot.beta()
+    for _ in range(n_states):
+        q, qd, u = rng.uniform(-2, 2, n), rng.uniform(-3, 3, n), rng.uniform(-2, 2, n)
         sc = tuple(v for a in q for v in (math.sin(a), math.cos(a)))
-        xd, margin = plant_rhs(arm.kind, tuple(beta), c, tuple(q) + tuple(qd), tuple(u), sc)
+        xd, margin = plant_rhs(robot.kind, tuple(beta), c, tuple(q) + tuple(qd), tuple(u), sc)
         tau = np.asarray(c.torque_per_amp) * u + np.array(
-            [plant.robot.model.friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
-                                         c.ramp_speed[j]) for j in range(2)])
+            [plant.robot.model.friction_torque(qd[j], c.viscous[j], c.coulomb_pos[j],
+                                               c.coulomb_neg[j], c.ramp_speed[j]) for j in range(n)])
         D = model.inertia_matrix(q)
         qdd = np.linalg.solve(D, tau - model.coriolis_centrifugal(q, qd) - model.gravity_vector(q))
+        yield q, qd, D, xd, qdd, margin
+
+
+def test_arm_plant_is_the_models_forward_dynamics(arm):
+    """The generated right-hand side solves D(q) qdd = k Kt i + tau_f - c - g of the robot model."""
+    for q, qd, D, xd, qdd, margin in _rhs_against_the_model(arm, rig_constants(planar_rig()), 3):
         assert np.allclose(xd[2:], qdd, rtol=1e-10, atol=1e-10)
         assert np.allclose(xd[:2], qd) and margin > 0
     # the same robot gives the same kind; the plant's parameter names are the base parameters
     assert type(arm_plant(planar_arm()).kind) is type(arm.kind)
-    assert arm.parameter_names == model.base_parameters().names
+    assert arm.parameter_names == arm.model.base_parameters().names
+
+
+def test_three_joint_arm_plant_solves_the_dynamics_and_reports_the_smallest_pivot():
+    """PUMA 560 joints 1-3 (the general n-joint solve, square-root-free Cholesky): the
+    right-hand side's accelerations are D(q)^-1 (k Kt i + tau_f - c - g) of the robot model,
+    its margin the smallest pivot of D = L diag(d) L^T (det D_j / det D_(j-1)); a model
+    whose D is not positive definite (beta negated) gives a margin below zero."""
+    model = RobotModel.puma560(active=(0, 1, 2))
+    robot = arm_plant(model)
+    rig = Rig(**{**planar_rig().__dict__, "gear_ratio": (62.6, 107.8, 53.7), "encoder_ppr": (1000,) * 3,
+                 "p_gain_A_per_pulse": (0.05,) * 3, "torque_constant_Nm_per_A": (0.2,) * 3,
+                 "viscous_friction_Nms_per_rad": (2e-3,) * 3,
+                 "coulomb_friction_Nm": ((0.01, 0.01),) * 3, "q0_rad": (0.0,) * 3,
+                 "qd0_rad_per_s": (0.0,) * 3})
+    c = rig_constants(rig)
+    for q, qd, D, xd, qdd, margin in _rhs_against_the_model(robot, c, 7):
+        assert np.allclose(xd[3:], qdd, rtol=1e-10, atol=1e-10)
+        minors = [1.0] + [np.linalg.det(D[:j, :j]) for j in range(1, 4)]
+        pivots = [minors[j + 1] / minors[j] for j in range(3)]
+        assert margin == pytest.approx(min(pivots), rel=1e-9)
+        sc = tuple(v for a in q for v in (math.sin(a), math.cos(a)))
+        _, bad = plant_rhs(robot.kind, tuple(-robot.beta()), c, tuple(q) + tuple(qd),
+                           (0.0,) * 3, sc)
+        assert bad < 0
 
 
 def test_two_robots_side_by_side(arm):

@@ -16,7 +16,8 @@ casadi writes D and n in the sines and cosines of the joint angles
 (:attr:`~plant.robot.robot_model.RobotModel`'s Newton--Euler derivation), the
 code generator :mod:`plant.robot.codegen` turns them into straight-line code, and
 the generated right-hand side solves ``D qdd = tau - n`` by an unrolled
-Cholesky factorisation whose smallest pivot is the core's
+square-root-free Cholesky factorisation ``D = L diag(d) L^T`` (n divisions,
+no square root) whose smallest pivot is the core's
 positive-definiteness margin.  The code is generated once per robot (the
 kind class and its right-hand side are cached by the generated source), so
 one robot's kernels are specialised at its joint count; two robots live
@@ -319,7 +320,9 @@ def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
         else:
             src.append(f"    t{j} = c.torque_per_amp[{j}] * u[{j}] + friction_torque(x[{n + j}], "
                        f"{fr}, c.ramp_speed[{j}]) - {nv[j]}")
-    # unrolled Cholesky D = L L^T (D's lower triangle row by row), then two triangular solves
+    # unrolled square-root-free Cholesky D = L diag(d) L^T (D's lower triangle row by row;
+    # unit L, pivots d; G. H. Golub and C. F. Van Loan, Matrix Computations, 4th ed.,
+    # alg. 4.1.2): n divisions, no square root; then the two unit triangular solves
     idx = {}
     m = 0
     for j in range(n):
@@ -327,16 +330,16 @@ def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
             idx[j, k] = Dl[m]
             m += 1
     for j in range(n):
-        for k in range(j):
-            acc = idx[j, k] + "".join(f" - L{j}_{i} * L{k}_{i}" for i in range(k))
-            src.append(f"    L{j}_{k} = ({acc}) / L{k}_{k}")
-        src.append(f"    d{j} = {idx[j, j]}" + "".join(f" - L{j}_{i} * L{j}_{i}" for i in range(j)))
-        src.append(f"    L{j}_{j} = math.sqrt(d{j}) if d{j} > 0.0 else 1.0")
+        for k in range(j):  # W_jk = L_jk d_k
+            acc = idx[j, k] + "".join(f" - W{j}_{i} * L{k}_{i}" for i in range(k))
+            src.append(f"    W{j}_{k} = {acc}")
+            src.append(f"    L{j}_{k} = W{j}_{k} * v{k}")
+        src.append(f"    d{j} = {idx[j, j]}" + "".join(f" - W{j}_{i} * L{j}_{i}" for i in range(j)))
+        src.append(f"    v{j} = 1.0 / d{j} if d{j} > 0.0 else 1.0")
     for j in range(n):
-        src.append(f"    y{j} = (t{j}" + "".join(f" - L{j}_{i} * y{i}" for i in range(j)) + f") / L{j}_{j}")
+        src.append(f"    y{j} = t{j}" + "".join(f" - L{j}_{i} * y{i}" for i in range(j)))
     for j in reversed(range(n)):
-        src.append(f"    a{j} = (y{j}" + "".join(f" - L{i}_{j} * a{i}" for i in range(j + 1, n))
-                   + f") / L{j}_{j}")
+        src.append(f"    a{j} = y{j} * v{j}" + "".join(f" - L{i}_{j} * a{i}" for i in range(j + 1, n)))
     margin = "d0"
     for j in range(1, n):
         margin = f"min({margin}, d{j})"
@@ -513,6 +516,7 @@ def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain,
     nj = U.shape[0]
     i_lim = c.current_limit
     act = n_lanes
+    Ssq = np.zeros(max(padded_lanes(act), 1))  # per lane: this sample's sum of squares
     for j in range(padded_lanes(act)):
         E[j] = 0.0
     for k in range(n_total):
@@ -527,27 +531,38 @@ def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain,
         if act == 0:
             break
         lanes_run = padded_lanes(act)
-        for j in range(lanes_run):  # SIMD over the lanes
-            s = 0.0
-            for m in range(nj):
-                sc = c.pulses_per_rad[m]
-                cont, a_ = encoder_read(X[enc + m, j], sc)
-                _, tgt = encoder_read(ref[k, m], 1.0)
-                if replay:
-                    mid = cell_centre(tgt - e_log[k, m])
-                    d = mid - cont
-                    U[m, j] = i_log[k, m] + c.p_gain[m] * gain * d
-                    if write and j < act:
-                        out[idx[j], k, m] = d
-                else:
+        # joint by joint, one branch-free loop over the lanes each (SIMD); the lane's sum
+        # of squares over the joints in Ssq, in the joints' order, then added to E
+        for m in range(nj):
+            sc = c.pulses_per_rad[m]
+            _, tgt = encoder_read(ref[k, m], 1.0)
+            if replay:
+                mid = cell_centre(tgt - e_log[k, m])
+                i_m = i_log[k, m]
+                pg = c.p_gain[m] * gain
+                for j in range(lanes_run):
+                    d = mid - X[enc + m, j] * sc
+                    U[m, j] = i_m + pg * d
+                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
+                if write:
+                    for j in range(act):
+                        out[idx[j], k, m] = mid - X[enc + m, j] * sc
+            else:
+                el = e_log[k, m]
+                p_m = c.p_gain[m]
+                for j in range(lanes_run):
+                    _, a_ = encoder_read(X[enc + m, j], sc)
                     e = tgt - a_
-                    d = e_log[k, m] - e
-                    U[m, j] = min(max(c.p_gain[m] * e, -i_lim), i_lim)
-                    if write and j < act:
-                        out[idx[j], k, m] = e
-                s += d * d
-            if k >= k_start:
-                E[j] += s
+                    d = el - e
+                    U[m, j] = min(max(p_m * e, -i_lim), i_lim)
+                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
+                if write:
+                    for j in range(act):
+                        _, a_ = encoder_read(X[enc + m, j], sc)
+                        out[idx[j], k, m] = tgt - a_
+        if k >= k_start:
+            for j in range(lanes_run):
+                E[j] += Ssq[j]
         if k >= k_start:
             for j in range(act - 1, -1, -1):
                 if E[j] > cap:
