@@ -278,8 +278,7 @@ def kernel_times(stem="puma560_paper_drill_flex", lanes=64, repeat=7):
     from plant.simulation.plants import FlexibleJoints
     from plant.simulation.replay import prediction_errors
 
-    f, _ = truth_of(stem)
-    joints = dict(K=[30000.0, 6000.0], D=[4.0, 0.4], Ia=[2.3242, 0.5767])
+    f, joints = truth_of(stem)  # the emulator's K, D, Jm k^2 (a flexible log's)
     log, plog = load_arm_log(DATA / f"{stem}.csv"), plant.load_log(DATA / f"{stem}.csv")
     F = f * (1 + 0.03 * np.random.default_rng(0).standard_normal((lanes, 9)))
     J = np.tile(joints["K"] + joints["D"] + joints["Ia"], (lanes, 1))
@@ -319,8 +318,8 @@ def _timed(fn):
     return time.perf_counter() - t
 
 
-def print_kernels(rows, lanes=64):
-    print(f"\nkernels: ns per lane and RK4 step, {lanes} lanes, 1 thread, best of 7 "
+def print_kernels(rows, lanes=64, repeat=7):
+    print(f"\nkernels: ns per lane and RK4 step, {lanes} lanes, 1 thread, best of {repeat} "
           f"(puma560_paper_drill_flex)")
     print(f"{'kernel':42s} {'PUMA path':>10s} {'arm path':>10s} {'arm/PUMA':>9s}")
     for r in rows:
