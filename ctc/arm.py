@@ -63,6 +63,8 @@ import numba
 import numpy as np
 
 from plant.logs.rig import rig_constants
+from plant.robot.model import friction_torques
+from plant.simulation.core import cell_centres
 
 from .contract import IdentifiedModel
 from .design import gains_for
@@ -400,10 +402,8 @@ class ArmComputedTorque:
 
     def _measurement(self, q_meas) -> np.ndarray:
         """The joint angles (n,) rad the encoders say: the centre of each count's cell
-        (:func:`plant.simulation.core.cell_centre`, per joint)."""
-        count = np.rint(np.asarray(q_meas, dtype=float) * self.spr)
-        centre = np.where(count > 0.0, count + 0.5, np.where(count < 0.0, count - 0.5, 0.0))
-        return centre / self.spr
+        (:func:`plant.simulation.core.cell_centres`)."""
+        return cell_centres(np.rint(np.asarray(q_meas, dtype=float) * self.spr)) / self.spr
 
     def _reference(self, t):
         """The reference at ``t`` and ``t + Ts/2``: ``q_d, qd_d`` at ``t`` and ``q_m, qd_m,
@@ -413,10 +413,8 @@ class ArmComputedTorque:
 
     def _friction_torque(self, qd) -> np.ndarray:
         """The drive friction (n,) N m at joint rates ``qd``
-        (:func:`plant.robot.model.friction_torque` per joint)."""
-        viscous, coulomb_pos, coulomb_neg, ramp_speed = self._friction
-        r = np.clip(qd / ramp_speed, -1.0, 1.0)
-        return -(viscous * qd + np.where(qd > 0.0, coulomb_pos, coulomb_neg) * r)
+        (:func:`plant.robot.model.friction_torques`)."""
+        return friction_torques(qd, *self._friction)
 
     def _symmetric(self, lower):
         """The symmetric (n, n) matrix of a lower triangle given row by row (``+ 0.0`` turns a

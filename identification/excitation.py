@@ -64,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 import plant
-from plant.robot.model import regressor
+from plant.robot.model import friction_torques, regressor
 from plant.logs.rig import rig_constants
 
 __all__ = ["design_excitation", "predicted_f_std", "trajectory_limits", "regressor_rse",
@@ -89,16 +89,6 @@ QUANTISATION_VAR = 1.0 / 12.0
 def _paper_range():
     q = math.pi / 2
     return np.array([[-q, 0.0], [0.0, q]])
-
-
-def _friction(qd, c):
-    """Joint-side drive friction (:func:`plant.robot.model.friction_torque`) on arrays (n, 2)."""
-    out = np.empty_like(qd)
-    for j in range(2):
-        r = np.clip(qd[:, j] / c.ramp_speed[j], -1.0, 1.0)
-        tc = np.where(qd[:, j] > 0, c.coulomb_pos[j], c.coulomb_neg[j])
-        out[:, j] = -(c.viscous[j] * qd[:, j] + tc * r)
-    return out
 
 
 def _scale(f_prior, bounds):
@@ -194,7 +184,8 @@ def _pair_or_none(v):
 
 def _limits(q, qd, qdd, rig, f, lim, vmax, imax):
     c = rig_constants(rig)
-    tau = regressor(q, qd, qdd, c.gravity) @ f - _friction(qd, c)
+    tau = regressor(q, qd, qdd, c.gravity) @ f - friction_torques(
+        qd, c.viscous, c.coulomb_pos, c.coulomb_neg, c.ramp_speed)
     i = np.abs(tau / np.asarray(c.torque_per_amp))
     out = dict(q_min=q.min(0), q_max=q.max(0), qd_max=np.abs(qd).max(0), i_max=i.max(0))
     span = lim[:, 1] - lim[:, 0]

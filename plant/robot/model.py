@@ -45,6 +45,7 @@ __all__ = [
     "is_positive_definite",
     "min_inertia_eigenvalue",
     "friction_torque",
+    "friction_torques",
     "checked_f",
 ]
 
@@ -107,6 +108,27 @@ def friction_torque(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
         r = -1.0
     tc = coulomb_pos if qd > 0.0 else coulomb_neg
     return -(viscous * qd + tc * r)
+
+
+def friction_torques(qd, viscous, coulomb_pos, coulomb_neg, ramp_speed):
+    """:func:`friction_torque` on arrays (numpy broadcasting; plain numpy, no compile).
+
+    Parameters
+    ----------
+    qd : array_like, shape (..., n)
+        Joint rates (rad/s), the joints along the last axis.
+    viscous, coulomb_pos, coulomb_neg, ramp_speed : array_like, shape (n,)
+        Per joint, as :func:`friction_torque` (joint side).
+
+    Returns
+    -------
+    ndarray, shape (..., n)
+        Friction torques (N m): the same operations as :func:`friction_torque`.
+    """
+    qd = np.asarray(qd, dtype=float)
+    r = np.clip(qd / np.asarray(ramp_speed, dtype=float), -1.0, 1.0)
+    tc = np.where(qd > 0.0, coulomb_pos, coulomb_neg)
+    return -(np.asarray(viscous, dtype=float) * qd + tc * r)
 
 
 @_jit
