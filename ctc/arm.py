@@ -117,74 +117,93 @@ class _CallBuffer:
 
 
 #: The compiled link-model sample of :class:`ArmFlexibleComputedTorque`, per robot
-#: (keyed by the plant's dynamics kernel; compiled per process, as that kernel).
+#: (keyed by the plant's generated module; cached on disk with it).
 _LINK_SAMPLES = {}
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _solve(a, b):
     """``numpy.linalg.solve`` of a square (n, n) system, compiled once and cached on disk
-    (the robot's link-sample kernel, compiled per process, links it instead of compiling
-    LAPACK's binding again)."""
+    (the robots' link-sample kernels link it instead of compiling LAPACK's binding again)."""
     return np.linalg.solve(a, b)
 
 
-def _link_sample_kernel(dyn):
-    """The flexible CTC's link model over one sample, compiled around a robot's dynamics kernel.
+def link_rates(s, th, v, a, q, w, K, D, hb, beta):
+    """Link accelerations and spring torques at ``s`` seconds into the sample (a kernel's template).
+
+    Copied into a robot's generated module (:func:`_link_sample_kernel`),
+    where ``dynamics`` is the robot's dynamics kernel.
+    """
+    n = q.shape[0]
+    m = th + v * s + 0.5 * a * s * s
+    d = m - q
+    ts = K * (d - np.minimum(np.maximum(d, -hb), hb)) + D * (v + a * s - w)
+    sc = np.empty(2 * n)
+    for j in range(n):
+        sc[2 * j] = np.sin(q[j])
+        sc[2 * j + 1] = np.cos(q[j])
+    lower, nvec = dynamics(sc, w, beta)  # noqa: F821 - the generated module's
+    M = np.zeros((n, n))
+    k = 0
+    for j in range(n):
+        for i in range(j + 1):
+            M[j, i] = lower[k]
+            M[i, j] = lower[k]
+            k += 1
+    return _solve(M + 0.0, ts - nvec), ts
+
+
+def link_sample(th, v, a, q, w, K, D, hb, beta, h, n_steps):
+    """The link model over one sample (a kernel's template; see :func:`_link_sample_kernel`)."""
+    mean_ts = np.zeros(q.shape[0])
+    for i in range(n_steps):
+        s0 = i * h
+        k1, t1 = link_rates(s0, th, v, a, q, w, K, D, hb, beta)
+        k2, t2 = link_rates(s0 + 0.5 * h, th, v, a, q + 0.5 * h * w, w + 0.5 * h * k1, K, D, hb,
+                            beta)
+        k3, t3 = link_rates(s0 + 0.5 * h, th, v, a, q + 0.5 * h * (w + 0.5 * h * k1),
+                            w + 0.5 * h * k2, K, D, hb, beta)
+        k4, t4 = link_rates(s0 + h, th, v, a, q + h * (w + 0.5 * h * k2), w + h * k3, K, D, hb,
+                            beta)
+        mean_ts += (t1 + 2 * t2 + 2 * t3 + t4) / (6.0 * n_steps)
+        q = q + h * w + h * h * (k1 + k2 + k3) / 6.0
+        w = w + h * (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
+    return q, w, mean_ts
+
+
+def _link_sample_kernel(plant):
+    """The flexible CTC's link model over one sample, compiled for a robot's dynamics kernel.
 
     ``sample(th, v, a, q, w, K, D, half_backlash, beta, h, n_steps) -> (q, w, mean_ts)``:
     ``n_steps`` RK4 steps of ``h`` seconds of ``D_link(q) q'' + n_link(q, q') = tau_s`` with
     the motor on its commanded path ``th + v s + a s^2 / 2`` and the spring torque
     ``tau_s = K dz(th - q, b) + D (th' - q')``, and the spring torque's RK4 mean over the
     sample -- the same operations in the same order as the Python law it replaces (the
-    same numbers), at a few microseconds a step instead of a few hundred.  ``dyn`` is
-    :attr:`plant.simulation.arm.ArmPlant.dynamics_kernel`.  A non-finite inertia matrix or
-    spring torque raises ``numpy.linalg.LinAlgError`` (numba's ``solve`` checks).
+    same numbers), at a few microseconds a step instead of a few hundred.  Copies of
+    :func:`link_rates` and :func:`link_sample` in a module generated for the robot
+    (:mod:`plant.simulation.generated`), with its dynamics kernel
+    (:attr:`plant.simulation.arm.ArmPlant.dynamics_kernel`), cached on disk by numba.  A
+    non-finite inertia matrix or spring torque raises ``numpy.linalg.LinAlgError``
+    (numba's ``solve`` checks).
     """
-    fn = _LINK_SAMPLES.get(dyn)
+    from plant.simulation.generated import function_copy, load
+
+    robot = plant.kernels.__name__
+    fn = _LINK_SAMPLES.get(robot)
     if fn is not None:
         return fn
-    jit = numba.njit(nogil=True, error_model="numpy")
-
-    @jit
-    def rates(s, th, v, a, q, w, K, D, hb, beta):
-        n = q.shape[0]
-        m = th + v * s + 0.5 * a * s * s
-        d = m - q
-        ts = K * (d - np.minimum(np.maximum(d, -hb), hb)) + D * (v + a * s - w)
-        sc = np.empty(2 * n)
-        for j in range(n):
-            sc[2 * j] = np.sin(q[j])
-            sc[2 * j + 1] = np.cos(q[j])
-        lower, nvec = dyn(sc, w, beta)
-        M = np.zeros((n, n))
-        k = 0
-        for j in range(n):
-            for i in range(j + 1):
-                M[j, i] = lower[k]
-                M[i, j] = lower[k]
-                k += 1
-        return _solve(M + 0.0, ts - nvec), ts
-
-    @jit
-    def sample(th, v, a, q, w, K, D, hb, beta, h, n_steps):
-        mean_ts = np.zeros(q.shape[0])
-        for i in range(n_steps):
-            s0 = i * h
-            k1, t1 = rates(s0, th, v, a, q, w, K, D, hb, beta)
-            k2, t2 = rates(s0 + 0.5 * h, th, v, a, q + 0.5 * h * w, w + 0.5 * h * k1, K, D, hb,
-                           beta)
-            k3, t3 = rates(s0 + 0.5 * h, th, v, a, q + 0.5 * h * (w + 0.5 * h * k1),
-                           w + 0.5 * h * k2, K, D, hb, beta)
-            k4, t4 = rates(s0 + h, th, v, a, q + h * (w + 0.5 * h * k2), w + h * k3, K, D, hb,
-                           beta)
-            mean_ts += (t1 + 2 * t2 + 2 * t3 + t4) / (6.0 * n_steps)
-            q = q + h * w + h * h * (k1 + k2 + k3) / 6.0
-            w = w + h * (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
-        return q, w, mean_ts
-
-    _LINK_SAMPLES[dyn] = sample
-    return sample
+    defined = {"numba", "np", "dynamics", "link_rates", "link_sample"}
+    lines = [repr(f"The flexible-joint CTC's link model of {plant.name}: generated by ctc.arm."),
+             "", "import numba", "import numpy as np", "", f"from {robot} import dynamics"]
+    body = []
+    for fn, deco in ((link_rates, "_inline"), (link_sample, "_kernel")):
+        imports, src = function_copy(fn, deco, defined)
+        lines += [imports] if imports else []
+        body.append(src)
+    lines += ["", "", "_kernel = numba.njit(cache=True, nogil=True, error_model=\"numpy\")",
+              "_inline = numba.njit(nogil=True, error_model=\"numpy\")", "", "", *body]
+    fn = _LINK_SAMPLES[robot] = load("link", "\n".join(lines)).link_sample
+    return fn
 
 
 class ArmComputedTorque:
@@ -576,7 +595,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         L = two_mass_observer_gains(np.diag(Dl), self.K, self.D, self.Ia, self.gains, link_damping)
         self.link_gain = L[:, 2:4]
         # the link model over a sample, compiled here (never inside the loop)
-        self._link_sample = _link_sample_kernel(self._link_dyn)
+        self._link_sample = _link_sample_kernel(plant)
         z = np.zeros(n)
         self._link_sample(q0, z, z, q0, z, self.K, self.D, 0.5 * self.b, self.link_beta, self.ts, 1)
         self.reset()

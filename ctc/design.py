@@ -80,8 +80,11 @@ import math
 import warnings
 from dataclasses import dataclass, field
 
-import control
 import numpy as np
+
+# python-control is imported inside the functions that use it: it takes about
+# 2 s to import, and a process that loads a cached kernel naming a CTC law's kind
+# (the identification command line, say) imports this module without designing gains.
 
 __all__ = ["ESTIMATORS", "GainDesign", "design_gains", "gains_for", "double_integrator",
            "default_bandwidth_hz"]
@@ -123,6 +126,8 @@ def double_integrator(ts: float, delay_samples: int = 0):
         Discrete-time system (dt = ts); with a delay, the delayed inputs are
         extra states.
     """
+    import control
+
     ct_sys = control.ss([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]], [[1.0, 0.0]], [[0.0]])
     p = control.c2d(ct_sys, ts, method="zoh")
     for _ in range(int(delay_samples)):
@@ -139,6 +144,8 @@ def _matrices(ts):
 
 def _pd_gains(ts, w, zeta):
     """Kp, Kv placing the ZOH double-integrator poles at exp(s Ts)."""
+    import control
+
     a, b, _ = _matrices(ts)
     s = np.roots([1.0, 2.0 * zeta * w, w * w]).astype(complex)
     z = np.exp(s * ts)
@@ -148,6 +155,8 @@ def _pd_gains(ts, w, zeta):
 
 def _observer_gain(ts, w_o, zeta_o=1.0):
     """Current-estimator gain L (2,) placing eig(A - L C A) at exp(s Ts)."""
+    import control
+
     a, _, c = _matrices(ts)
     s = np.roots([1.0, 2.0 * zeta_o * w_o, w_o * w_o]).astype(complex)
     z = np.exp(s * ts)
@@ -158,6 +167,8 @@ def _observer_gain(ts, w_o, zeta_o=1.0):
 
 def _compensator(ts, kp, kv, estimator, l=None, alpha=None):
     """Feedback part C(z) (position y -> acceleration -a) of the controller."""
+    import control
+
     a, b, c = _matrices(ts)
     k = np.array([[kp, kv]])
     if estimator == "observer":
@@ -171,6 +182,8 @@ def _compensator(ts, kp, kv, estimator, l=None, alpha=None):
 
 def _margins(loop):
     """(gm, pm_deg, sm, w_gm, w_pm) of a discrete loop; gm is the upper gain margin."""
+    import control
+
     with warnings.catch_warnings():
         # the polynomial method warns and falls back to frequency data for
         # this lightly damped discrete loop; the fallback is what we want
@@ -304,6 +317,8 @@ class GainDesign:
         -------
         control.TransferFunction
         """
+        import control
+
         return control.series(self.plant(joint), self.compensator(joint))
 
     def closed_loop(self, joint: int = 0):
@@ -318,6 +333,8 @@ class GainDesign:
         -------
         control.TransferFunction
         """
+        import control
+
         return control.feedback(self.plant(joint), self.compensator(joint))
 
     def report(self) -> str:
@@ -458,6 +475,8 @@ def design_gains(
         Non-positive or non-finite bandwidths or damping, bandwidths too
         close to the Nyquist rate, unknown estimator, negative delay.
     """
+    import control
+
     ts = rig_or_ts
     rig = getattr(rig_or_ts, "rig", rig_or_ts)
     if hasattr(rig, "sample_time_s"):

@@ -76,3 +76,95 @@ def test_read_only_package_directory_falls_back_to_the_user_cache(tmp_path):
     assert not cold and warm and y0 == y1
     user_cache = tmp_path / "home" / ".cache"
     assert any(p.suffix == ".nbi" for p in user_cache.rglob("*"))
+
+
+# A robot model's arm (plant.simulation.arm): builds the planar arm of tests/test_arm.py,
+# emulates 0.3 s of its P loop, and prints whether the driver loaded from numba's cache,
+# where its generated module is, and the output error of a perturbed candidate.
+_ARM_RUN = """
+import sys
+sys.path.insert(0, {root!r})
+sys.path.insert(0, {tests!r})
+import numpy as np
+from test_arm import TRAJ, planar_arm, planar_rig
+from plant.simulation.arm import arm_plant, simulate_arm
+arm = arm_plant(planar_arm())
+beta = arm.beta()
+log = simulate_arm(arm, beta, planar_rig(), TRAJ, 300)
+sim = simulate_arm(arm, beta * 1.01, planar_rig(), TRAJ, 300, e_log=log.errors[0], errors=False)
+stats = arm.kernels.arm_run.stats
+print(sum(stats.cache_hits.values()) > 0, sum(stats.cache_misses.values()) > 0,
+      arm.kernels.__file__, repr(float(sim.objective[0])))
+"""
+
+
+def _arm_process(env):
+    proc = subprocess.run([sys.executable, "-c", _ARM_RUN.format(root=str(ROOT),
+                                                                  tests=str(ROOT / "tests"))],
+                          env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    hit, miss, path, y = proc.stdout.split()
+    return hit == "True", miss == "True", Path(path), float(y)
+
+
+@pytest.mark.slow
+def test_a_robots_generated_kernels_load_from_the_cache_in_the_next_process(tmp_path):
+    """The arm's driver compiles once; a second process loads it and gives the same numbers."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("PUMA_GA_CTC_KERNELS", None)
+    hit0, miss0, path0, y0 = _arm_process(env)
+    hit1, miss1, path1, y1 = _arm_process(env)
+    assert (hit0, miss0) == (False, True) and (hit1, miss1) == (True, False)
+    assert path0 == path1 and path0.parent == tmp_path / "cache" / "generated"
+    assert y1 == y0 > 0
+    # an unwritable directory (here a file where the directory should be): a private
+    # temporary directory, compiled again, the same numbers
+    blocked = tmp_path / "blocked"
+    blocked.write_text("")
+    env["PUMA_GA_CTC_KERNELS"] = str(blocked / "kernels")
+    hit2, miss2, path2, y2 = _arm_process(env)
+    assert (hit2, miss2) == (False, True) and not path2.is_relative_to(blocked) and y2 == y0
+
+
+def test_generated_modules_are_written_once_and_a_missing_one_imports_as_a_placeholder(
+        tmp_path, monkeypatch):
+    import importlib
+
+    from plant.simulation import generated
+
+    monkeypatch.setattr(generated, "_DIRECTORY", [tmp_path])
+    monkeypatch.setattr(generated, "__path__", [*generated.__path__, str(tmp_path)])
+    text = "VALUE = 41 + 1\n"
+    mod = generated.load("probe", text)
+    assert mod.VALUE == 42 and generated.load("probe", text) is mod
+    assert Path(mod.__file__).parent == tmp_path and mod.__name__.startswith(
+        "plant.simulation.generated.probe_")
+    # a file of that name with other text (say, cut short) is written again
+    name = mod.__name__
+    Path(mod.__file__).write_text("VALUE = ")
+    del sys.modules[name]
+    assert generated.load("probe", text).VALUE == 42
+    # a generated module that is gone (cleared, or beyond KEEP) imports as a placeholder, so
+    # that numba's index of a kernel naming its kind still loads; load() writes it again
+    assert generated.clear() >= 1 and not Path(mod.__file__).exists()
+    del sys.modules[name]
+    ghost = importlib.import_module(name)
+    assert ghost.__placeholder__ and ghost.ArmKind._fields == ("code",)
+    assert ghost.ArmKind.__module__ == name
+    assert generated.load("probe", text).VALUE == 42
+    with pytest.raises(ValueError, match="identifier"):
+        generated.load("no good", text)
+
+
+def test_only_plain_module_level_functions_are_copied_into_generated_modules():
+    from plant.simulation import generated
+    from plant.simulation.arm import arm_run
+    from plant.simulation.core import encoder_read
+
+    defined = {"np"}
+    imports, src = generated.function_copy(arm_run, "_kernel", defined)
+    assert src.startswith("@_kernel\ndef arm_run(")
+    assert imports.startswith("from plant.simulation.arm import (") and "advance_sample" in imports
+    assert " np" not in imports and "advance_sample" in defined
+    with pytest.raises(ValueError, match="plain module-level"):
+        generated.function_copy(encoder_read, "_kernel", set())  # a numba dispatcher

@@ -21,7 +21,8 @@ no square root) whose smallest pivot is the core's
 positive-definiteness margin.  The code is generated once per robot (the
 kind class and its right-hand side are cached by the generated source), so
 one robot's kernels are specialised at its joint count; two robots live
-side by side in one process (each its own kind).
+side by side in one process (each its own kind).  numba caches them on disk
+(see below).
 
 Drivers of the core for the arm, both in lanes (one candidate beta per
 column, :mod:`plant.simulation.lanes`):
@@ -44,15 +45,18 @@ driver's finite penalty (:func:`plant.simulation.lanes.final_objective`;
 ``simulate_arm``'s default bound against a log is
 :func:`plant.simulation.simulate.default_bound`).
 
-These kernels are compiled per process (numba's on-disk cache needs the
-kind's class to be importable, which a generated class is not).
+The robot's kernels -- its kind class, right-hand side, dynamics kernel
+and the copies of the drivers compiled for it -- are one generated module
+(:mod:`plant.simulation.generated`, :attr:`ArmPlant.kernels`) written to a
+cache directory, so numba caches them on disk: the next process that
+builds the same robot loads them instead of compiling them again.
 """
 from __future__ import annotations
 
 import hashlib
 import math
+import sys
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import casadi as ca
 import numba
@@ -62,10 +66,10 @@ from plant.simulation.anchors import REANCHOR
 from plant.robot.codegen import function_source
 from plant.simulation.core import (STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, STATUS_STOPPED,
                                    advance_sample, cell_centre, encoder_read, padded_lanes)
+from plant.simulation.generated import function_copy, load
 from plant.simulation.lanes import final_objective, new_lanes, retire_lane
 from plant.simulation.parallel import run_chunks
-from plant.robot.model import friction_torque
-from plant.simulation.plants import Plant, register_plant
+from plant.simulation.plants import Plant
 from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
 from plant.logs.rig import rig_constants
 
@@ -81,8 +85,7 @@ __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm
 #: (``identification.arm.ARM_OUTPUT_ERROR_SUBSTEPS``, ``ARM_REFINE_SUBSTEPS``).
 ARM_SUBSTEPS = DEFAULT_SUBSTEPS
 
-# Per-process kernels (not cached on disk: a generated kind's class cannot be unpickled
-# in another process).
+# Helpers compiled into the robots' drivers (whose cache holds their code).
 _jit = numba.njit(nogil=True, error_model="numpy")
 
 
@@ -217,6 +220,16 @@ class ArmPlant(Plant):
         return fn
 
     @property
+    def kernels(self):
+        """The robot's generated module (:mod:`plant.simulation.generated`).
+
+        It holds the kind class, the right-hand side ``rhs``, the dynamics
+        kernel ``dynamics`` and the drivers compiled for this robot
+        (``arm_run``, ``hold_and_advance``), with numba's on-disk cache.
+        """
+        return sys.modules[type(self.kind).__module__]
+
+    @property
     def dynamics_kernel(self):
         """:attr:`dynamics_function` compiled by numba: ``(sc, qd, beta) -> (lower, n)``.
 
@@ -225,13 +238,13 @@ class ArmPlant(Plant):
         instructions in its own order (:func:`plant.robot.codegen.function_source`),
         so the numbers are the casadi function's, at a few microseconds a
         call instead of a hundred -- for a controller's law, which evaluates
-        its model several times a sample.  Compiled on first use and kept per
-        robot.
+        its model several times a sample.  Compiled (or loaded from numba's
+        cache) on the first access in a process, not at its first call.
         """
-        fn = _DYNAMICS_KERNELS.get(type(self.kind))
-        if fn is None:
-            fn = _DYNAMICS_KERNELS[type(self.kind)] = _dynamics_kernel(
-                self.dynamics_function, self.n_joints, self.base.rank)
+        fn = self.kernels.dynamics
+        if not fn.signatures:
+            n, r = self.n_joints, self.base.rank
+            fn(np.zeros(2 * n), np.zeros(n), np.zeros(r))
         return fn
 
     def beta(self, p=None) -> np.ndarray:
@@ -269,23 +282,19 @@ def _dynamics_function(model, base) -> ca.Function:
     return ca.Function("arm_dynamics", [sc, qd, beta], outs)
 
 
-def _dynamics_kernel(fn, n, r):
-    """numba function of :attr:`ArmPlant.dynamics_kernel` (compiled here, not at first call)."""
+def _dynamics_source(fn) -> str:
+    """Source of ``dynamics(in0, in1, in2) -> (lower, nvec)`` (:attr:`ArmPlant.dynamics_kernel`)."""
     lines, (lower, nvec) = function_source(fn, "g")
-    src = (["def dyn(in0, in1, in2):"] + lines
+    src = (["def dynamics(in0, in1, in2):"] + lines
            + [f"    lower = np.empty({len(lower)})"]
            + [f"    lower[{k}] = {v}" for k, v in enumerate(lower)]
            + [f"    nvec = np.empty({len(nvec)})"]
            + [f"    nvec[{k}] = {v}" for k, v in enumerate(nvec)]
            + ["    return lower, nvec"])
-    scope = {"math": math, "np": np}
-    exec(compile("\n".join(src) + "\n", "<plant.simulation.arm dynamics>", "exec"), scope)  # noqa: S102
-    kernel = _jit(scope["dyn"])
-    kernel(np.zeros(2 * n), np.zeros(n), np.zeros(r))
-    return kernel
+    return "\n".join(src) + "\n"
 
 
-def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
+def _rhs_source(model, base, lane_friction=False, flexible=False, fn=None) -> str:
     """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.simulation.core`).
 
     With ``lane_friction`` the joint-side friction of joint j is the lane's
@@ -297,7 +306,7 @@ def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
     """
     n = model.n_joints
     r = base.rank
-    fn = _dynamics_function(model, base)
+    fn = _dynamics_function(model, base) if fn is None else fn
     lines, (Dl, nv) = function_source(fn, "g")
     src = ["def rhs(p, c, x, u, sc):",
            "    in0 = sc",
@@ -354,9 +363,45 @@ def _rhs_source(model, base, lane_friction=False, flexible=False) -> str:
     return "\n".join(src) + "\n"
 
 
+def _module_text(model, rhs_source, dynamics, n_states, n_parameters, flexible) -> str:
+    """The robot's generated module (:mod:`plant.simulation.generated`): kind, kernels, drivers.
+
+    Its right-hand side and dynamics kernel, and copies of the drivers
+    :func:`arm_run` and :func:`plant.simulation.closed_loop.hold_and_advance`
+    compiled for its kind, all with numba's on-disk cache.
+    """
+    from plant.simulation.closed_loop import hold_and_advance
+
+    n = model.n_joints
+    header = ["import math", "from typing import NamedTuple", "", "import numba",
+              "import numpy as np", "", "from plant.robot.model import friction_torque",
+              "from plant.simulation.plants import register_plant"]
+    defined = {"math", "NamedTuple", "numba", "np", "friction_torque", "register_plant",
+               "ArmKind", "rhs", "dynamics", "arm_run", "hold_and_advance"}
+    copies = []
+    for fn in (arm_run, hold_and_advance):
+        imports, src = function_copy(fn, "_kernel", defined)
+        header += [imports] if imports else []
+        copies.append(src)
+    what = "two-mass flexible" if flexible else "rigid"
+    doc = repr(f"The {what} arm of {model.name} ({n} joints): its kernels, generated by "
+               f"plant.simulation.arm.arm_plant.")
+    return "\n".join([
+        doc, "", *header, "", "",
+        "_kernel = numba.njit(cache=True, nogil=True, error_model=\"numpy\")",
+        "_inline = numba.njit(nogil=True, error_model=\"numpy\")", "", "",
+        "class ArmKind(NamedTuple):",
+        "    \"\"\"This robot's plant kind (its type selects :func:`rhs` in the core).\"\"\"",
+        "", "    code: int", "", "",
+        "@_inline", rhs_source,
+        f"register_plant(ArmKind, rhs, {n_states}, {n_parameters}, n_inputs={n}, n_angles={n})",
+        "", "",
+        "@_kernel", _dynamics_source(dynamics), "",
+        *[c + "\n" for c in copies]])
+
+
 _PLANTS: dict = {}
 _DYNAMICS: dict = {}
-_DYNAMICS_KERNELS: dict = {}
 
 
 def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPlant:
@@ -410,7 +455,8 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
     if not isinstance(model, RobotModel):
         raise ValueError(f"arm_plant needs a plant.RobotModel, got {type(model).__name__}")
     base = model.base_parameters() if base is None else base
-    src = _rhs_source(model, base, lane_friction, flexible)
+    dynamics = _dynamics_function(model, base)
+    src = _rhs_source(model, base, lane_friction, flexible, dynamics)
     key = hashlib.sha1(src.encode()).hexdigest()[:16]
     n = model.n_joints
     enc = 2 * n if flexible else 0
@@ -418,13 +464,10 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
         old = _PLANTS[key]
         return ArmPlant(name=model.name, kind=old.kind, encoder_row=enc, model=model, base=base,
                         source=src, lane_friction=lane_friction, flexible=flexible)
-    scope = {"math": math, "friction_torque": friction_torque}
-    exec(compile(src, f"<plant.simulation.arm rhs {model.name} {key}>", "exec"), scope)  # noqa: S102
-    rhs = _jit(scope["rhs"])
-    kind_class = NamedTuple(f"ArmKind_{key}", [("code", int)])
-    register_plant(kind_class, rhs, (4 if flexible else 2) * n,
-                   base.rank + (4 * n if flexible else 0) + (3 * n if lane_friction else 0),
-                   n_inputs=n, n_angles=n)
+    n_states = (4 if flexible else 2) * n
+    n_par = base.rank + (4 * n if flexible else 0) + (3 * n if lane_friction else 0)
+    module = load("arm", _module_text(model, src, dynamics, n_states, n_par, flexible))
+    kind_class = module.ArmKind
     plant = ArmPlant(name=model.name, kind=kind_class(0), encoder_row=enc, model=model, base=base,
                      source=src, lane_friction=lane_friction, flexible=flexible)
     _PLANTS[key] = plant
@@ -491,10 +534,12 @@ def _arm_finish(idx, j, code, E, k_done, k_start, n_cmp, bound, obj, status, com
                 out[c_, i, m] = bound
 
 
-@_jit
-def _arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, cap, out,
-             write, obj, status, compared, n_lanes, enc, CS):
+def arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, cap, out,
+            write, obj, status, compared, n_lanes, enc, CS):
     """Experiment (P loop) or replay (logged current + injection) of ``n_lanes`` candidates.
+
+    The driver's one source: every robot's generated module compiles a copy
+    of it for its kind (:attr:`ArmPlant.kernels`, numba's on-disk cache).
 
     ``ref`` (n_total, n) reference counts; ``e_log``, ``i_log`` (n_total, n)
     logged errors and currents (compared from ``k_start`` on).  Results per
@@ -664,13 +709,15 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     status = np.zeros(m, dtype=np.int64)
     compared = np.zeros(m, dtype=np.int64)
 
+    run = plant.kernels.arm_run  # the driver compiled for this robot
+
     def chunk(lo, hi):  # one chunk of candidates in its own lanes (the kernel releases the GIL)
         lanes = new_lanes(Pall, lo, hi, x0, n_inputs=n, n_angles=n)
         if X0 is not None:
             lanes.X[:] = X0[lanes.idx].T
-        _arm_run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
-                 float(gain), bound, cap, out, bool(errors), obj, status, compared, hi - lo,
-                 int(plant.encoder_row), np.zeros((0, lanes.X.shape[1])))
+        run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
+            float(gain), bound, cap, out, bool(errors), obj, status, compared, hi - lo,
+            int(plant.encoder_row), np.zeros((0, lanes.X.shape[1])))
 
     run_chunks(chunk, m, workers)
     msgs = tuple("ok" if s == STATUS_OK else

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from plant.simulation.anchors import REANCHOR
@@ -60,7 +59,7 @@ __all__ = [
 DEFAULT_CLOSED_LOOP_SUBSTEPS = 32
 
 
-def _read_py(X, enc, c, ref, act, err):
+def read_encoders(X, enc, c, ref, act, err):
     """Encoder counts ``act`` and pulse errors ``err`` (n,) of lane 0 against the reference counts."""
     for m in range(act.shape[0]):
         _, a = encoder_read(X[enc + m, 0], c.pulses_per_rad[m])
@@ -69,8 +68,12 @@ def _read_py(X, enc, c, ref, act, err):
         err[m] = t - a
 
 
-def _step_py(kind, lanes, c, substeps, k, i):
-    """Hold the currents ``i`` (n,) and advance lane 0 over sample ``k``; returns the status."""
+def hold_and_advance(kind, lanes, c, substeps, k, i):
+    """Hold the currents ``i`` (n,) and advance lane 0 over sample ``k``; returns the status.
+
+    Compiled here for the PUMA 560 plants; a robot model's arm compiles a copy
+    for its kind (:attr:`plant.simulation.arm.ArmPlant.kernels`).
+    """
     P, X, U, A, S, E, idx, W = lanes
     for m in range(U.shape[0]):
         U[m, 0] = i[m]
@@ -78,11 +81,8 @@ def _step_py(kind, lanes, c, substeps, k, i):
     return S[0]
 
 
-_read = kernel(_read_py)
-_step = kernel(_step_py)
-# a generated robot's kind (plant.simulation.arm) cannot be cached on disk: compiled per process
-_read_arm = numba.njit(nogil=True, error_model="numpy")(_read_py)
-_step_arm = numba.njit(nogil=True, error_model="numpy")(_step_py)
+_read = kernel(read_encoders)
+_step = kernel(hold_and_advance)
 
 
 def simulate_closed_loop(
@@ -215,7 +215,7 @@ def simulate_closed_loop(
 
         def lane_parameters(values, what, friction=None, joints=None):
             return plant.lane_parameters(np.asarray(values, dtype=float).reshape(1, -1))
-        read, step = _read_arm, _step_arm
+        read, step = _read, plant.kernels.hold_and_advance
     else:
         from plant.simulation.friction import RIGID_FRICTION
 
