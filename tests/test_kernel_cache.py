@@ -98,13 +98,21 @@ print(sum(stats.cache_hits.values()) > 0, sum(stats.cache_misses.values()) > 0,
 """
 
 
-def _arm_process(env):
-    proc = subprocess.run([sys.executable, "-c", _ARM_RUN.format(root=str(ROOT),
-                                                                  tests=str(ROOT / "tests"))],
-                          env=env, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    hit, miss, path, y = proc.stdout.split()
+def _arm_spawn(env):
+    return subprocess.Popen([sys.executable, "-c", _ARM_RUN.format(root=str(ROOT),
+                                                                    tests=str(ROOT / "tests"))],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _arm_result(proc):
+    out, err = proc.communicate(timeout=600)
+    assert proc.returncode == 0, err[-2000:]
+    hit, miss, path, y = out.split()
     return hit == "True", miss == "True", Path(path), float(y)
+
+
+def _arm_process(env):
+    return _arm_result(_arm_spawn(env))
 
 
 @pytest.mark.slow
@@ -168,3 +176,16 @@ def test_only_plain_module_level_functions_are_copied_into_generated_modules():
     assert " np" not in imports and "advance_sample" in defined
     with pytest.raises(ValueError, match="plain module-level"):
         generated.function_copy(encoder_read, "_kernel", set())  # a numba dispatcher
+
+
+@pytest.mark.slow
+def test_two_processes_generating_the_same_robot_at_once_share_one_module(tmp_path):
+    """Both write the robot's module (whole, by rename) and compile; a third loads their cache."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("PUMA_GA_CTC_KERNELS", None)
+    a, b = _arm_spawn(env), _arm_spawn(env)
+    (_, _, pa, ya), (_, _, pb, yb) = _arm_result(a), _arm_result(b)
+    assert pa == pb and ya == yb
+    assert [p.name for p in pa.parent.iterdir() if p.suffix in (".py", ".tmp")] == [pa.name]
+    hit, miss, pc, yc = _arm_process(env)
+    assert hit and not miss and pc == pa and yc == ya
