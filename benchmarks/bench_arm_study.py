@@ -25,8 +25,10 @@ computation wherever it runs), the well-excited base parameters (relative
 standard error below 1/3 %) within 1 % of the truth, and the unknown
 friction; then each side's wall time for the whole study (the Dask side
 includes starting the cluster, the serial side its one process; each
-process pays the import and the loading of the compiled kernels) and the
-speed-up.  The truth files are read here for the errors only.
+process pays the import and the loading of the compiled kernels; the
+robot's generated kernels are compiled by the first process that needs
+them -- the serial side, which runs first, unless numba's cache has them
+already -- and loaded from the cache by the others) and the speed-up.  The truth files are read here for the errors only.
 
 Usage::
 
