@@ -189,3 +189,25 @@ def test_two_processes_generating_the_same_robot_at_once_share_one_module(tmp_pa
     assert [p.name for p in pa.parent.iterdir() if p.suffix in (".py", ".tmp")] == [pa.name]
     hit, miss, pc, yc = _arm_process(env)
     assert hit and not miss and pc == pa and yc == ya
+
+
+def test_generated_modules_beyond_keep_are_deleted_least_recently_used_first(tmp_path,
+                                                                              monkeypatch):
+    import time
+
+    from plant.simulation import generated
+
+    monkeypatch.setattr(generated, "_DIRECTORY", [tmp_path])
+    monkeypatch.setattr(generated, "__path__", [*generated.__path__, str(tmp_path)])
+    monkeypatch.setattr(generated, "KEEP", 2)
+    a = generated.load("keep", "A = 1\n")
+    time.sleep(0.05)
+    b = generated.load("keep", "B = 1\n")
+    time.sleep(0.05)
+    del sys.modules[a.__name__]
+    generated.load("keep", "A = 1\n")  # a used again: b is now the least recently used
+    time.sleep(0.05)
+    c = generated.load("keep", "C = 1\n")  # the third module: one must go
+    left = sorted(p.name for p in tmp_path.glob("*.py"))
+    assert left == sorted(Path(m.__file__).name for m in (a, c))
+    assert not (tmp_path / f".{Path(b.__file__).stem}.used").exists()

@@ -48,7 +48,7 @@ __all__ = ["kernel_directory", "load", "clear", "function_copy", "DEPENDENCIES",
 #: Library modules (relative to the repository's package root) whose compiled helpers
 #: the generated kernels contain; their text is part of every generated module's hash.
 DEPENDENCIES = ("plant/simulation/core.py", "plant/simulation/lanes.py",
-                "plant/simulation/anchors.py", "plant/simulation/arm.py",
+                "plant/simulation/anchors.py", "plant/simulation/plants.py", "plant/simulation/arm.py",
                 "plant/simulation/closed_loop.py", "plant/robot/model.py", "ctc/arm.py")
 
 #: Generated modules kept in the directory (the least recently used beyond are deleted).
@@ -169,11 +169,11 @@ def load(stem: str, text: str):
         importlib.invalidate_caches()
         _prune(directory, keep=path)
     else:
-        try:
-            os.utime(path)  # most recently used
-        except OSError:
-            pass
         importlib.invalidate_caches()  # perhaps written by another process since a listing
+    try:  # most recently used: a mark of its own (numba < 0.61 dates its cache by the module's)
+        (directory / f".{name}.used").touch()
+    except OSError:
+        pass
     return importlib.import_module(full)
 
 
@@ -228,14 +228,19 @@ def function_copy(fn, decorator: str, defined: set) -> tuple:
 
 def _prune(directory: Path, keep: Path) -> None:
     """Delete the least recently used generated modules beyond :data:`KEEP` (with their caches)."""
+    def used(p):
+        try:
+            return (directory / f".{p.stem}.used").stat().st_mtime
+        except OSError:
+            return p.stat().st_mtime
+
     try:
-        files = sorted((p for p in directory.glob("*_*.py") if p != keep),
-                       key=lambda p: p.stat().st_mtime, reverse=True)
+        files = sorted((p for p in directory.glob("*_*.py") if p != keep), key=used, reverse=True)
     except OSError:
         return
     numba_dir = os.environ.get("NUMBA_CACHE_DIR")
     for old in files[KEEP - 1:]:
-        caches = [*(directory / "__pycache__").glob(f"{old.stem}.*")]
+        caches = [directory / f".{old.stem}.used", *(directory / "__pycache__").glob(f"{old.stem}.*")]
         if numba_dir:  # numba's cache of the module, in its own directory
             caches += Path(numba_dir).glob(f"*/{old.stem}.*")
         for p in [old, *caches]:
@@ -254,7 +259,8 @@ def clear() -> int:
         Files deleted.  Modules already imported stay usable in this process.
     """
     directory = kernel_directory()
-    files = [*directory.glob("*_*.py"), *(directory / "__pycache__").glob("*")]
+    files = [*directory.glob("*_*.py"), *directory.glob(".*.used"),
+             *(directory / "__pycache__").glob("*")]
     numba_dir = os.environ.get("NUMBA_CACHE_DIR")
     if numba_dir:
         files += [p for m in directory.glob("*_*.py") for p in Path(numba_dir).glob(f"*/{m.stem}.*")]
