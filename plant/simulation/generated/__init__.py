@@ -170,7 +170,7 @@ def load(stem: str, text: str):
         _prune(directory, keep=path)
     else:
         importlib.invalidate_caches()  # perhaps written by another process since a listing
-    try:  # most recently used: a mark of its own (numba < 0.61 dates its cache by the module's)
+    try:  # most recently used: a mark of its own (older numba dates its cache by the module's)
         (directory / f".{name}.used").touch()
     except OSError:
         pass
