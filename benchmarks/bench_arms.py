@@ -269,7 +269,8 @@ def main(argv=None):
                 "component passes within 15 % of the truth or within 3 of its own standard "
                 "errors; the largest relative error is printed per draw).  "
                 "Identification times include compiling the robot's kernels in the first draw of "
-                "each family and of each friction setting.")
+                "each family and of each friction setting, unless numba's disk cache has them "
+                "from an earlier run.")
     for c in misses:
         text.append("")
         fr = ("" if c["friction_known"] else

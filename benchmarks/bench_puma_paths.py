@@ -136,7 +136,7 @@ def ctc_errors(path_name, res, log, plog, f, joints, substeps):
 
 
 def warm_up(stems):
-    """Compile each path's rigid kernels before the clock (the arm's are per process)."""
+    """Compile (or load from numba's cache) each path's rigid kernels before the clock."""
     t = time.perf_counter()
     plant.warm_up()
     log = load_arm_log(DATA / f"{stems[0]}.csv")
