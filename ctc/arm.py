@@ -122,7 +122,7 @@ _LINK_SAMPLES = {}
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _solve(a, b):
+def solve_dense(a, b):
     """``numpy.linalg.solve`` of a square (n, n) system, compiled once and cached on disk
     (the robots' link-sample kernels link it instead of compiling LAPACK's binding again)."""
     return np.linalg.solve(a, b)
@@ -150,7 +150,7 @@ def link_rates(s, th, v, a, q, w, K, D, hb, beta):
             M[j, i] = lower[k]
             M[i, j] = lower[k]
             k += 1
-    return _solve(M + 0.0, ts - nvec), ts
+    return solve_dense(M + 0.0, ts - nvec), ts
 
 
 def link_sample(th, v, a, q, w, K, D, hb, beta, h, n_steps):

@@ -513,8 +513,8 @@ def reference_counts(trajectory, rig, n_samples) -> np.ndarray:
 
 
 @_jit
-def _arm_finish(idx, j, code, E, k_done, k_start, n_cmp, bound, obj, status, compared, replay,
-                out, write):
+def arm_finish(idx, j, code, E, k_done, k_start, n_cmp, bound, obj, status, compared, replay,
+               out, write):
     """Record lane ``j``'s result (status ``code``, samples ``< k_done`` run).
 
     The objective is :func:`plant.simulation.lanes.final_objective` of the
@@ -545,7 +545,7 @@ def arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, 
     logged errors and currents (compared from ``k_start`` on).  Results per
     candidate (``idx``): ``obj`` sum of squares (experiment: ``e_log -
     e_sim``; replay: ``m - c``) with the penalties of
-    :func:`_arm_finish`, ``status``, ``compared`` (the samples run); with
+    :func:`arm_finish`, ``status``, ``compared`` (the samples run); with
     ``write`` the errors go to ``out`` (candidates, n_total, n).  The
     encoders read state rows ``enc .. enc + n - 1``.  As the PUMA 560
     path's :func:`plant.simulation.simulate.log_chunk`: a lane whose
@@ -569,8 +569,8 @@ def arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, 
         for j in range(act - 1, -1, -1):
             for m in range(nj):
                 if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
-                    _arm_finish(idx, j, np.int64(STATUS_DIVERGED), E, k, k_start, n_cmp, bound,
-                                obj, status, compared, replay, out, write)
+                    arm_finish(idx, j, np.int64(STATUS_DIVERGED), E, k, k_start, n_cmp, bound,
+                               obj, status, compared, replay, out, write)
                     act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
                     break
         if act == 0:
@@ -611,8 +611,8 @@ def arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, 
         if k >= k_start:
             for j in range(act - 1, -1, -1):
                 if E[j] > cap:
-                    _arm_finish(idx, j, np.int64(STATUS_STOPPED), E, k + 1, k_start, n_cmp,
-                                bound, obj, status, compared, replay, out, write)
+                    arm_finish(idx, j, np.int64(STATUS_STOPPED), E, k + 1, k_start, n_cmp,
+                               bound, obj, status, compared, replay, out, write)
                     act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
             if act == 0:
                 break
@@ -622,14 +622,14 @@ def arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, 
                        k % REANCHOR == 0)
         for j in range(act - 1, -1, -1):
             if S[j] != STATUS_OK:
-                _arm_finish(idx, j, S[j], E, k + 1, k_start, n_cmp, bound, obj, status,
-                            compared, replay, out, write)
+                arm_finish(idx, j, S[j], E, k + 1, k_start, n_cmp, bound, obj, status,
+                           compared, replay, out, write)
                 act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
         if act == 0:
             break
     for j in range(act):
-        _arm_finish(idx, j, np.int64(STATUS_OK), E, n_total, k_start, n_cmp, bound, obj, status,
-                    compared, replay, out, write)
+        arm_finish(idx, j, np.int64(STATUS_OK), E, n_total, k_start, n_cmp, bound, obj, status,
+                   compared, replay, out, write)
 
 
 @dataclass(frozen=True)
