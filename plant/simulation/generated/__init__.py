@@ -56,7 +56,6 @@ KEEP = 64
 
 _ROOT = Path(__file__).resolve().parents[3]
 _DIRECTORY: list = []   # the resolved directory, once
-_TEMPORARY: list = []   # a process-private fallback directory, removed at exit
 
 
 def _writable(path: Path) -> bool:
@@ -92,7 +91,6 @@ def kernel_directory() -> Path:
     path = path.expanduser()
     if not _writable(path):
         tmp = tempfile.mkdtemp(prefix="puma-ga-ctc-kernels-")
-        _TEMPORARY.append(tmp)
         atexit.register(shutil.rmtree, tmp, True)
         path = Path(tmp)
     _DIRECTORY.append(path)
@@ -154,22 +152,20 @@ def load(stem: str, text: str):
     directory = kernel_directory()
     path = directory / f"{name}.py"
     try:
-        fresh = path.read_text() != text
+        fresh = path.read_text(encoding="utf-8") != text
     except (OSError, UnicodeDecodeError):
         fresh = True
     if fresh:  # written whole or not at all: a temporary file renamed over the name
         fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{name}-", suffix=".tmp")
         try:
-            with os.fdopen(fd, "w") as fh:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
                 fh.write(text)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        importlib.invalidate_caches()
         _prune(directory, keep=path)
-    else:
-        importlib.invalidate_caches()  # perhaps written by another process since a listing
+    importlib.invalidate_caches()  # a new file (ours, or another process's since a listing)
     try:  # most recently used: a mark of its own (older numba dates its cache by the module's)
         (directory / f".{name}.used").touch()
     except OSError:
@@ -226,6 +222,27 @@ def function_copy(fn, decorator: str, defined: set) -> tuple:
     return imports, f"@{decorator}\n{source}"
 
 
+def _files_of(directory: Path, module: Path) -> list:
+    """A generated module's file, its use mark and its caches (Python's and numba's)."""
+    files = [module, directory / f".{module.stem}.used",
+             *(directory / "__pycache__").glob(f"{module.stem}.*")]
+    numba_dir = os.environ.get("NUMBA_CACHE_DIR")
+    if numba_dir:  # numba's cache of the module, in a directory of its own
+        files += Path(numba_dir).glob(f"*/{module.stem}.*")
+    return files
+
+
+def _unlink(paths) -> int:
+    n = 0
+    for p in paths:
+        try:
+            p.unlink()
+            n += 1
+        except OSError:
+            pass
+    return n
+
+
 def _prune(directory: Path, keep: Path) -> None:
     """Delete the least recently used generated modules beyond :data:`KEEP` (with their caches)."""
     def used(p):
@@ -238,16 +255,7 @@ def _prune(directory: Path, keep: Path) -> None:
         files = sorted((p for p in directory.glob("*_*.py") if p != keep), key=used, reverse=True)
     except OSError:
         return
-    numba_dir = os.environ.get("NUMBA_CACHE_DIR")
-    for old in files[KEEP - 1:]:
-        caches = [directory / f".{old.stem}.used", *(directory / "__pycache__").glob(f"{old.stem}.*")]
-        if numba_dir:  # numba's cache of the module, in its own directory
-            caches += Path(numba_dir).glob(f"*/{old.stem}.*")
-        for p in [old, *caches]:
-            try:
-                p.unlink()
-            except OSError:
-                pass
+    _unlink(p for old in files[KEEP - 1:] for p in _files_of(directory, old))
 
 
 def clear() -> int:
@@ -259,19 +267,8 @@ def clear() -> int:
         Files deleted.  Modules already imported stay usable in this process.
     """
     directory = kernel_directory()
-    files = [*directory.glob("*_*.py"), *directory.glob(".*.used"),
-             *(directory / "__pycache__").glob("*")]
-    numba_dir = os.environ.get("NUMBA_CACHE_DIR")
-    if numba_dir:
-        files += [p for m in directory.glob("*_*.py") for p in Path(numba_dir).glob(f"*/{m.stem}.*")]
-    n = 0
-    for p in files:
-        try:
-            p.unlink()
-            n += 1
-        except OSError:
-            pass
-    return n
+    n = _unlink([p for m in directory.glob("*_*.py") for p in _files_of(directory, m)])
+    return n + _unlink(directory.glob(".*.used")) + _unlink((directory / "__pycache__").glob("*"))
 
 
 class _Missing(importlib.abc.MetaPathFinder, importlib.abc.Loader):
