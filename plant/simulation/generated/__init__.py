@@ -8,10 +8,11 @@ again in every process (numba caches only functions of importable modules,
 and the robot's plant kind -- a class -- must be importable for a cached
 kernel's signature to load).  So :func:`load` writes each generated text as
 a module ``plant.simulation.generated.<stem>_<hash>`` into
-:func:`kernel_directory` (this package's ``__path__`` includes it) and
-imports it; its kernels carry numba's ``cache=True``, and a second process
-that builds the same robot loads them from numba's cache instead of
-compiling them (``docs/speed.rst``, compile time).
+:func:`kernel_directory` (found there by this package's import hook, not
+on its ``__path__``) and imports it; its kernels carry numba's
+``cache=True``, and a second process that builds the same robot loads them
+from numba's cache instead of compiling them (``docs/speed.rst``, compile
+time).
 
 The file's name is a hash of its text, and the text carries a fingerprint
 of the library modules whose compiled helpers the kernels contain
@@ -34,6 +35,7 @@ import hashlib
 import importlib
 import importlib.abc
 import importlib.machinery
+import importlib.util
 import inspect
 import os
 import shutil
@@ -94,8 +96,6 @@ def kernel_directory() -> Path:
         atexit.register(shutil.rmtree, tmp, True)
         path = Path(tmp)
     _DIRECTORY.append(path)
-    if str(path) not in __path__:
-        __path__.append(str(path))
     return path
 
 
@@ -165,7 +165,6 @@ def load(stem: str, text: str):
             Path(tmp).unlink(missing_ok=True)
             raise
         _prune(directory, keep=path)
-    importlib.invalidate_caches()  # a new file (ours, or another process's since a listing)
     try:  # most recently used: a mark of its own (older numba dates its cache by the module's)
         (directory / f".{name}.used").touch()
     except OSError:
@@ -271,24 +270,28 @@ def clear() -> int:
     return n + _unlink(directory.glob(".*.used")) + _unlink((directory / "__pycache__").glob("*"))
 
 
-class _Missing(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """Imports a generated module whose file is gone as an empty placeholder.
+class _Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Finds ``plant.simulation.generated.<name>`` in :func:`kernel_directory`.
 
-    numba's cache index of a kernel lists the signatures it holds; unpickling
-    it imports the classes they name -- a generated module's plant kind.  When
-    that module was deleted (:func:`clear`, or :data:`KEEP` exceeded), its
-    name resolves to a placeholder whose classes are new and match no kernel,
-    so the index still loads and the kernel compiles, instead of an
-    ``ImportError`` inside numba.
+    The directory is not on this package's ``__path__``, so tools that walk
+    the library's packages (``pkgutil.walk_packages``, documentation
+    builders) never import a generated module -- in particular none left
+    there by another version of the library.  A name whose file is gone
+    imports as an empty placeholder: numba's cache index of a kernel lists
+    the signatures it holds, and unpickling it imports the classes they name
+    (a generated module's plant kind); when that module was deleted
+    (:func:`clear`, or :data:`KEEP` exceeded) the placeholder's classes are
+    new and match no kernel, so the index still loads and the kernel
+    compiles, instead of an ``ImportError`` inside numba.
     """
 
     def find_spec(self, fullname, path=None, target=None):
-        if not fullname.startswith(__name__ + ".") or fullname.count(".") != __name__.count(".") + 1:
+        prefix = __name__ + "."
+        if not fullname.startswith(prefix) or "." in fullname[len(prefix):]:
             return None
-        kernel_directory()  # the directory on __path__ (a cached kernel may be loaded first)
-        importlib.invalidate_caches()  # another process may have just written it
-        if importlib.machinery.PathFinder.find_spec(fullname, __path__) is not None:
-            return None
+        file = kernel_directory() / f"{fullname[len(prefix):]}.py"
+        if file.is_file():
+            return importlib.util.spec_from_file_location(fullname, file)
         return importlib.machinery.ModuleSpec(fullname, self)
 
     def create_module(self, spec):
@@ -309,4 +312,4 @@ class _Missing(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         module.__getattr__ = __getattr__
 
 
-sys.meta_path.append(_Missing())
+sys.meta_path.append(_Finder())
