@@ -30,6 +30,7 @@ used beyond that, with their numba cache files.  :func:`clear` empties it.
 """
 from __future__ import annotations
 
+import ast
 import atexit
 import hashlib
 import importlib
@@ -45,7 +46,8 @@ import textwrap
 from pathlib import Path
 from typing import NamedTuple
 
-__all__ = ["kernel_directory", "load", "clear", "function_copy", "DEPENDENCIES", "KEEP"]
+__all__ = ["kernel_directory", "load", "clear", "module_text", "function_copy", "DEPENDENCIES",
+           "KEEP"]
 
 #: Library modules (relative to the repository's package root) whose compiled helpers
 #: the generated kernels contain; their text is part of every generated module's hash.
@@ -240,6 +242,58 @@ def _unlink(paths) -> int:
         except OSError:
             pass
     return n
+
+
+#: What every generated module starts with: its imports, and its two decorators
+#: (``_kernel``: compiled and cached on disk; ``_inline``: compiled into its callers).
+_PRELUDE = ("import math", "from typing import NamedTuple", "", "import numba", "import numpy as np")
+_DECORATORS = ("_kernel = numba.njit(cache=True, nogil=True, error_model=\"numpy\")",
+               "_inline = numba.njit(nogil=True, error_model=\"numpy\")")
+
+
+def _bound_names(text: str) -> set:
+    """Names a module's top level binds (imports, definitions, assignments)."""
+    names = set()
+    for node in ast.parse(text).body:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            names |= {(a.asname or a.name).split(".")[0] for a in node.names}
+        elif isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign):
+            names |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+    return names
+
+
+def module_text(doc: str, *, imports=(), body=(), copies=()) -> str:
+    """The text of a generated module, for :func:`load`.
+
+    Parameters
+    ----------
+    doc : str
+        Its docstring.
+    imports : sequence of str
+        Import lines, after ``math``, ``NamedTuple``, ``numba`` and ``numpy as np``.
+    body : sequence of str
+        Source after the decorators ``_kernel`` (``numba.njit`` with
+        ``cache=True``) and ``_inline`` (without: compiled into its callers).
+    copies : sequence of (function, str)
+        Plain module-level functions copied after ``body``, each under the
+        named decorator (:func:`function_copy`), with the imports their
+        global names need (from their own modules; none the module binds itself).
+
+    Returns
+    -------
+    str
+    """
+    head = [repr(doc), "", *_PRELUDE, *imports]
+    rest = ["", "", *_DECORATORS, "", "", *body]
+    defined = _bound_names("\n".join(head + rest)) | {fn.__name__ for fn, _ in copies}
+    sources = []
+    for fn, decorator in copies:
+        line, src = function_copy(fn, decorator, defined)
+        head += [line] if line else []
+        sources.append(src)
+    return "\n".join(head + rest + ["", ""] + [src + "\n" for src in sources])
 
 
 def _prune(directory: Path, keep: Path) -> None:
