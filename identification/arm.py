@@ -672,7 +672,8 @@ class ArmIdentificationResult(OptimizeResult):
 def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAIN,
                  substeps=ARM_REFINE_SUBSTEPS, max_iter=40, ftol=ARM_FTOL, cutoff_hz=None,
                  bounds=None, ranges=None, rng=None, ga_options=None,
-                 workers=None, model="auto", output_substeps=None) -> ArmIdentificationResult:
+                 workers=None, model="auto", output_substeps=None, callback=None,
+                 progress=False) -> ArmIdentificationResult:
     """Identify an arm's base parameters from a P-control log (module docstring).
 
     Parameters
@@ -761,6 +762,20 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         step, the PUMA 560 path's, unless the arm's P loop or friction is
         fast for the sample time).  The result's ``output_error`` takes at
         least :data:`ARM_REPORT_SUBSTEPS`.
+    callback : callable, optional
+        ``callback(intermediate_result) -> bool``, :func:`identification.identify`'s
+        convention: an ``OptimizeResult`` with ``x``, ``fun`` and ``stage``
+        -- ``"ga"`` after every generation (``generation``, ``n_gen``;
+        ``fun`` the output error, pulses^2), ``"refine"`` when a start of
+        the rigid refinement ends (``start``, ``n_starts``; ``fun`` the
+        prediction-error cost, pulses^2), ``"model"`` before each fit of the
+        model choice (``step``, what is fitted, and ``fun`` None) and when
+        one of its starts ends (``step``, ``start``, ``n_starts``).  True
+        stops: a GA or rigid refinement returns its best point so far, a
+        stopped model choice keeps the rigid result; ``interrupted`` is then
+        True.  A KeyboardInterrupt stops the same way.
+    progress : bool
+        A tqdm bar over the GA's generations.
 
     Returns
     -------
@@ -833,6 +848,9 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     starts = x0[None]
     problem = ArmPredictionErrorProblem(log, sim_plant, gain=gain, substeps=substeps, workers=workers)
     notes = []
+    report = _reporter(callback)
+    refine_cb = None if callback is None else (
+        lambda i, m, xs, c: report("refine", xs, c, start=i, n_starts=m))
 
     def ga_start(paper, generator):
         # the PUMA 560 path's GA (identification.identify): the paper's binary GA, or Gray-coded
@@ -846,10 +864,15 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
                                 e_log=e_log, errors=False, substeps=oe_substeps, cap=cap,
                                 workers=workers).objective
 
-        ga = run_ga(output_error, bounds, rng=generator, **settings)
+        n_gen = settings.get("n_gen")
+        ga = run_ga(output_error, bounds, rng=generator, progress=progress,
+                    callback=None if callback is None else (
+                        lambda st: report("ga", st.x, st.fun, generation=st.generation,
+                                          n_gen=n_gen)), **settings)
         info = dict(x=np.asarray(ga.x, dtype=float), output_error=float(ga.fun),
                     nfev=int(ga.nfev), generations=int(ga.nit), substeps=oe_substeps,
-                    best=np.asarray(ga.history["best"], dtype=float))
+                    best=np.asarray(ga.history["best"], dtype=float),
+                    interrupted=bool(ga.interrupted), message=ga.message)
         return info, np.vstack([info["x"], np.clip(x0, bounds[:, 0], bounds[:, 1])])
 
     if method in ("ga+pem", "paper"):
@@ -864,14 +887,17 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         notes.append("the IDIM-LS start does not simulate the log (its predictor fails); the "
                      "refinement started from the GA's best individual over the box "
                      "(method 'ga+pem')")
-    if method == "paper":
+    ga_only = method == "paper" or (ga_info is not None and ga_info["interrupted"])
+    if ga_only:
+        # the paper's GA, or a GA stopped early: its best individual, not refined
         ref = OptimizeResult(x=ga_info["x"], fun=float(np.sum(problem.residuals(ga_info["x"]) ** 2)),
-                             nfev=ga_info["nfev"], nit=ga_info["generations"], message="the paper's GA",
-                             jac=None, residuals=None)
+                             nfev=ga_info["nfev"], nit=ga_info["generations"],
+                             message=(ga_info["message"] if ga_info["interrupted"] else "the paper's GA"),
+                             interrupted=ga_info["interrupted"], jac=None, residuals=None)
     else:
-        ref = refine(problem, starts, bounds, max_iter=max_iter, ftol=ftol)
+        ref = refine(problem, starts, bounds, max_iter=max_iter, ftol=ftol, callback=refine_cb)
         energy = float(np.sum(np.asarray(log.e_pulses, dtype=float) ** 2))
-        if not (ref.fun <= RESTART_FRACTION * energy):
+        if not ref.interrupted and not (ref.fun <= RESTART_FRACTION * energy):
             # the refinement explains less than 90 % of the log's errors: a wrong basin, not a
             # model-form limit (a compliant arm whose motor encoders ring leaves IDIM-LS far
             # off).  Again from the same starts through the predictor-gain continuation of the
@@ -881,8 +907,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
                 lambda g: problem if g == gain else ArmPredictionErrorProblem(
                     log, sim_plant, gain=g, substeps=substeps, workers=workers),
                 starts, bounds, CONTINUATION_GAINS + (gain,), max_iter=max_iter, ftol=ftol,
-                stage_ftol=CONTINUATION_FTOL)
-            if cont.fun < ref.fun:
+                stage_ftol=CONTINUATION_FTOL, callback=refine_cb)
+            if cont.fun < ref.fun or cont.interrupted:
                 notes.append(f"the refinement explained {1 - ref.fun / energy:.1%} of the log's "
                              f"errors (a wrong basin); refined again through the predictor-gain "
                              f"continuation {CONTINUATION_GAINS}: {1 - cont.fun / energy:.1%}")
@@ -903,7 +929,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     report_substeps = max(oe_substeps, ARM_REPORT_SUBSTEPS)
     sim = simulate_arm(sim_plant, lane(x), rig, log.trajectory, log.n_samples, e_log=log.e_pulses,
                        errors=False, substeps=report_substeps, workers=workers)
-    nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and method != "paper" else 0)
+    nfev = int(ref.nfev) + (ga_info["nfev"] if ga_info and not ga_only else 0)
     start = "the IDIM start" if ga_info is None else "every start"
     friction = motor_side_friction(rig, x, nb)
     names = tuple(pl.base.names) + tuple(
@@ -913,8 +939,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     res = ArmIdentificationResult(
         x=x, beta=x[:nb].copy(), fun=float(ref.fun), output_error=float(sim.objective[0]),
         nfev=nfev, nit=int(ref.nit), success=ok, method=method, ga=ga_info, bounds=bounds,
-        interrupted=bool(ref.get("interrupted", False) if isinstance(ref, dict) else
-                         getattr(ref, "interrupted", False)), message=(ref.message or "ok") if ok else
+        interrupted=bool(getattr(ref, "interrupted", False)), message=(ref.message or "ok") if ok else
         f"the predictor failed at {start}: the log does not fit the robot model",
         names=names, expressions=expressions, x_std=x_std, x_rse=rse, cov=cov,
         well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
@@ -927,10 +952,15 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         flexible_plant=None, plant_row=None, flexible_substeps=None,
         output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
         **_NO_JOINTS)
-    if ok and model != "rigid":
+    if ok and model != "rigid" and not res.interrupted:
         t1 = time.perf_counter()
-        res = _apply_arm_model(res, log, model, problem, bounds, workers=workers, max_iter=max_iter,
-                               ftol=ftol)
+        try:
+            res = _apply_arm_model(res, log, model, problem, bounds, workers=workers,
+                                   max_iter=max_iter, ftol=ftol, report=report)
+        except _Stopped:  # a stop (callback, Ctrl-C) in the model choice: the rigid result
+            res.interrupted = True
+            res.message = f"{res.message}; model choice interrupted: the rigid result is kept"
+            res.model_choice = dict(model="rigid", reason="model choice interrupted")
         res.stage_times_s["model_choice_and_flexible_fit"] = time.perf_counter() - t1
     res.elapsed_s = time.perf_counter() - t0
     return res
@@ -938,6 +968,20 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
 
 #: Models of :func:`identify_arm`.
 ARM_MODELS = ("auto", "rigid", "flexible")
+
+
+class _Stopped(Exception):
+    """A stop requested during the model choice (callback or KeyboardInterrupt)."""
+
+
+def _reporter(callback):
+    """``report(stage, x, fun, **info) -> bool``: the caller's callback (False without one)."""
+    def report(stage, x, fun, **info):
+        if callback is None:
+            return False
+        return bool(callback(OptimizeResult(
+            x=None if x is None else np.array(x, dtype=float), fun=fun, stage=stage, **info)))
+    return report
 
 _NO_JOINTS = dict(joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=None,
                   motor_inertia_reflected_kgm2=None, joint_backlash_rad=None)
@@ -950,9 +994,12 @@ def _held_cost(problem, x, held, residuals=False):
     return (cost, r) if residuals else cost
 
 
-def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, ftol):
-    """The model choice and the flexible fit of :func:`identify_arm` (its docstring)."""
-    from .arm_flexible import ARM_BACKLASH_GRID, ArmFlexibleSpace, fit_flexible_arm
+def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, ftol, report):
+    """The model choice and the flexible fit of :func:`identify_arm` (its docstring).
+
+    ``report`` is :func:`_reporter`'s; a stop raises :class:`_Stopped`.
+    """
+    from .arm_flexible import ARM_BACKLASH_GRID, N_STARTS, ArmFlexibleSpace, fit_flexible_arm
     from .flexible import CHOICE_RATIO, FLOOR_FACTOR, INADEQUATE_FACTOR, quantisation_floor
     from .refinement import MaskedProblem, held_back_mask
 
@@ -965,11 +1012,26 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
             reason=f"the rigid model predicts the log to the quantisation floor "
                    f"(prediction-error cost {level:.3g} x n/12 <= {FLOOR_FACTOR})")
         return res
+    def stage(step):
+        """Say what is fitted next (a stop ends the model choice); that fit's refine callback."""
+        if report("model", None, None, step=step):
+            raise _Stopped
+        return lambda i, m, xs, c: report("model", xs, c, step=step, start=i, n_starts=m)
+
+    def checked(ref):
+        """ref, unless a stop (callback, KeyboardInterrupt) ended it."""
+        if getattr(ref, "interrupted", False):
+            raise _Stopped
+        return ref
+
     fit_mask, held = held_back_mask(log.n_samples, n, log.rig.sample_time_s)
     floor_h = quantisation_floor(held.sum())
     limit = INADEQUATE_FACTOR * floor_h
     # the rigid model refit without the held-back blocks
-    ref_r = refine(MaskedProblem(problem, fit_mask), res.x[None], bounds, max_iter=20, ftol=ftol)
+    cb = stage(f"model choice: the rigid model refitted without the held-back samples "
+               f"(the rigid cost is {level:.3g} quantisation floors)")
+    ref_r = checked(refine(MaskedProblem(problem, fit_mask), res.x[None], bounds, max_iter=20,
+                           ftol=ftol, callback=cb))
     c_rigid = _held_cost(problem, ref_r.x, held)
     try:
         space = ArmFlexibleSpace(log, res.plant, res.beta, bounds[nb:])
@@ -992,8 +1054,12 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
 
     box = space.bounds(bounds[:nb])
     at = problem_at(space, box)
-    flex = fit_flexible_arm(space, at, box, pool=space.pool(res.beta, res.x[nb:]), mask=fit_mask,
-                            max_iter=max_iter, ftol=ftol)
+    pool = space.pool(res.beta, res.x[nb:])
+    cb = stage(f"model choice: two-mass joints ({box.shape[0]} parameters, the best "
+               f"{N_STARTS} of {len(pool)} starts, {space.substeps(box)} RK4 steps per sample)")
+    flex = fit_flexible_arm(space, at, box, pool=pool, mask=fit_mask, max_iter=max_iter, ftol=ftol,
+                            callback=cb)
+    checked(flex["refine"])
     c_flex, r_flex = _held_cost(at(DEFAULT_GAIN), flex["x"], held, residuals=True)
     if not np.isfinite(c_flex):
         c_flex = np.inf
@@ -1023,8 +1089,13 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
         # softer than the gearbox (the dead zone passes for compliance), so its point alone
         # can miss the backlash basin
         bpool = bspace.pool(res.beta, res.x[nb:], widths=ARM_BACKLASH_GRID)
+        cb = stage(f"model choice: two-mass joints with backlash ({bbox.shape[0]} parameters, "
+                   f"{len(starts)} starts from the springs' fit and the best {N_STARTS} of "
+                   f"{len(bpool)}, {bspace.substeps(bbox)} RK4 steps per sample)")
         bl = fit_flexible_arm(bspace, bat, bbox, starts=starts, pool=bpool, mask=fit_mask,
-                              max_iter=max_iter, ftol=ftol, continuation=CONTINUATION_BACKLASH)
+                              max_iter=max_iter, ftol=ftol, continuation=CONTINUATION_BACKLASH,
+                              callback=cb)
+        checked(bl["refine"])
         c_bl, r_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held, residuals=True)
         choice["held_back_cost_backlash_pulses2"] = c_bl
         t = _paired_t(r_flex, r_bl, log)
@@ -1049,8 +1120,10 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
         res.nfev = int(problem.nfev) + sum(int(p.nfev) for p in problems.values())
         return _judge_arm(res, dict(choice, model="rigid"), c_rigid, floor_h)
     # the full fit from the held-back fit's point
+    cb = stage(f"{name} chosen: fitted to the whole log")
     full = fit_flexible_arm(fspace, fat, fbox, starts=fx[None], max_iter=max_iter, ftol=ftol,
-                            continuation=())
+                            continuation=(), callback=cb)
+    checked(full["refine"])
     flex_res = _flexible_arm_result(res, log, fspace, fbox, full, workers)
     # every simulated candidate of the model choice and the fits (the rigid ones included)
     flex_res.nfev = int(problem.nfev) + sum(int(p.nfev) for p in problems.values())

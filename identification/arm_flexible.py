@@ -457,7 +457,8 @@ def diagonal_inertias(plant, beta, q) -> np.ndarray:
 
 
 def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=None,
-                     max_iter=40, ftol=1e-6, continuation=CONTINUATION_GAINS, n_starts=N_STARTS):
+                     max_iter=40, ftol=1e-6, continuation=CONTINUATION_GAINS, n_starts=N_STARTS,
+                     callback=None):
     """Fit a flexible arm: start pool, gain continuation, final refinement (module docstring).
 
     Parameters
@@ -479,6 +480,10 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
     continuation : sequence of float
         Gains refined at first, in order (none: the default gain only).
     n_starts : int
+    callback : callable, optional
+        :func:`~identification.refinement.refine`'s ``callback(start,
+        n_starts, x, cost) -> bool`` at every gain; True stops the fit
+        (``refine.interrupted``).
 
     Returns
     -------
@@ -502,6 +507,6 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
         c = np.einsum("ij,ij->i", R, R)
         S = np.vstack([S, P[np.argsort(c, kind="stable")[:max(1, n_starts)]]])
     ref = refine_through_gains(problem, S, box, gains, max_iter=max_iter, ftol=ftol,
-                               stage_ftol=CONTINUATION_FTOL)
+                               stage_ftol=CONTINUATION_FTOL, callback=callback)
     x = np.asarray(ref.x, dtype=float)
     return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev + int(ref.nfev))

@@ -420,6 +420,12 @@ class _Status:
             of = f"/{n}" if n else ""
             self.say(f"refinement start {start}{of}: prediction-error cost "
                      f"{float(r.get('fun')):.6g} pulses^2")
+        elif stage == "model" and r.get("step"):  # identify_arm's model choice, fit by fit
+            if r.get("start") is None:
+                self.say(f"{r['step']} ...")
+            else:
+                self.say(f"  start {r['start']}/{r.get('n_starts')}: prediction-error cost "
+                         f"{float(r.get('fun')):.6g} pulses^2")
         elif stage == "ga" and not self.tty:
             gen = r.get("generation")
             now = time.monotonic()
@@ -564,6 +570,10 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
     from plant.logs.arm_log import load_arm_log
     from plant.logs.fileio import atomic_output, check_output_path
 
+    from plant.simulation.arm import kernels_cached
+    from plant.simulation.generated import kernel_directory
+
+    from . import api
     from .api import METHODS
     from .arm import ARM_DEFAULT_METHOD, ARM_METHODS, identify_arm
 
@@ -577,13 +587,26 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
         raise CLIError(f"--method {method} is for PUMA 560 links 2-3 logs; a robot-model log "
                        f"takes {', '.join(m for m in ARM_METHODS if m in METHODS)} "
                        f"(default: {ARM_DEFAULT_METHOD})")
-    status = _Status(stderr, args.quiet, None)
+    ctrl_c = _GracefulInterrupt(stderr, quiet=args.quiet)
+    n_gen = args.generations or getattr(api, "PAPER_GA", {}).get("n_gen")
+    status = _Status(stderr, args.quiet, ctrl_c, n_gen=n_gen)
     log = load_arm_log(log_path)
     status.say(f"identifying {log.name} ({log.n_samples} samples, {log.model.name}, "
                f"joints {', '.join(log.joint_names)}), method {method}, seed {args.seed}")
+    if not kernels_cached(log.model, lane_friction=bool(log.rig.unknown_friction)):
+        status.say(f"generating and compiling {log.model.name}'s kernels once (a minute or more "
+                   f"for a new robot; cached in {kernel_directory()})")
     ga_options = {"n_gen": args.generations} if args.generations is not None else None
-    result = identify_arm(log, method=method, rng=args.seed, ga_options=ga_options,
-                          workers=args.workers, model=args.model)
+    if sigint.seen():  # a Ctrl-C that a finaliser swallowed: nothing has been searched yet
+        raise KeyboardInterrupt
+    with ctrl_c:
+        result = identify_arm(log, method=method, rng=args.seed, ga_options=ga_options,
+                              workers=args.workers, model=args.model, callback=status,
+                              progress=not args.quiet and _isatty(stderr))
+    if sigint.seen() and not result.get("interrupted"):
+        raise KeyboardInterrupt  # swallowed after the last step: never write over an output
+    if ctrl_c.requested and result.get("interrupted"):
+        result.message = str(result.message).replace("stopped by callback", "interrupted by Ctrl-C")
     print(f"log: {log.name} ({log.n_samples} samples)   robot: {log.model.name}   method: {method}"
           f"   seed: {args.seed}", file=stdout)
     print(result.table(), file=stdout, flush=True)

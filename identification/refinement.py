@@ -266,7 +266,7 @@ def _lm_step(J, r, lam, x, lo, hi):
 
 
 def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol=1e-10,
-                         stage_ftol=1e-4):
+                         stage_ftol=1e-4, callback=None):
     """:func:`refine` through a continuation in the predictor's output-injection gain.
 
     Each gain's refinement starts at the previous one's optimum (a homotopy:
@@ -287,10 +287,13 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
         Tolerance of the last gain's refinement.
     stage_ftol : float
         Tolerance of the intermediate ones.
+    callback : callable, optional
+        :func:`refine`'s, at every gain; True stops the continuation (the
+        stopped refinement's best point, ``interrupted=True``).
 
     Returns
     -------
-    scipy.optimize.OptimizeResult
+    RefineResult
         The last refinement's, ``nfev`` summed over the gains.
     """
     x = np.atleast_2d(np.asarray(starts, dtype=float))
@@ -298,9 +301,12 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
     ref = None
     for i, g in enumerate(gains):
         last = i == len(gains) - 1
-        ref = refine(problem_at(g), x, bounds, max_iter=max_iter, ftol=ftol if last else stage_ftol)
+        ref = refine(problem_at(g), x, bounds, max_iter=max_iter, ftol=ftol if last else stage_ftol,
+                     callback=callback)
         nfev += int(ref.nfev)
         x = np.asarray(ref.x, dtype=float)[None]
+        if ref.interrupted:
+            break
     ref.nfev = nfev
     return ref
 

@@ -344,6 +344,15 @@ def test_identify_arm_with_the_papers_ga(arm):
     assert c.success and np.all(np.abs(c.x[well] / arm.beta()[well] - 1) < 0.005)
     with pytest.raises(ValueError, match="unknown method"):
         identify_arm(log, method="nope")
+    # a stop after the second generation (the callback's True, as the CLI's Ctrl-C): the GA's
+    # best so far, not refined, flagged interrupted -- what the same seed had after two
+    gens = []
+    d = identify_arm(log, method="ga+pem", rng=5, ga_options=small, model="rigid",
+                     callback=lambda r: gens.append(r.generation) or r.generation >= 2)
+    assert gens == [1, 2] and d.interrupted and d.ga["generations"] == 2
+    assert "stopped by callback after generation 2" in d.message
+    e = identify_arm(log, method="ga+pem", rng=5, ga_options=dict(small, n_gen=2), model="rigid")
+    np.testing.assert_array_equal(d.x, e.ga["x"])
 
 
 def test_an_idim_start_that_does_not_simulate_falls_back_to_the_ga(arm, monkeypatch):

@@ -183,6 +183,36 @@ def test_rigid_model_on_request(compliant):
         identify_arm(log, model="elastic")
 
 
+@pytest.mark.parametrize("how", ["callback", "KeyboardInterrupt"])
+def test_a_stop_in_the_model_choice_keeps_the_rigid_result(compliant, how):
+    """identify()'s callback convention on the arm path: the stages are reported, and a stop
+    (True from the callback, or a Ctrl-C raised inside the two-mass fit) ends the model
+    choice at once with the rigid fit that preceded it -- no later fit runs."""
+    log, _, _ = compliant
+    seen = []
+
+    def callback(r):
+        seen.append((r.stage, r.get("step"), r.get("start")))
+        if r.stage == "model" and "two-mass joints (" in (r.get("step") or ""):
+            if how == "callback" and r.get("start") is None:
+                return True
+            if how == "KeyboardInterrupt" and r.get("start") is not None:
+                raise KeyboardInterrupt
+        return False
+
+    res = identify_arm(log, callback=callback)
+    rigid = identify_arm(log, model="rigid")
+    assert res.interrupted and res.success and res.model == "rigid"
+    assert res.model_choice == dict(model="rigid", reason="model choice interrupted")
+    assert "model choice interrupted" in res.message
+    np.testing.assert_array_equal(res.x, rigid.x)  # the rigid fit, untouched
+    stages = [s for s, _, _ in seen]
+    assert stages[0] == "refine" and "model" in stages
+    steps = [st for s, st, _ in seen if s == "model" and st]
+    assert steps[0].startswith("model choice: the rigid model refitted")
+    assert not any("backlash" in st or "chosen" in st for st in steps)  # nothing after the stop
+
+
 def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
     """A flexible result: the flexible-joint CTC tracks its identified robot within +-1 pulse;
     ``from_result`` returns whichever of it and the rigid-equivalent CTC holds the model-error
@@ -289,9 +319,16 @@ def test_cli_prints_the_model_choice(tmp_path, capsys):
     from identification.cli import main
 
     out = tmp_path / "res.json"
-    assert main([str(DATA / f"{STEM}.csv"), "-o", str(out), "--quiet", "--model", "flexible"]) == 0
-    printed = capsys.readouterr().out
+    assert main([str(DATA / f"{STEM}.csv"), "-o", str(out), "--model", "flexible"]) == 0
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "model: flexible+backlash" in printed and "log10_K_q1" in printed
+    # status lines on stderr, one per fit of the model choice and per refinement start
+    status = captured.err.splitlines()
+    assert any(line.startswith("model choice: two-mass joints (") for line in status)
+    assert any(line.startswith("model choice: two-mass joints with backlash") for line in status)
+    assert any(line.startswith("flexible+backlash chosen") for line in status)
+    assert any(line.startswith("  start 1/") for line in status)
     data = json.loads(out.read_text())
     assert data["model"] == "flexible" and len(data["joint_stiffness_Nm_per_rad"]) == 2
 

@@ -87,14 +87,15 @@ sys.path.insert(0, {root!r})
 sys.path.insert(0, {tests!r})
 import numpy as np
 from test_arm import TRAJ, planar_arm, planar_rig
-from plant.simulation.arm import arm_plant, simulate_arm
+from plant.simulation.arm import arm_plant, kernels_cached, simulate_arm
+before = kernels_cached(planar_arm())  # what the command line announces
 arm = arm_plant(planar_arm())
 beta = arm.beta()
 log = simulate_arm(arm, beta, planar_rig(), TRAJ, 300)
 sim = simulate_arm(arm, beta * 1.01, planar_rig(), TRAJ, 300, e_log=log.errors[0], errors=False)
 stats = arm.kernels.arm_run.stats
 print(sum(stats.cache_hits.values()) > 0, sum(stats.cache_misses.values()) > 0,
-      arm.kernels.__file__, repr(float(sim.objective[0])))
+      arm.kernels.__file__, repr(float(sim.objective[0])), before, kernels_cached(planar_arm()))
 """
 
 
@@ -107,7 +108,9 @@ def _arm_spawn(env):
 def _arm_result(proc):
     out, err = proc.communicate(timeout=600)
     assert proc.returncode == 0, err[-2000:]
-    hit, miss, path, y = out.split()
+    hit, miss, path, y, before, after = out.split()
+    # kernels_cached says beforehand whether the run compiles, and True once it has
+    assert before == hit and after == "True"
     return hit == "True", miss == "True", Path(path), float(y)
 
 

@@ -74,7 +74,7 @@ from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
 from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
-           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound"]
+           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound", "kernels_cached"]
 
 #: RK4 substeps per sample of the arm's logged runs by default: the exact
 #: reproduction of a log, the same rule as the PUMA 560 path's
@@ -393,6 +393,31 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
 
 
 _PLANTS: dict = {}
+
+
+def kernels_cached(model, base=None, *, lane_friction=False, flexible=False) -> bool:
+    """Whether a robot's arm plant has compiled kernels in numba's on-disk cache.
+
+    The generated module of ``arm_plant(model, base, lane_friction=...,
+    flexible=...)`` (written now if it is not there) and
+    :func:`plant.simulation.generated.compiled`: False means that the
+    plant's first simulation compiles its kernels (tens of seconds for a new
+    robot on a 2-core machine), which a command line says beforehand.
+
+    Parameters
+    ----------
+    model : plant.robot.robot_model.RobotModel
+    base : plant.robot.robot_model.BaseParameterSet, optional
+    lane_friction, flexible : bool
+        As :func:`arm_plant`.
+
+    Returns
+    -------
+    bool
+    """
+    from .generated import compiled
+
+    return compiled(arm_plant(model, base, lane_friction=lane_friction, flexible=flexible).kernels)
 _DYNAMICS: dict = {}
 
 

@@ -46,8 +46,8 @@ import textwrap
 from pathlib import Path
 from typing import NamedTuple
 
-__all__ = ["kernel_directory", "load", "clear", "module_text", "function_copy", "DEPENDENCIES",
-           "KEEP"]
+__all__ = ["kernel_directory", "load", "clear", "compiled", "module_text", "function_copy",
+           "DEPENDENCIES", "KEEP"]
 
 #: Library modules (relative to the repository's package root) whose compiled helpers
 #: the generated kernels contain; their text is part of every generated module's hash.
@@ -309,6 +309,37 @@ def _prune(directory: Path, keep: Path) -> None:
     except OSError:
         return
     _unlink(p for old in files[KEEP - 1:] for p in _files_of(directory, old))
+
+
+def compiled(module) -> bool:
+    """Whether numba's on-disk cache holds compiled kernels of a generated module.
+
+    Parameters
+    ----------
+    module : module
+        A module :func:`load` returned.
+
+    Returns
+    -------
+    bool
+        True when the index of numba's cache holds compiled code for one of
+        its kernels, made from this very file (numba's own check: the
+        index's stamp of the source file, and numba's version): they load
+        without compiling (unless their argument types are new).  False
+        for a module first generated in this directory, whose first call
+        compiles; any trouble reading the cache counts as not compiled.
+    """
+    for obj in vars(module).values():
+        index = getattr(getattr(obj, "_cache", None), "_cache_file", None)
+        if index is None or getattr(getattr(obj, "py_func", None), "__module__", None) != \
+                module.__name__:  # the library's kernels it imports are not its own
+            continue
+        try:
+            if index._load_index():  # {} when absent, stale or of another numba
+                return True
+        except Exception:  # noqa: BLE001 - an unreadable cache is no cache
+            continue
+    return False
 
 
 def clear() -> int:
