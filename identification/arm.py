@@ -568,7 +568,7 @@ class ArmIdentificationResult(OptimizeResult):
             ``x``, ``names``, ``expressions``, ``x_std``, ``x_rse``,
             ``well_excited``, ``x_idim``, ``fun`` (pulses^2), ``output_error``
             (pulses^2, eq. 4), ``nfev``, ``nit``, ``success``, ``message``,
-            ``output_error_substeps``, ``method``, ``robot``, ``joint_names``, ``log_name``,
+            ``interrupted``, ``output_error_substeps``, ``method``, ``robot``, ``joint_names``, ``log_name``,
             ``cutoff_hz``, ``elapsed_s``, ``bounds``, ``beta``, ``friction``,
             ``friction_identified``, ``model``, ``model_choice``, ``warnings``,
             ``stage_times_s`` and the joints (``joint_stiffness_Nm_per_rad``,
@@ -584,6 +584,7 @@ class ArmIdentificationResult(OptimizeResult):
                     fun=float(self.fun), output_error=float(self.output_error),
                     output_error_substeps=self.get("output_error_substeps"), nfev=int(self.nfev),
                     nit=int(self.nit), success=bool(self.success), message=str(self.message),
+                    interrupted=bool(self.get("interrupted", False)),
                     method=self.get("method"), robot=self.robot,
                     joint_names=list(self.joint_names), log_name=self.log_name,
                     cutoff_hz=float(self.cutoff_hz), elapsed_s=float(self.elapsed_s),

@@ -675,6 +675,42 @@ def test_first_hour_bad_inputs_get_one_line_messages(tmp_path, paper_log):
 
 
 @pytest.mark.skipif(os.name != "posix", reason="SIGINT delivery to a child (POSIX)")
+def test_sigint_during_a_robot_models_flexible_fit_writes_the_rigid_result(tmp_path):
+    """A robot-model log (the compliant planar arm): Ctrl-C while the model choice fits the
+    two-mass joints ends it after the current refinement start; the rigid fit is written,
+    marked interrupted, exit status 130."""
+    out = tmp_path / "out.json"
+    log = REPO / "tests" / "data" / "independent_arm" / "indep_arm_planar2_compliant_backlash.csv"
+    proc = subprocess.Popen([sys.executable, "-m", "identification", str(log), "-o", str(out)],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines, started = [], threading.Event()
+
+    def read_stderr():
+        for line in iter(proc.stderr.readline, ""):
+            lines.append(line)
+            if line.startswith("model choice: two-mass joints ("):
+                started.set()
+
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
+    try:
+        assert started.wait(600), "".join(lines)
+        proc.send_signal(signal.SIGINT)
+        stdout = proc.stdout.read()
+        status = proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    reader.join(5)
+    stderr = "".join(lines)
+    assert status == 130, stderr
+    assert "Traceback" not in stderr and "Ctrl-C" in stderr
+    assert "INTERRUPTED" in stdout and "model choice interrupted" in stdout
+    data = json.loads(out.read_text())
+    assert data["interrupted"] is True and data["model"] == "rigid"
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT delivery to a child (POSIX)")
 def test_twenty_ctrl_c_at_random_moments(tmp_path):
     """Issue 22: one Ctrl-C at a random moment of the first 5 s (importing, loading numba's
     cache, compiling, searching) ends every run with exit 130, at most one stderr line
