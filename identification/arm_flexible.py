@@ -506,7 +506,9 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
         nfev += P.shape[0]
         c = np.einsum("ij,ij->i", R, R)
         S = np.vstack([S, P[np.argsort(c, kind="stable")[:max(1, n_starts)]]])
+    # lazy Jacobians: a rejected step's columns are not simulated -- a third to a half of
+    # the steps of these fits are rejected (many parameters, starts far from their optimum)
     ref = refine_through_gains(problem, S, box, gains, max_iter=max_iter, ftol=ftol,
-                               stage_ftol=CONTINUATION_FTOL, callback=callback)
+                               stage_ftol=CONTINUATION_FTOL, callback=callback, lazy_jacobian=True)
     x = np.asarray(ref.x, dtype=float)
     return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev + int(ref.nfev))

@@ -23,7 +23,11 @@ lanes of the simulation core.  A trial point that lowers the cost is
 accepted together with its Jacobian (no re-evaluation); a rejected one
 raises the damping.  Starts that converge to the same point are merged (the
 costlier is dropped), so the usual case -- the GA's best individuals all in
-one basin -- costs little more than one start.
+one basin -- costs little more than one start.  With ``lazy_jacobian`` the
+trial points are simulated first and only the accepted ones' columns after
+them (the same iterates): the fits of compliant arms, with many parameters
+and starts far from their optimum, reject a third to a half of their steps
+(:func:`identification.arm_flexible.fit_flexible_arm` uses it).
 """
 from __future__ import annotations
 
@@ -209,7 +213,8 @@ class RefineResult:
     nfev : int
         Simulations run (residuals and Jacobian columns).
     nit : int
-        Iterations (batches) run.
+        Iterations run (each a batch of simulations; with ``lazy_jacobian``
+        the accepted steps' columns are batches of their own).
     success : bool
         False when interrupted.
     message : str
@@ -266,7 +271,7 @@ def _lm_step(J, r, lam, x, lo, hi):
 
 
 def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol=1e-10,
-                         stage_ftol=1e-4, callback=None):
+                         stage_ftol=1e-4, callback=None, lazy_jacobian=False):
     """:func:`refine` through a continuation in the predictor's output-injection gain.
 
     Each gain's refinement starts at the previous one's optimum (a homotopy:
@@ -290,6 +295,8 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
     callback : callable, optional
         :func:`refine`'s, at every gain; True stops the continuation (the
         stopped refinement's best point, ``interrupted=True``).
+    lazy_jacobian : bool
+        :func:`refine`'s, at every gain.
 
     Returns
     -------
@@ -302,7 +309,7 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
     for i, g in enumerate(gains):
         last = i == len(gains) - 1
         ref = refine(problem_at(g), x, bounds, max_iter=max_iter, ftol=ftol if last else stage_ftol,
-                     callback=callback)
+                     callback=callback, lazy_jacobian=lazy_jacobian)
         nfev += int(ref.nfev)
         x = np.asarray(ref.x, dtype=float)[None]
         if ref.interrupted:
@@ -311,7 +318,8 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
     return ref
 
 
-def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, callback=None):
+def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, callback=None,
+           lazy_jacobian=False):
     """Refine all starts together by bounded Levenberg-Marquardt; return the best.
 
     Parameters
@@ -323,8 +331,8 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
     bounds : array_like, shape (k, 2)
         Box of x.
     max_iter : int
-        Batches at most (each: one trial point and its k Jacobian columns per
-        active start).
+        Iterations at most: batches of one trial point and its k
+        forward-difference Jacobian columns per active start.
     ftol : float
         A start converges when an accepted step lowers its cost by less than
         ``ftol`` relative.
@@ -334,6 +342,16 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
         ``callback(start, n_starts, x, cost) -> bool`` once per start when it
         converges, is merged or runs out of iterations (``start`` 1-based);
         True stops the refinement.
+    lazy_jacobian : bool
+        Simulate an iteration's trial points alone, as one batch, and then
+        the Jacobian columns of the trials whose step is accepted, as a
+        second: a rejected step's columns are never simulated (with the
+        default, they are, together with its trial point, and thrown away).
+        The same iterates, costs and Jacobians to the bit, fewer
+        simulations where many steps are rejected, at the price of a second
+        batch of simulations per accepted step (the first iteration takes
+        each start point with its columns in one batch; a start that stops
+        simulates the columns at its end only if it is the best).
 
     Returns
     -------
@@ -375,18 +393,30 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
         return bool(callback(s + 1, ns, x[s].copy(), float(cost[s])))
 
     trial = x.copy()
+    stale = set()  # converged starts whose Jacobian columns at x were not simulated (yet)
+
+    def columns(S):
+        """Simulate the Jacobian columns of the starts S at their x (one batch)."""
+        pts, hs = zip(*(_fd_points(x[s], lo, hi) for s in S))
+        R = problem.residuals(np.vstack([p[1:] for p in pts]))
+        for a, s in enumerate(S):
+            J[s] = ((R[a * k:(a + 1) * k] - r[s]) / hs[a][:, None]).T
+
     try:
         while active and nit < max_iter + 1:
-            pts, hs = [], []
-            for s in active:
-                p, h = _fd_points(trial[s], lo, hi)
-                pts.append(p)
-                hs.append(h)
+            # the trial points: a start point with its k columns (it is always taken), a later
+            # trial alone (its columns follow if its step is accepted)
+            first = [s for s in active if not lazy_jacobian or (not np.isfinite(cost[s])
+                                                                and J[s] is None)]
+            pts = [_fd_points(trial[s], lo, hi)[0] if s in first else trial[s][None] for s in active]
             R = problem.residuals(np.vstack(pts))
             nit += 1
             stop = False
+            accepted = []
+            o = 0
             for a, s in enumerate(active):
-                Rs = R[a * (k + 1):(a + 1) * (k + 1)]
+                Rs = R[o:o + pts[a].shape[0]]
+                o += pts[a].shape[0]
                 c_t = float(Rs[0] @ Rs[0])
                 if not np.isfinite(cost[s]):  # the start point itself
                     start_costs[s] = c_t
@@ -394,7 +424,10 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
                     dc = cost[s] - c_t
                     dx = np.max(np.abs(trial[s] - x[s]) / width) if np.isfinite(cost[s]) else np.inf
                     x[s], cost[s], r[s] = trial[s].copy(), c_t, Rs[0]
-                    J[s] = ((Rs[1:] - Rs[0]) / hs[a][:, None]).T
+                    if s in first:
+                        J[s] = ((Rs[1:] - Rs[0]) / _fd_points(x[s], lo, hi)[1][:, None]).T
+                    else:
+                        accepted.append(s)
                     lam[s] = max(lam[s] / 3.0, 1e-12)
                     if dc <= ftol * c_t or dx <= xtol:
                         done_reason[s] = "converged"
@@ -416,6 +449,12 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
             if nit >= max_iter + 1:
                 for s in active:
                     done_reason.setdefault(s, "iteration limit")
+            # lazy_jacobian: the accepted steps' columns, now for the starts that go on, at the
+            # end for the best of those that stop (the Jacobian of the standard errors)
+            stale.update(s for s in accepted if s in done_reason)
+            going = [s for s in accepted if s not in done_reason]
+            if going:
+                columns(going)
             for s in active:
                 if s in done_reason and report(s):
                     stop = True
@@ -427,6 +466,10 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
             active = [s for s in active if s not in done_reason]
             for s in active:
                 trial[s] = _lm_step(J[s], r[s], lam[s], x[s], lo, hi)
+        best = int(np.argmin(cost))
+        if best in stale and np.isfinite(cost[best]):
+            columns([best])
+            stale.discard(best)
     except KeyboardInterrupt:
         interrupted = True
         message = "interrupted (KeyboardInterrupt) during refinement"
@@ -436,10 +479,11 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
     best = int(np.argmin(cost))
     if not np.isfinite(cost[best]):
         best_x, best_cost, best_jac, best_r = starts[0], np.inf, None, None
-    else:
-        best_x, best_cost, best_jac, best_r = x[best], float(cost[best]), J[best], r[best]
+    else:  # no Jacobian when an interrupt came before its columns at x were simulated
+        best_x, best_cost, best_r = x[best], float(cost[best]), r[best]
+        best_jac = None if best in stale else J[best]
     if not message:
-        message = (f"refined {ns} start(s) together by Levenberg-Marquardt in {nit} batches"
+        message = (f"refined {ns} start(s) together by Levenberg-Marquardt in {nit} iterations"
                    + (f" ({len(merged)} merged)" if merged else ""))
     return RefineResult(x=np.asarray(best_x, dtype=float), fun=best_cost,
                         nfev=problem.nfev - nfev0, nit=nit, success=not interrupted,
