@@ -393,31 +393,6 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
 
 
 _PLANTS: dict = {}
-
-
-def kernels_cached(model, base=None, *, lane_friction=False, flexible=False) -> bool:
-    """Whether a robot's arm plant has compiled kernels in numba's on-disk cache.
-
-    The generated module of ``arm_plant(model, base, lane_friction=...,
-    flexible=...)`` (written now if it is not there) and
-    :func:`plant.simulation.generated.compiled`: False means that the
-    plant's first simulation compiles its kernels (tens of seconds for a new
-    robot on a 2-core machine), which a command line says beforehand.
-
-    Parameters
-    ----------
-    model : plant.robot.robot_model.RobotModel
-    base : plant.robot.robot_model.BaseParameterSet, optional
-    lane_friction, flexible : bool
-        As :func:`arm_plant`.
-
-    Returns
-    -------
-    bool
-    """
-    from .generated import compiled
-
-    return compiled(arm_plant(model, base, lane_friction=lane_friction, flexible=flexible).kernels)
 _DYNAMICS: dict = {}
 
 
@@ -491,6 +466,31 @@ def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPl
                      source=src, lane_friction=lane_friction, flexible=flexible)
     _PLANTS[key] = plant
     return plant
+
+
+def kernels_cached(model, base=None, *, lane_friction=False, flexible=False) -> bool:
+    """Whether a robot's arm plant has compiled kernels in numba's on-disk cache.
+
+    The generated module of ``arm_plant(model, base, lane_friction=...,
+    flexible=...)`` (written now if it is not there) and
+    :func:`plant.simulation.generated.compiled`: False means that the
+    plant's first simulation compiles its kernels (tens of seconds for a new
+    robot on a 2-core machine), which a command line says beforehand.
+
+    Parameters
+    ----------
+    model : plant.robot.robot_model.RobotModel
+    base : plant.robot.robot_model.BaseParameterSet, optional
+    lane_friction, flexible : bool
+        As :func:`arm_plant`.
+
+    Returns
+    -------
+    bool
+    """
+    from .generated import compiled
+
+    return compiled(arm_plant(model, base, lane_friction=lane_friction, flexible=flexible).kernels)
 
 
 def link_mode_bound(log10_k, inertia) -> float:
