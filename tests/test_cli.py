@@ -227,35 +227,40 @@ def test_keyboard_interrupt_before_any_result(monkeypatch, tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.skipif(os.name != "posix", reason="SIGINT delivery to a child (POSIX)")
-def test_sigint_to_the_subprocess_writes_the_interrupted_result(tmp_path):
-    out = tmp_path / "out.json"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "identification", "--example", "--method", "paper",
-         "--generations", "1000", "-o", str(out)],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
+def _interrupt_when(args, ready, *, wait_s=60.0, settle_s=0.0, exit_s=60.0):
+    """Run ``python -m identification args``; one SIGINT once its stderr so far satisfies
+    ``ready(text)`` (after ``settle_s``); (exit status, stdout, stderr)."""
+    proc = subprocess.Popen([sys.executable, "-m", "identification", *map(str, args)],
+                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     err_chunks, started = [], threading.Event()
 
     def read_stderr():
         for chunk in iter(lambda: proc.stderr.read(1), ""):
             err_chunks.append(chunk)
-            if "GA generation 1/1000" in "".join(err_chunks):  # the GA is iterating
+            if not started.is_set() and ready("".join(err_chunks)):
                 started.set()
 
     reader = threading.Thread(target=read_stderr, daemon=True)
     reader.start()
     try:
-        assert started.wait(60), "".join(err_chunks)
-        time.sleep(0.3)
+        assert started.wait(wait_s), "".join(err_chunks)
+        time.sleep(settle_s)
         proc.send_signal(signal.SIGINT)
         stdout = proc.stdout.read()
-        status = proc.wait(timeout=60)
+        status = proc.wait(timeout=exit_s)
     finally:
         if proc.poll() is None:
             proc.kill()
     reader.join(5)
-    stderr = "".join(err_chunks)
+    return status, stdout, "".join(err_chunks)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGINT delivery to a child (POSIX)")
+def test_sigint_to_the_subprocess_writes_the_interrupted_result(tmp_path):
+    out = tmp_path / "out.json"
+    status, stdout, stderr = _interrupt_when(
+        ["--example", "--method", "paper", "--generations", "1000", "-o", out],
+        lambda err: "GA generation 1/1000" in err, settle_s=0.3)  # the GA is iterating
     assert status == 130, stderr
     assert "Traceback" not in stderr and "\r" not in stderr
     assert "INTERRUPTED" in stdout
@@ -681,28 +686,9 @@ def test_sigint_during_a_robot_models_flexible_fit_writes_the_rigid_result(tmp_p
     marked interrupted, exit status 130."""
     out = tmp_path / "out.json"
     log = REPO / "tests" / "data" / "independent_arm" / "indep_arm_planar2_compliant_backlash.csv"
-    proc = subprocess.Popen([sys.executable, "-m", "identification", str(log), "-o", str(out)],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines, started = [], threading.Event()
-
-    def read_stderr():
-        for line in iter(proc.stderr.readline, ""):
-            lines.append(line)
-            if line.startswith("model choice: two-mass joints ("):
-                started.set()
-
-    reader = threading.Thread(target=read_stderr, daemon=True)
-    reader.start()
-    try:
-        assert started.wait(600), "".join(lines)
-        proc.send_signal(signal.SIGINT)
-        stdout = proc.stdout.read()
-        status = proc.wait(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    reader.join(5)
-    stderr = "".join(lines)
+    status, stdout, stderr = _interrupt_when(
+        [log, "-o", out], lambda err: "\nmodel choice: two-mass joints (" in err,
+        wait_s=600, exit_s=120)
     assert status == 130, stderr
     assert "Traceback" not in stderr and "Ctrl-C" in stderr
     assert "INTERRUPTED" in stdout and "model choice interrupted" in stdout
