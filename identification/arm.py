@@ -770,8 +770,10 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         ``fun`` the output error, pulses^2), ``"refine"`` when a start of
         the rigid refinement ends (``start``, ``n_starts``; ``fun`` the
         prediction-error cost, pulses^2), ``"model"`` before each fit of the
-        model choice (``step``, what is fitted, and ``fun`` None) and when
-        one of its starts ends (``step``, ``start``, ``n_starts``).  True
+        model choice (``step``, what is fitted, and ``fun`` None), when
+        one of its starts ends (``step``, ``start``, ``n_starts``), and
+        after every iteration of its flexible fits (no ``step``: a poll,
+        so that a stop takes effect within an iteration).  True
         stops: a GA or rigid refinement returns its best point so far, a
         stopped model choice keeps the rigid result; ``interrupted`` is then
         True.  A KeyboardInterrupt stops the same way.
@@ -1019,6 +1021,10 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
             raise _Stopped
         return lambda i, m, xs, c: report("model", xs, c, step=step, start=i, n_starts=m)
 
+    def poll():
+        """Between refinement iterations: does the caller stop (a Ctrl-C in the CLI)?"""
+        return report("model", None, None)
+
     def checked(ref):
         """ref, unless a stop (callback, KeyboardInterrupt) ended it."""
         if getattr(ref, "interrupted", False):
@@ -1059,7 +1065,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     cb = stage(f"model choice: two-mass joints ({box.shape[0]} parameters, the best "
                f"{N_STARTS} of {len(pool)} starts, {space.substeps(box)} RK4 steps per sample)")
     flex = fit_flexible_arm(space, at, box, pool=pool, mask=fit_mask, max_iter=max_iter, ftol=ftol,
-                            callback=cb)
+                            callback=cb, poll=poll)
     checked(flex["refine"])
     c_flex, r_flex = _held_cost(at(DEFAULT_GAIN), flex["x"], held, residuals=True)
     if not np.isfinite(c_flex):
@@ -1095,7 +1101,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
                    f"{len(bpool)}, {bspace.substeps(bbox)} RK4 steps per sample)")
         bl = fit_flexible_arm(bspace, bat, bbox, starts=starts, pool=bpool, mask=fit_mask,
                               max_iter=max_iter, ftol=ftol, continuation=CONTINUATION_BACKLASH,
-                              callback=cb)
+                              callback=cb, poll=poll)
         checked(bl["refine"])
         c_bl, r_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held, residuals=True)
         choice["held_back_cost_backlash_pulses2"] = c_bl
@@ -1123,7 +1129,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     # the full fit from the held-back fit's point
     cb = stage(f"{name} chosen: fitted to the whole log")
     full = fit_flexible_arm(fspace, fat, fbox, starts=fx[None], max_iter=max_iter, ftol=ftol,
-                            continuation=(), callback=cb)
+                            continuation=(), callback=cb, poll=poll)
     checked(full["refine"])
     flex_res = _flexible_arm_result(res, log, fspace, fbox, full, workers)
     # every simulated candidate of the model choice and the fits (the rigid ones included)

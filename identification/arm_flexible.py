@@ -458,7 +458,7 @@ def diagonal_inertias(plant, beta, q) -> np.ndarray:
 
 def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=None,
                      max_iter=40, ftol=1e-6, continuation=CONTINUATION_GAINS, n_starts=N_STARTS,
-                     callback=None):
+                     callback=None, poll=None):
     """Fit a flexible arm: start pool, gain continuation, final refinement (module docstring).
 
     Parameters
@@ -484,6 +484,9 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
         :func:`~identification.refinement.refine`'s ``callback(start,
         n_starts, x, cost) -> bool`` at every gain; True stops the fit
         (``refine.interrupted``).
+    poll : callable, optional
+        ``poll() -> bool`` after every refinement iteration; True stops the
+        fit the same way.
 
     Returns
     -------
@@ -509,6 +512,7 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
     # lazy Jacobians: a rejected step's columns are not simulated -- a third to a half of
     # the steps of these fits are rejected (many parameters, starts far from their optimum)
     ref = refine_through_gains(problem, S, box, gains, max_iter=max_iter, ftol=ftol,
-                               stage_ftol=CONTINUATION_FTOL, callback=callback, lazy_jacobian=True)
+                               stage_ftol=CONTINUATION_FTOL, callback=callback, lazy_jacobian=True,
+                               poll=poll)
     x = np.asarray(ref.x, dtype=float)
     return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev + int(ref.nfev))

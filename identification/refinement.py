@@ -271,7 +271,7 @@ def _lm_step(J, r, lam, x, lo, hi):
 
 
 def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol=1e-10,
-                         stage_ftol=1e-4, callback=None, lazy_jacobian=False):
+                         stage_ftol=1e-4, callback=None, lazy_jacobian=False, poll=None):
     """:func:`refine` through a continuation in the predictor's output-injection gain.
 
     Each gain's refinement starts at the previous one's optimum (a homotopy:
@@ -295,7 +295,7 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
     callback : callable, optional
         :func:`refine`'s, at every gain; True stops the continuation (the
         stopped refinement's best point, ``interrupted=True``).
-    lazy_jacobian : bool
+    lazy_jacobian, poll
         :func:`refine`'s, at every gain.
 
     Returns
@@ -309,7 +309,7 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
     for i, g in enumerate(gains):
         last = i == len(gains) - 1
         ref = refine(problem_at(g), x, bounds, max_iter=max_iter, ftol=ftol if last else stage_ftol,
-                     callback=callback, lazy_jacobian=lazy_jacobian)
+                     callback=callback, lazy_jacobian=lazy_jacobian, poll=poll)
         nfev += int(ref.nfev)
         x = np.asarray(ref.x, dtype=float)[None]
         if ref.interrupted:
@@ -319,7 +319,7 @@ def refine_through_gains(problem_at, starts, bounds, gains, *, max_iter=40, ftol
 
 
 def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, callback=None,
-           lazy_jacobian=False):
+           lazy_jacobian=False, poll=None):
     """Refine all starts together by bounded Levenberg-Marquardt; return the best.
 
     Parameters
@@ -352,6 +352,10 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
         batch of simulations per accepted step (the first iteration takes
         each start point with its columns in one batch; a start that stops
         simulates the columns at its end only if it is the best).
+    poll : callable, optional
+        ``poll() -> bool`` after every iteration; True stops the refinement
+        as the callback's True does (a Ctrl-C then takes effect within an
+        iteration, not when a start ends).
 
     Returns
     -------
@@ -459,6 +463,7 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
                 if s in done_reason and report(s):
                     stop = True
                     break
+            stop = stop or (poll is not None and bool(poll()))
             if stop:
                 interrupted = True
                 message = "stopped by callback during refinement"

@@ -183,21 +183,26 @@ def test_rigid_model_on_request(compliant):
         identify_arm(log, model="elastic")
 
 
-@pytest.mark.parametrize("how", ["callback", "KeyboardInterrupt"])
+@pytest.mark.parametrize("how", ["callback", "poll", "KeyboardInterrupt"])
 def test_a_stop_in_the_model_choice_keeps_the_rigid_result(compliant, how):
     """identify()'s callback convention on the arm path: the stages are reported, and a stop
-    (True from the callback, or a Ctrl-C raised inside the two-mass fit) ends the model
-    choice at once with the rigid fit that preceded it -- no later fit runs."""
+    (True from the callback before the two-mass fit, or at its first poll after an
+    iteration, or a Ctrl-C raised inside it) ends the model choice at once with the rigid
+    fit that preceded it -- no later fit runs."""
     log, _, _ = compliant
     seen = []
 
     def callback(r):
         seen.append((r.stage, r.get("step"), r.get("start")))
+        steps = [st for _, st, _ in seen if st]
         if r.stage == "model" and "two-mass joints (" in (r.get("step") or ""):
             if how == "callback" and r.get("start") is None:
                 return True
             if how == "KeyboardInterrupt" and r.get("start") is not None:
                 raise KeyboardInterrupt
+        if how == "poll" and r.stage == "model" and r.get("step") is None and steps \
+                and "two-mass joints (" in steps[-1]:
+            return True  # the first iteration of the two-mass fit is done: stop
         return False
 
     res = identify_arm(log, callback=callback)
@@ -211,6 +216,9 @@ def test_a_stop_in_the_model_choice_keeps_the_rigid_result(compliant, how):
     steps = [st for s, st, _ in seen if s == "model" and st]
     assert steps[0].startswith("model choice: the rigid model refitted")
     assert not any("backlash" in st or "chosen" in st for st in steps)  # nothing after the stop
+    if how == "poll":  # stopped within an iteration: none of the fit's 8 starts had ended
+        assert not any(s == "model" and st and "two-mass" in st and start is not None
+                       for s, st, start in seen)
 
 
 def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):

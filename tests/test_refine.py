@@ -79,3 +79,23 @@ def test_a_stop_returns_the_best_point_so_far(lazy):
     ref = refine_through_gains(problem_at, STARTS, BOUNDS, (0.5, 0.1, 0.05), callback=callback,
                                lazy_jacobian=lazy)
     assert ref.interrupted and stages == [0.5]
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+def test_a_poll_stops_within_an_iteration(lazy):
+    """``poll`` is asked after every iteration: its True stops at once, before any start
+    has ended (the callback alone would wait for one), with the best point so far."""
+    calls = []
+
+    def poll():
+        calls.append(1)
+        return len(calls) >= 3
+
+    ended = []
+    res = refine(_Decays(), STARTS, BOUNDS, max_iter=60, lazy_jacobian=lazy, poll=poll,
+                 callback=lambda i, n, x, c: ended.append(i) or False)
+    assert res.interrupted and res.nit == 3 and len(calls) == 3 and ended == []
+    assert res.fun == np.min(res.costs) < np.min(res.start_costs)
+    ref = refine_through_gains(lambda g: _Decays(), STARTS, BOUNDS, (0.5, 0.1), poll=lambda: True,
+                               lazy_jacobian=lazy)
+    assert ref.interrupted and ref.nit == 1
