@@ -410,9 +410,8 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
         while active and nit < max_iter + 1:
             # the trial points: a start point with its k columns (it is always taken), a later
             # trial alone (its columns follow if its step is accepted)
-            first = [s for s in active if not lazy_jacobian or (not np.isfinite(cost[s])
-                                                                and J[s] is None)]
-            pts = [_fd_points(trial[s], lo, hi)[0] if s in first else trial[s][None] for s in active]
+            pts, hs = zip(*(_fd_points(trial[s], lo, hi) if not lazy_jacobian or J[s] is None
+                            else (trial[s][None], None) for s in active))
             R = problem.residuals(np.vstack(pts))
             nit += 1
             stop = False
@@ -428,8 +427,8 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
                     dc = cost[s] - c_t
                     dx = np.max(np.abs(trial[s] - x[s]) / width) if np.isfinite(cost[s]) else np.inf
                     x[s], cost[s], r[s] = trial[s].copy(), c_t, Rs[0]
-                    if s in first:
-                        J[s] = ((Rs[1:] - Rs[0]) / _fd_points(x[s], lo, hi)[1][:, None]).T
+                    if hs[a] is not None:  # the columns came with the trial
+                        J[s] = ((Rs[1:] - Rs[0]) / hs[a][:, None]).T
                     else:
                         accepted.append(s)
                     lam[s] = max(lam[s] / 3.0, 1e-12)
