@@ -73,6 +73,17 @@ it in ``optimisers``):
     (``CHANGES_UPDATE_CASES``: 18 flexible, 17 rigid), the check of a change
     to how an update pools its evidence
     (``figures/changes_updates_flexible.rst``, ``figures/changes_updates_rigid.rst``).
+``changes_reported``
+    ``benchmarks/bench_changes.py --cases ... --out <a fresh folder>``
+    on both draws (seeds 20261122 and 20261123) on the cases of ``changes`` and of
+    ``figures/changes_fresh.txt`` with an ``'unexplained'`` event and an update
+    (``CHANGES_REPORTED_CASES``): the only cases in which an update can wait for
+    agreeing estimates because the episode's change was reported
+    (``figures/changes_reported_20261122.rst``, ``figures/changes_reported_20261123.rst``).
+``changes_third``
+    ``benchmarks/bench_changes.py --n 24 --seed 20261126 --jobs 2`` in a fresh
+    output folder: a third draw of the changes benchmark, on a seed chosen before
+    its first run (``figures/changes_20261126.rst``, ``figures/changes_20261126.txt``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -131,7 +142,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "changes_updates", "arms", "arms_compliant",
+            "robustness", "changes", "changes_updates", "changes_reported", "changes_third", "arms", "arms_compliant",
             "arms_compliant_puma123", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
@@ -372,17 +383,42 @@ CHANGES_UPDATE_CASES = {
 }
 
 
+def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False):
+    """``benchmarks/bench_changes.py`` on ``cases`` (comma-separated) or its first ``n``
+    draws of ``seed``; ``fresh``: in a new output folder (no case or prior cached by
+    another version is reused).  Returns the section's record."""
+    import tempfile
+
+    args = ["benchmarks/bench_changes.py", "--n", str(n), "--seed", str(seed), "--jobs", "2",
+            "--rst", ctx["raw"] / f"{name}.rst"]
+    if cases is not None:
+        args += ["--cases", cases.split(",")[0] if ctx["quick"] else cases]
+    with tempfile.TemporaryDirectory() as tmp:
+        text, wall = _run(args + (["--out", tmp] if fresh else []), ctx["raw"],
+                          f"{name}_run" if fresh else name, timeout=3 * 3600)
+    return {"printed": text.splitlines()[-30:], "wall_s": wall}
+
+
 def changes_updates(ctx):
-    out = {}
-    for joints, cases in CHANGES_UPDATE_CASES.items():
-        if ctx["quick"]:
-            cases = cases.split(",")[0]
-        name = f"changes_updates_{joints}"
-        text, wall = _run(["benchmarks/bench_changes.py", "--n", "60", "--cases", cases,
-                           "--seed", "20261122", "--jobs", "2", "--rst", ctx["raw"] / f"{name}.rst"],
-                          ctx["raw"], name, timeout=2 * 3600)
-        out[joints] = {"printed": text.splitlines()[-30:], "wall_s": wall}
-    return out
+    return {joints: _bench_changes(ctx, f"changes_updates_{joints}", 20261122, cases)
+            for joints, cases in CHANGES_UPDATE_CASES.items()}
+
+
+#: The cases of each draw of the changes benchmark with an ``'unexplained'`` event and an
+#: ``'update'`` event (``figures/changes.txt``, ``figures/changes_fresh.txt``): the supervisor's
+#: hold after a reported change (:mod:`ctc.adaptive`, step 5) needs a reported change
+#: before an update, so every other case is unchanged by it bit for bit.
+CHANGES_REPORTED_CASES = {20261122: "4,5,17,24,31,37", 20261123: "6,12,21,33"}
+
+
+def changes_reported(ctx):
+    return {str(seed): _bench_changes(ctx, f"changes_reported_{seed}", seed, cases, fresh=True)
+            for seed, cases in CHANGES_REPORTED_CASES.items()}
+
+
+def changes_third(ctx):
+    return _bench_changes(ctx, "changes_20261126", 20261126, n=2 if ctx["quick"] else 24,
+                          fresh=True)
 
 
 def arms(ctx):

@@ -450,7 +450,12 @@ def test_after_an_isolation_only_agreeing_estimates_update(paper_log, prior):
     first = next(i for i, r in enumerate(records) if r["accepted"])
     n = ctc.adaptive.PERSISTENCE_WINDOWS
     waited = records[first - (n - 1):first]
-    assert all(r["decision"] == "unexplained" and "agreeing" in r["reason"] for r in waited)
+    # the update is the last of n agreeing estimates; the windows before it waited (one
+    # window's evidence after an isolation, or -- the change was reported -- a payload a
+    # rival change explains better: held until the payload explains the window better)
+    assert records[first]["persistent"]
+    assert all(r["decision"] in ("unexplained", "held") for r in waited)
+    assert all(("agreeing" in r["reason"]) == (r["decision"] == "unexplained") for r in waited)
     assert adaptive.payload_mass_kg == pytest.approx(2.0, rel=0.05)
 
 
@@ -634,6 +639,36 @@ def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor, nam
         # the fitted change has the friction's sign and beat the payload at the test's level
         assert any(np.sign(r["change"]["dTc2_Nm"]) == np.sign(factor - 1.0) for r in fr)
         assert all(r["z_run"] > 3.0 for r in fr)
+    np.testing.assert_array_equal(adaptive.f, prior)
+    k = int(np.ceil(1.5 / paper_log.rig.sample_time_s))
+    assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0)
+                  <= np.abs(static.e_pulses[k:]).max(axis=0) + 1)
+
+
+def test_after_a_reported_change_a_payload_must_beat_the_rival(paper_log, prior):
+    """Supervisor step 5: once the episode's change has been reported as one no payload
+    explains, a payload estimate that a rival change explains better (Vuong's ``z`` of
+    the run above zero, if not significantly) is held, agreeing estimates or not, and an
+    estimate at the search bound is no evidence of a payload.  The drive friction x1.3
+    at 1.0 s: its windows read as 5 kg at the mass bound, then as 3-5 kg payloads that
+    friction explains better; before these rules the at-bound windows and one 4.97 kg
+    estimate made a 'persistent' update, which went stale 0.3 s later."""
+    from plant.simulation.friction import friction_vector
+
+    static, adaptive, resp = _static_and_adaptive(
+        paper_log, prior, [(1.0, prior, 1.3 * friction_vector(paper_log.rig))],
+        warns="does not explain")
+    assert resp.success
+    first = min(e["t_s"] for e in adaptive.events if e["kind"] == "unexplained")
+    after = [r for r in adaptive.identifications if r["window_s"][0] >= first]
+    assert "no change" not in {r["decision"] for r in after}  # the change stays reported
+    held = [r for r in after if r["decision"] == "held"]
+    assert held and all("reported in this episode" in r["reason"] for r in held)
+    assert all(max(h["z_run"] for h in r["rivals"]) > 0.0 for r in held)
+    # no estimate a rival explains better reached the arm, and none did at all
+    assert not any(r["accepted"] and any(h["z_run"] > 0.0 for h in r["rivals"] or ())
+                   for r in after)
+    assert adaptive.payload_history == []
     np.testing.assert_array_equal(adaptive.f, prior)
     k = int(np.ceil(1.5 / paper_log.rig.sample_time_s))
     assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0)
