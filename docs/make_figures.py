@@ -142,8 +142,8 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
-            "robustness", "changes", "changes_updates", "changes_reported", "changes_third", "arms", "arms_compliant",
-            "arms_compliant_puma123", "arm_payload", "arm_adaptive")
+            "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
+            "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
