@@ -393,9 +393,11 @@ def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False):
             "--rst", ctx["raw"] / f"{name}.rst"]
     if cases is not None:
         args += ["--cases", cases.split(",")[0] if ctx["quick"] else cases]
-    with tempfile.TemporaryDirectory() as tmp:
-        text, wall = _run(args + (["--out", tmp] if fresh else []), ctx["raw"],
-                          f"{name}_run" if fresh else name, timeout=3 * 3600)
+    if not fresh:
+        text, wall = _run(args, ctx["raw"], name, timeout=3 * 3600)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            text, wall = _run(args + ["--out", tmp], ctx["raw"], f"{name}_run", timeout=3 * 3600)
     return {"printed": text.splitlines()[-30:], "wall_s": wall}
 
 
