@@ -84,6 +84,12 @@ it in ``optimisers``):
     ``benchmarks/bench_changes.py --n 24 --seed 20261126 --jobs 2`` in a fresh
     output folder: a third draw of the changes benchmark, on a seed chosen before
     its first run (``figures/changes_20261126.rst``, ``figures/changes_20261126.txt``).
+``changes_fourth``
+    ``benchmarks/bench_changes.py --n 58 --seed 20261130 --jobs 2`` in a fresh
+    output folder: a fourth draw, on a seed chosen before its first run, 56
+    cases of the version that refines the model in use's start state in the
+    payload's box too (``figures/changes_20261130.rst``,
+    ``figures/changes_20261130.txt``; about 110 min on 2 cores).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -143,6 +149,7 @@ DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
+            "changes_fourth",
             "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
@@ -420,6 +427,11 @@ def changes_reported(ctx):
 
 def changes_third(ctx):
     return _bench_changes(ctx, "changes_20261126", 20261126, n=2 if ctx["quick"] else 24,
+                          fresh=True)
+
+
+def changes_fourth(ctx):
+    return _bench_changes(ctx, "changes_20261130", 20261130, n=2 if ctx["quick"] else 58,
                           fresh=True)
 
 
