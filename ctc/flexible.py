@@ -769,9 +769,10 @@ def controller_from_result(result, log, **options):
         keeps the one with the smallest worst case; when that one does not
         hold the bound either, it checks the rigid-equivalent CTC and returns
         the one with the smaller worst case (minimax), with a warning -- unless
-        the rigid CTC cannot track the identified robot itself (nominal error
-        beyond :data:`FALLBACK_P_FRACTION` of the log's largest P-control
-        error and 3 pulses, and beyond the flexible CTC's), when the
+        the rigid CTC cannot track the identified robot itself (nominal error,
+        on some joint, beyond :data:`FALLBACK_P_FRACTION` of that joint's
+        largest P-control error in the log and 3 pulses, and beyond the
+        flexible CTC's), when the
         flexible-joint CTC is kept, with the warning (issue 21, item 3: when the flexible design cannot hold the
         uncertainty set, the design says so and falls back).
 
@@ -842,12 +843,14 @@ def _build_from_result(result, log, **options):
     rigid.robustness = rep_rigid
     nominal_flex, nominal_rigid = _nominal(report), _nominal(rep_rigid)
     e_p = np.abs(np.asarray(target.e_pulses))
-    p_max = int(e_p.max()) if e_p.size else 0
-    if nominal_rigid > max(FALLBACK_P_FRACTION * p_max, 3) and nominal_rigid > nominal_flex:
+    p_max = e_p.max(axis=0) if e_p.size else np.zeros(nominal_rigid.size)
+    if np.any(nominal_rigid > np.maximum(FALLBACK_P_FRACTION * p_max, 3)) and \
+            nominal_rigid.max() > nominal_flex.max():
         # the rigid CTC cannot track the identified robot itself: not a fallback
         chosen = ctrl
-        what = (f"the rigid-equivalent CTC tracks the identified robot far worse ({nominal_rigid} "
-                f"vs {nominal_flex} pulses without model error): the flexible-joint CTC is kept")
+        what = (f"the rigid-equivalent CTC tracks the identified robot far worse "
+                f"({nominal_rigid.tolist()} vs {nominal_flex.tolist()} pulses without model "
+                "error): the flexible-joint CTC is kept")
     elif _worst(rep_rigid) <= _worst(report):
         chosen = rigid
         what = ("the rigid-equivalent CTC is used instead (worst case "
@@ -978,22 +981,23 @@ def robust_design_options(rig):
 
 
 #: A rigid fallback must track the identified robot (the nominal scenario) within
-#: this fraction of the largest logged P-control error (or 3 pulses): a CTC no better
+#: this fraction of each joint's largest logged P-control error (or 3 pulses): a CTC no better
 #: than half the P controller is no fallback, and a soft arm that the rigid CTC cannot
 #: follow keeps its flexible-joint CTC.
 FALLBACK_P_FRACTION = 0.5
 
 
-def _nominal(report) -> int:
-    """Max abs(e) (pulses) of a robustness report's nominal scenario (failed: 10^9)."""
+def _nominal(report) -> np.ndarray:
+    """Max abs(e) per joint (pulses) of a robustness report's nominal scenario (failed: 10^9)."""
     for sc in report["scenarios"]:
         if sc["name"] == "nominal":
-            return max(sc["max_abs_e"]) if sc["completed"] else 10 ** 9
-    return 0
+            return np.asarray(sc["max_abs_e"] if sc["completed"] else [10 ** 9] * len(sc["max_abs_e"]),
+                              dtype=float)
+    return np.zeros(len(report["bound_pulses"]))
 
 
 def _worst(report) -> int:
-    """Largest max abs(e) (pulses) over a robustness report's scenarios (failed runs: inf)."""
+    """Largest max abs(e) (pulses) over a robustness report's scenarios (failed runs: 10^9)."""
     return max((max(s["max_abs_e"]) if s["completed"] else 10 ** 9) for s in report["scenarios"])
 
 
@@ -1017,8 +1021,10 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     The controller runs, on the library's two-mass plant (:class:`plant.simulation.plants.FlexibleJoints`)
     with the result's joints changed as each scenario says, along the
     reference for ``duration_s``; it is *robust* when every run stays within
-    the tracking-error bound ``max(20, 2 x the largest logged P error)`` pulses
-    after 0.1 s and never ends early (a scenario design in the sense of
+    each joint's tracking-error bound after 0.1 s -- the following-error limit
+    :func:`ctc.guard.lost_bound`, ``max(20, 2 x`` that joint's largest logged P
+    error``)`` pulses, so a design the guard would hand to the P law is not
+    robust -- and never ends early (a scenario design in the sense of
     G. C. Calafiore and M. C. Campi, IEEE TAC 51 (2006): the stated
     uncertainty set is sampled at its corners).
 
@@ -1039,7 +1045,7 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     Returns
     -------
     dict
-        ``robust`` (bool), ``reason``, ``bound_pulses`` and ``scenarios``:
+        ``robust`` (bool), ``reason``, ``bound_pulses`` (per joint, list) and ``scenarios``:
         per scenario ``name``, ``max_abs_e`` (2 ints), ``completed`` (the
         run reached its end) and ``success`` (completed within the bound).
     """
@@ -1057,7 +1063,7 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     n = min(int(log.n_total), int(round(duration_s / ts)))
     k0 = int(np.ceil(0.1 / ts))
     # a loop has lost the arm beyond twice the logged P errors (the following-error limit's bound)
-    bound = int(lost_bound(log.e_pulses).max())
+    bound = lost_bound(log.e_pulses).astype(int)
     rows, worst = [], None
     for sc in scenarios:
         fr = f
@@ -1084,8 +1090,8 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
             worst = sc["name"]
     robust = worst is None
     reason = ("stable within the bound on every scenario" if robust else
-              f"tracking error beyond {bound} pulses or a failed run with {worst}")
-    return dict(robust=robust, reason=reason, bound_pulses=bound, scenarios=rows)
+              f"tracking error beyond {bound.tolist()} pulses or a failed run with {worst}")
+    return dict(robust=robust, reason=reason, bound_pulses=bound.tolist(), scenarios=rows)
 
 
 RESULT_FACTORY["build"] = controller_from_result

@@ -8,6 +8,7 @@ import pytest
 
 import plant
 from ctc import ComputedTorqueController, FlexibleJointComputedTorqueController
+from ctc.guard import MIN_LIMIT_PULSES, FollowingErrorLimit
 from identification.result import IdentificationResult
 from plant.simulation.plants import FlexibleJoints
 
@@ -275,15 +276,49 @@ def test_robustness_check_reports_and_the_fallback_is_minimax(drill_log, drill_r
     assert _worst(d.robustness) <= _worst(rep) or not isinstance(d, FlexibleJointComputedTorqueController)
     assert [s["name"] for s in rep["scenarios"]] == [s["name"] for s in ROBUSTNESS_SCENARIOS]
     assert rep["scenarios"][0]["success"]  # the nominal model holds the bound
+    # the bound is the following-error limit joint by joint: a design the guard would hand
+    # to the P law on one joint is not robust, however far the other joint's limit is
+    limit = FollowingErrorLimit(log).limit_pulses
+    assert rep["bound_pulses"] == limit.astype(int).tolist()
+    for sc in rep["scenarios"]:
+        assert sc["success"] == (sc["completed"] and all(
+            e <= b for e, b in zip(sc["max_abs_e"], rep["bound_pulses"]))), sc
+    assert rep["robust"] == all(sc["success"] for sc in rep["scenarios"])
+    p_half = np.maximum(3, 0.5 * np.abs(log.e_pulses).max(axis=0))
     if not rep["robust"]:
         assert _worst(fb.robustness["rigid"]) >= _worst(fb.robustness["flexible"]) or \
             not isinstance(fb, FlexibleJointComputedTorqueController) or \
-            _nominal(fb.robustness["rigid"]) > max(3, 0.5 * np.abs(log.e_pulses).max())
+            np.any(_nominal(fb.robustness["rigid"]) > p_half)
     if not isinstance(d, FlexibleJointComputedTorqueController):
         # a rigid fallback tracks the identified robot itself (no worse than half P control)
-        assert _nominal(d.robustness) <= max(3, 0.5 * np.abs(log.e_pulses).max())
+        assert np.all(_nominal(d.robustness) <= p_half)
     with pytest.raises(ValueError, match="robust must be"):
         ComputedTorqueController.from_result(res, log, robust="yes")
+
+
+def test_robustness_bound_is_each_joints_following_error_limit(drill_log, drill_result):
+    """A scenario beyond one joint's following-error limit fails the check even when the
+    other joint's limit is far larger (the check and the guard agree joint by joint)."""
+    from ctc.flexible import robustness_check
+
+    res = drill_result[0]
+    c = ComputedTorqueController.from_result(res, drill_log, robust=None)
+    scenarios = ({"name": "nominal"}, {"name": "payload +6 kg", "payload_kg": 6.0})
+    first = robustness_check(c, res, drill_log, scenarios=scenarios, duration_s=0.5)
+    e = np.array([sc["max_abs_e"] for sc in first["scenarios"]])
+    assert e[1, 1] > MIN_LIMIT_PULSES + 5  # the heavy payload swings joint 3
+    # a log whose P errors put joint 2's limit above every run and joint 3's below the heavy one
+    pulses = np.zeros_like(np.asarray(drill_log.e_pulses))
+    pulses[0] = [e[:, 0].max() + 5, (e[1, 1] - 1) // 2]
+    log = drill_log.replace(e_pulses=pulses)
+    bound = FollowingErrorLimit(log).limit_pulses
+    assert bound[0] > e[:, 0].max() and e[0, 1] <= bound[1] < e[1, 1]
+    rep = robustness_check(c, res, log, scenarios=scenarios, duration_s=0.5)
+    assert rep["bound_pulses"] == bound.astype(int).tolist()
+    assert [sc["max_abs_e"] for sc in rep["scenarios"]] == e.tolist()
+    assert rep["scenarios"][0]["success"] and not rep["scenarios"][1]["success"]
+    assert not rep["robust"] and "payload +6 kg" in rep["reason"]
+    assert max(rep["bound_pulses"]) > e.max()  # a bound over both joints would have passed it
 
 
 def test_a_result_that_says_its_model_is_off_makes_a_controller_that_says_so(paper_log, truth):
