@@ -218,7 +218,7 @@ class _Oracle:
 
 
 def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = False,
-             adaptive_options: dict | None = None) -> dict:
+             adaptive_options: dict | None = None, design_options: dict | None = None) -> dict:
     import ctc
     import plant
 
@@ -232,6 +232,10 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
                change=ch)
     prior = _prior(csv, robust_out, out, log)
     row["prior_model"] = prior.get("model", "rigid")
+    # options of the flexible-joint CTC's robust design (max_current_per_pulse): a flexible
+    # prior's controllers only (a rigid CTC takes none)
+    design = dict(design_options or {}) if row["prior_model"] != "rigid" else {}
+    adaptive_options = {**(adaptive_options or {}), **design}
     ts = s.sample_time_s
     n = log.n_total
     robots = [ir.IndependentRobot(c) for c in changed_settings(s, ch)]
@@ -243,13 +247,13 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
         warnings.simplefilter("always")
         controllers = {
             "P": ir.PCard(s.p_gain),
-            "static": ctc.ComputedTorqueController.from_result(prior, log),
+            "static": ctc.ComputedTorqueController.from_result(prior, log, **design),
             "adaptive": ctc.AdaptiveComputedTorqueController.from_log(prior, log,
                                                                       **(adaptive_options or {})),
         }
         if ch["kind"] in PAYLOAD_KINDS:
             f_unloaded = ir.rigid_equivalent_truth(s)["f"]
-            inner = ctc.ComputedTorqueController.from_result(prior, log)
+            inner = ctc.ComputedTorqueController.from_result(prior, log, **design)
             switches = [(k, inner.f + ir.rigid_equivalent_truth(c)["f"] - f_unloaded)
                         for (k, _), c in zip(changes, changed_settings(s, ch))]
             controllers["oracle"] = _Oracle(inner, switches)
@@ -473,7 +477,7 @@ def _rst_table(rows):
 
 
 def _job(args):
-    seed, index, out, robust_out, repeat, adaptive_options = args
+    seed, index, out, robust_out, repeat, adaptive_options, design_options = args
     out, robust_out = Path(out), Path(robust_out)
     stem = br.stem_of(seed, index)
     cache = out / "cases" / f"{stem}.json"
@@ -481,7 +485,7 @@ def _job(args):
         return json.loads(cache.read_text())
     try:
         row = run_case(seed, index, out, robust_out, repeat=repeat,
-                       adaptive_options=adaptive_options)
+                       adaptive_options=adaptive_options, design_options=design_options)
         row["verdict"] = score(row)
     except Exception as exc:  # noqa: BLE001
         if isinstance(exc, RuntimeError) and "no stable drive" in str(exc) or "no feasible" in str(exc):
@@ -509,16 +513,26 @@ def main(argv=None):
                     help="the adaptive CTC's window_s (default: its default)")
     ap.add_argument("--latency", type=float, default=None,
                     help="the adaptive CTC's fixed latency_s (default: its default)")
+    ap.add_argument("--max-current-per-pulse", type=float, default=None,
+                    help="a flexible prior's robust design admits a faster candidate only when "
+                         "its one-pulse current step is within this fraction of full scale "
+                         "(ctc.flexible.select_robust_design; default: no cap; use a fresh --out: "
+                         "cached cases are reused)")
     a = ap.parse_args(argv)
     if a.n < 1 or a.jobs < 1:
         ap.error("--n and --jobs must be >= 1")
+    design = {}
+    if a.max_current_per_pulse is not None:
+        if not a.max_current_per_pulse > 0:
+            ap.error("--max-current-per-pulse must be > 0")
+        design["max_current_per_pulse"] = a.max_current_per_pulse
     opts = {}
     if a.window is not None:
         opts["window_s"] = a.window
     if a.latency is not None:
         opts["latency_s"] = a.latency
     indices = range(a.n) if a.cases is None else [int(c) for c in a.cases.split(",")]
-    jobs = [(a.seed, i, str(a.out), str(a.robust_out), i == 0, opts) for i in indices]
+    jobs = [(a.seed, i, str(a.out), str(a.robust_out), i == 0, opts, design) for i in indices]
     rows = br.run_jobs(_job, jobs, a.jobs)
     skipped = [r for r in rows if "skipped" in r]
     rows = [r for r in rows if "skipped" not in r]

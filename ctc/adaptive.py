@@ -894,7 +894,9 @@ class AdaptiveComputedTorqueController:
         :data:`ctc.guard.MIN_LIMIT_PULSES`.  None: no limit.
     **ctc_options
         Keyword arguments of :meth:`ctc.ComputedTorqueController.from_log`
-        (gains, estimator, ...).
+        (gains, estimator, ...); for a flexible prior those of
+        :func:`ctc.flexible.controller_from_result`, ``max_current_per_pulse``
+        among them (accepted and unused on a rigid prior).
 
     Attributes
     ----------
@@ -1022,6 +1024,10 @@ class AdaptiveComputedTorqueController:
         self.flexible_joints = flex
         self.design_warnings = []
         if flex is None:
+            from .flexible import current_step_limit
+
+            # the robust design's current cap has no candidates to cap on a rigid prior
+            current_step_limit(log.rig, ctc_options.pop("max_current_per_pulse", None))
             self._ctc = ComputedTorqueController.from_log(self.prior_f, log,
                                                           trajectory=self.trajectory, **ctc_options)
         else:

@@ -301,7 +301,11 @@ class ArmComputedTorque:
         result : identification.arm.ArmIdentificationResult
         log : plant.logs.arm_log.ArmLog
         **design
-            As the constructor (``gains=`` or :func:`ctc.design.design_gains` keywords).
+            As the constructor (``gains=`` or :func:`ctc.design.design_gains` keywords);
+            for a flexible result also ``max_current_per_pulse`` (None or a fraction
+            of full scale > 0: a faster candidate design is checked only when its
+            one-pulse current step, :func:`ctc.protocol.current_per_pulse`, stays
+            within it; see :func:`ctc.flexible.controller_from_result`).
 
         Returns
         -------
@@ -342,8 +346,10 @@ class ArmComputedTorque:
         scenario ``flexible`` (of the chosen flexible design, ``design``)
         and ``rigid_equivalent``, ``designs`` (each flexible design's
         ``name``, ``errors``, ``worst``; None for a scenario not run),
-        ``counted``, ``worst_flexible``, ``worst_rigid_equivalent`` and
-        ``check_s``.  Safety first: a flexible design that does not
+        ``counted``, ``worst_flexible``, ``worst_rigid_equivalent``,
+        ``check_s``, ``held_back`` (the faster designs the current cap kept
+        out, each with its ``current_per_pulse_A``) and
+        ``current_per_pulse_limit_A``.  Safety first: a flexible design that does not
         tolerate the identified robot's likely errors is never used.
         Measured on the compliant draws of ``benchmarks/bench_arms.py
         --compliant`` (independent simulator): the faster designs took a
@@ -355,10 +361,14 @@ class ArmComputedTorque:
             raise ValueError(f"the identification did not succeed: {result.get('message')}")
         m = IdentifiedModel.from_result(result, n_joints=result["plant"].n_joints)
         design.setdefault("envelope", log_envelope(log))
+        from .flexible import current_step_limit
+
+        cap = design.pop("max_current_per_pulse", None)  # the robust design's candidates only
+        current_step_limit(result["rig"], cap)  # a bad cap is refused on every kind of result
         if cls is ArmComputedTorque and m.flexible:
             # a flexible result: the motor-side CTC with the spring torque of its link model,
             # unless it tracks the identified robot worse than the rigid-equivalent CTC
-            return _checked_flexible(result, log, **design)
+            return _checked_flexible(result, log, max_current_per_pulse=cap, **design)
         # the result's rig: the log's, with the friction the identification found
         return cls(result["plant"], m.f, result["rig"], log.trajectory, **design)
 
@@ -724,7 +734,7 @@ def _flexible_candidates(result, log, design):
         result, log, **extra, **design)) for name, extra in out]
 
 
-def _checked_flexible(result, log, **design):
+def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     """The flexible CTC of a flexible result with the smallest worst case over the model-error
     set, or the rigid-equivalent one when that holds the set better (minimax;
     :meth:`ArmComputedTorque.from_result`)."""
@@ -781,8 +791,27 @@ def _checked_flexible(result, log, **design):
                                                        k: v for k, v in design.items()
                                                        if k not in ("link_substeps",
                                                                     "link_damping")}))
+    from .flexible import current_step_limit
+    from .protocol import current_per_pulse
+
+    step_limit = current_step_limit(rig, max_current_per_pulse)
     runs = []  # (name, controller, errors) of the flexible candidates
+    held_back = []  # (name, current per pulse) of the faster designs the drive cannot carry
     for name, make in _flexible_candidates(result, log, design):
+        if name != "default" and np.isfinite(step_limit):
+            # with a cap, a faster candidate only when one pulse of quantisation moves the
+            # current by at most that fraction of full scale (as ctc.flexible.select_robust_design)
+            try:
+                cand = make()
+            except ValueError:
+                cand = None  # check() records the design as not built
+            if cand is not None:
+                step = current_per_pulse(cand, log)
+                if np.max(step) > step_limit:
+                    held_back.append(dict(name=name,
+                                          current_per_pulse_A=np.round(step, 4).tolist()))
+                    continue
+                make = (lambda c: (lambda: c))(cand)
         done = [e for _, c, e in runs if c is not None and len(e) and np.all(np.isfinite(e))]
         if len(err_r) and np.all(np.isfinite(err_r)):
             done.append(err_r)
@@ -813,7 +842,8 @@ def _checked_flexible(result, log, **design):
                      check_s=n * rig.sample_time_s, design=name,
                      designs=[dict(name=nm, errors=listed(e), worst=worst[i],
                                    built=c is not None)
-                              for i, (nm, c, e) in enumerate(runs)])
+                              for i, (nm, c, e) in enumerate(runs)],
+                     held_back=held_back, current_per_pulse_limit_A=step_limit)
     selection.update(counted=[bool(c) for c in counted], worst_flexible=w_f,
                      worst_rigid_equivalent=w_r)
     if flex is not None and np.isfinite(w_f) and w_f <= w_r:

@@ -117,7 +117,7 @@ from .computed_torque import (
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
            "robust_design_gains", "robust_design_options", "select_robust_design",
-           "MAX_BANDWIDTH_FRACTION",
+           "MAX_BANDWIDTH_FRACTION", "current_step_limit",
            "MAX_ESTIMATOR_FRACTION", "DESIGN_KEYS",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
            "DEFAULT_LINK_SUBSTEPS", "DEFAULT_LINK_OBSERVER_DAMPING", "two_mass_observer_gains"]
@@ -774,7 +774,22 @@ def controller_from_result(result, log, **options):
         largest P-control error in the log and 3 pulses, and beyond the
         flexible CTC's), when the
         flexible-joint CTC is kept, with the warning (issue 21, item 3: when the flexible design cannot hold the
-        uncertainty set, the design says so and falls back).
+        uncertainty set, the design says so and falls back).  Every
+        checked design's report carries ``current_per_pulse_A``, its current
+        step for one encoder pulse (:func:`ctc.protocol.current_per_pulse`).
+        ``max_current_per_pulse`` (None, default, or a fraction of the
+        full scale > 0) admits a faster candidate only when that step stays
+        within the fraction on every joint (stability first: when no
+        admissible design holds the set, the others are tried in the order
+        of their step).  The faster loops buy their robustness with current:
+        a loop tracking within +-1 pulse reads a count that flickers by a
+        pulse, and on coarse encoders the fastest candidate's step reaches
+        the full scale (a relay; ``benchmarks/bench_design_current.py``).
+        The cap is the user's trade: on the fourth draw of the changes
+        benchmark (``benchmarks/bench_changes.py --seed 20261130``, 56
+        cases on the independent simulator) a cap of 0.1 cut the flexible
+        payload changes tracked within a pulse from 14 to 8 of 18, and the CTCs
+        of 6 flexible robots instead of 1 tripped the following-error limit.
 
     Returns
     -------
@@ -801,6 +816,8 @@ def controller_from_result(result, log, **options):
 def _build_from_result(result, log, **options):
     """:func:`controller_from_result` without its following-error limit (the checks run the bare law)."""
     robust = options.pop("robust", "fallback")  # flexible results only; a rigid CTC needs no check
+    cap = options.pop("max_current_per_pulse", None)  # the robust design's candidates only
+    current_step_limit(log.rig, cap)  # a bad cap is refused on every kind of result
     if robust not in (None, "check", "fallback"):
         raise ValueError(f"robust must be None, 'check' or 'fallback', got {robust!r}")
     d = IdentifiedModel.from_result(result)
@@ -823,7 +840,7 @@ def _build_from_result(result, log, **options):
     import warnings
 
     if robust == "fallback" and not (DESIGN_KEYS & set(options)):
-        ctrl, report = select_robust_design(ctrl, d, target, **options)
+        ctrl, report = select_robust_design(ctrl, d, target, max_current_per_pulse=cap, **options)
     else:
         report = robustness_check(ctrl, d, target)
         ctrl.robustness = report
@@ -866,14 +883,24 @@ def _build_from_result(result, log, **options):
     return chosen
 
 
-def select_robust_design(first, model, log, **options):
+def select_robust_design(first, model, log, *, max_current_per_pulse=None, **options):
     """The robust flexible-joint CTC design: the smallest worst case over the model-error set.
 
     The first design and each of :data:`ROBUST_DESIGNS`
-    (:func:`robust_design_gains`) run :func:`robustness_check` over
-    :data:`ROBUSTNESS_SCENARIOS`; the one with the smallest worst case is kept
-    (minimax; the first design on a tie).  Each candidate's report is its
-    ``.robustness``.
+    (:func:`robust_design_gains`) are candidates.  Every candidate's current
+    step for one encoder pulse (:func:`ctc.protocol.current_per_pulse`) is
+    measured; with ``max_current_per_pulse`` a faster candidate is
+    *admissible* only when that step stays within this fraction of the
+    drive's full scale on every joint (the first design always is; default:
+    every candidate is -- see :func:`controller_from_result` for what the
+    cap costs).  The admissible candidates run
+    :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` and the one with
+    the smallest worst case is kept (minimax; the first design on a tie).
+    Stability comes before the current's chatter: when no admissible
+    candidate holds the set, the others are checked in the order of their
+    current step and the first that holds it is kept.  Each checked
+    candidate's report is its ``.robustness``, with ``current_per_pulse_A``
+    and ``current_per_pulse_limit_A``.
 
     Parameters
     ----------
@@ -883,6 +910,9 @@ def select_robust_design(first, model, log, **options):
         The flexible model (f, joints, backlash) the check perturbs.
     log : plant.ExperimentLog
         Rig and reference.
+    max_current_per_pulse : float or None
+        Cap of a faster candidate's one-pulse current step, as a fraction of
+        the drive's full scale (> 0); None: no cap.
     **options
         Further keyword arguments of :meth:`FlexibleJointComputedTorqueController.from_log`
         (``trajectory``, ``link_substeps``, ...; no design keywords).
@@ -891,17 +921,74 @@ def select_robust_design(first, model, log, **options):
     -------
     (FlexibleJointComputedTorqueController, dict)
         The chosen controller and its report.
+
+    Raises
+    ------
+    ValueError
+        If ``max_current_per_pulse`` is neither None nor a number > 0.
     """
-    ctrl, report = first, robustness_check(first, model, log)
-    first.robustness = report
+    from .protocol import current_per_pulse
+
+    limit = current_step_limit(log.rig, max_current_per_pulse)
+    trajectory = options.get("trajectory")
+
+    def checked(ctrl, step):
+        rep = robustness_check(ctrl, model, log)
+        rep.update(current_per_pulse_A=np.round(step, 4).tolist(), current_per_pulse_limit_A=limit)
+        ctrl.robustness = rep
+        return rep
+
+    ctrl, report = first, checked(first, current_per_pulse(first, log, trajectory=trajectory))
+    held_back = []  # (largest step, candidate, steps) of the candidates the drive cannot carry
     for _, design in robust_design_options(log.rig):
         cand = FlexibleJointComputedTorqueController.from_log(
             model.f, log, **model.joints(), **design, **options)
-        rep = robustness_check(cand, model, log)
-        cand.robustness = rep
+        step = current_per_pulse(cand, log, trajectory=trajectory)
+        if np.max(step) > limit:
+            held_back.append((float(np.max(step)), len(held_back), cand, step))
+            continue
+        rep = checked(cand, step)
         if _worst(rep) < _worst(report):
             ctrl, report = cand, rep
+    if not report["robust"]:
+        for _, _, cand, step in sorted(held_back, key=lambda h: h[:2]):
+            rep = checked(cand, step)
+            if rep["robust"]:
+                return cand, rep
     return ctrl, report
+
+
+def current_step_limit(rig, max_current_per_pulse) -> float:
+    """The one-pulse current cap (A) of ``max_current_per_pulse`` (a fraction of full scale).
+
+    Parameters
+    ----------
+    rig : plant.logs.rig.Rig
+        Its ``current_full_scale_A`` (None: no full scale, no cap).
+    max_current_per_pulse : float or None
+        Fraction of the full scale, > 0; None: no cap.
+
+    Returns
+    -------
+    float
+        The cap in A per pulse; ``inf`` for no cap.
+
+    Raises
+    ------
+    ValueError
+        If ``max_current_per_pulse`` is neither None nor a finite number > 0.
+    """
+    if max_current_per_pulse is None:
+        return math.inf
+    try:
+        frac = float(max_current_per_pulse)
+    except (TypeError, ValueError):
+        frac = math.nan
+    if isinstance(max_current_per_pulse, bool) or not (math.isfinite(frac) and frac > 0):
+        raise ValueError("max_current_per_pulse must be None or a fraction of the full scale > 0, "
+                         f"got {max_current_per_pulse!r}")
+    fs = rig.current_full_scale_A
+    return math.inf if fs is None else frac * float(fs)
 
 
 #: Options that fix the flexible CTC's design: with any of them the caller's design is

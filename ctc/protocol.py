@@ -21,11 +21,13 @@ and :class:`ctc.ComputedTorqueController` follow it.
 """
 from __future__ import annotations
 
+import copy
+import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["SampledController", "PController"]
+__all__ = ["SampledController", "PController", "current_per_pulse"]
 
 
 @runtime_checkable
@@ -106,3 +108,76 @@ class PController:
     def __repr__(self) -> str:
         return (f"PController(p_gain_A_per_pulse={self.p_gain.tolist()}, "
                 f"current_full_scale_A={self.current_full_scale_A})")
+
+
+def current_per_pulse(controller, log, *, trajectory=None, sample=20) -> np.ndarray:
+    """The current step (A) a sampled controller commands for one pulse of measurement.
+
+    A loop that tracks within +-1 pulse reads a count that flickers by one
+    pulse from sample to sample; the law's current flickers with it by this
+    much.  ``Kp`` grows with the loop bandwidth squared and an observer's
+    velocity correction times ``Kv`` with its cube, so a fast design on a
+    coarse encoder can swing the drive across its range on every pulse
+    (a relay, not the linear loop it was designed as).  Measured, not
+    derived: a copy of the controller runs ``sample`` samples on the
+    quantised reference (at rest on the reference's start), then sample
+    ``sample`` is evaluated with the reading of each joint moved by one pulse
+    up and down; the step is the largest change of that joint's own current
+    whose two ends are inside the drive's full scale.  The controller itself
+    is not touched (its state is copied).
+
+    Parameters
+    ----------
+    controller : SampledController
+        Any controller of the protocol (its following-error limit, if any,
+        is disarmed in the copy).
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+        Rig (encoders, sample time, full scale) and, by default, the reference.
+    trajectory : plant.logs.trajectory.Trajectory, optional
+        The reference the controller was built for (default: the log's).
+    sample : int
+        The sample at which the step is measured, >= 1.
+
+    Returns
+    -------
+    ndarray, shape (n_joints,)
+        Current step per joint (A per pulse); ``inf`` where every step
+        ends at the full scale (the law saturates on one pulse).
+
+    Raises
+    ------
+    ValueError
+        If ``sample`` is not an integer >= 1.
+    """
+    if not isinstance(sample, (int, np.integer)) or isinstance(sample, bool) or sample < 1:
+        raise ValueError(f"sample must be an integer >= 1, got {sample!r}")
+    rig = log.rig
+    ts = float(rig.sample_time_s)
+    ppr = np.asarray(rig.pulses_per_rad, dtype=float)
+    fs = math.inf if rig.current_full_scale_A is None else float(rig.current_full_scale_A)
+    traj = log.trajectory if trajectory is None else trajectory
+    q = np.atleast_2d(traj.position(np.arange(sample + 1) * ts))
+    count = np.trunc(q * ppr)  # the encoders read the reference itself: zero pulse error
+    c = copy.deepcopy(controller)
+    if getattr(c, "following_error", None) is not None:
+        c.following_error = None
+    c.reset()
+    for k in range(sample):
+        c(k, k * ts, count[k] / ppr, np.zeros(ppr.size))
+    t = sample * ts
+
+    def at(step):
+        return np.asarray(copy.deepcopy(c)(sample, t, (count[sample] + step) / ppr, -step), dtype=float)
+
+    base = at(np.zeros(ppr.size))
+    inside = np.abs(base) < fs * (1.0 - 1e-12)
+    out = np.full(ppr.size, -math.inf)
+    for j in range(ppr.size):
+        for s in (1.0, -1.0):
+            step = np.zeros(ppr.size)
+            step[j] = s
+            i = at(step)
+            if inside[j] and abs(i[j]) < fs * (1.0 - 1e-12):
+                out[j] = max(out[j], abs(i[j] - base[j]))
+    out[~np.isfinite(out)] = math.inf
+    return out

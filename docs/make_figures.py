@@ -90,6 +90,14 @@ it in ``optimisers``):
     cases of the version that refines the model in use's start state in the
     payload's box too (``figures/changes_20261130.rst``,
     ``figures/changes_20261130.txt``; about 110 min on 2 cores).
+``current_cap``
+    ``benchmarks/bench_design_current.py --seed 20261130 --cases`` the fourth
+    draw's 18 flexible payload changes (``figures/design_current_20261130.txt``:
+    per case the one-pulse current step, the tracking, the samples at full
+    scale and the current's chatter of the robust design, the same capped at
+    a tenth of full scale and the default gains; about 2 min a case), and the
+    fourth draw rerun with ``--max-current-per-pulse 0.1`` in a fresh output
+    folder (``figures/changes_20261130_cap01_run.txt``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -149,7 +157,7 @@ DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
-            "changes_fourth",
+            "changes_fourth", "current_cap",
             "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
@@ -390,14 +398,14 @@ CHANGES_UPDATE_CASES = {
 }
 
 
-def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False):
+def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False, extra=()):
     """``benchmarks/bench_changes.py`` on ``cases`` (comma-separated) or its first ``n``
     draws of ``seed``; ``fresh``: in a new output folder (no case or prior cached by
     another version is reused).  Returns the section's record."""
     import tempfile
 
     args = ["benchmarks/bench_changes.py", "--n", str(n), "--seed", str(seed), "--jobs", "2",
-            "--rst", ctx["raw"] / f"{name}.rst"]
+            "--rst", ctx["raw"] / f"{name}.rst", *extra]
     if cases is not None:
         args += ["--cases", cases.split(",")[0] if ctx["quick"] else cases]
     if not fresh:
@@ -433,6 +441,21 @@ def changes_third(ctx):
 def changes_fourth(ctx):
     return _bench_changes(ctx, "changes_20261130", 20261130, n=2 if ctx["quick"] else 58,
                           fresh=True)
+
+
+#: The flexible payload changes of the fourth draw of the changes benchmark (seed 20261130):
+#: every pick-up and put-down on a flexible robot, none chosen by its outcome.
+FOURTH_FLEXIBLE_PAYLOAD_CASES = "1,2,4,5,8,11,16,19,22,28,33,34,44,47,49,50,55,56"
+
+
+def current_cap(ctx):
+    """The robust flexible design's one-pulse current step and what capping it costs."""
+    cases = "2" if ctx["quick"] else FOURTH_FLEXIBLE_PAYLOAD_CASES
+    text, wall = _run(["benchmarks/bench_design_current.py", "--seed", "20261130", "--cases", cases],
+                      ctx["raw"], "design_current_20261130", timeout=3 * 3600)
+    capped = _bench_changes(ctx, "changes_20261130_cap01", 20261130, n=2 if ctx["quick"] else 58,
+                            fresh=True, extra=("--max-current-per-pulse", "0.1"))
+    return {"printed": text.splitlines(), "wall_s": wall, "capped": capped}
 
 
 def arms(ctx):

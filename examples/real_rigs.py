@@ -136,6 +136,7 @@ def main(argv=None):
                    drill_K=res.joint_stiffness_Nm_per_rad, drill_D=res.joint_damping_Nms_per_rad,
                    drill_Jk2=res.motor_inertia_reflected_kgm2)
         from ctc import ComputedTorqueController
+        from ctc.protocol import current_per_pulse
 
         ctl = ComputedTorqueController.from_result(args.out / "drill_result.json", drill)
         print(f"  controller: {ctl}")
@@ -151,8 +152,11 @@ def main(argv=None):
                 rows = ", ".join(f"{sc['name']} {sc['max_abs_e'][0]} / {sc['max_abs_e'][1]}"
                                  for sc in rep["scenarios"])
                 bw = " / ".join(f"{v:.0f}" for v in c.gains.bandwidth_hz)
-                print(f"  {name} ({bw} Hz): {rows} pulses")
-                out[f"robustness_{name.split()[0]}"] = rep
+                # the current the law commands for one pulse of quantisation
+                step = current_per_pulse(c, drill)
+                print(f"  {name} ({bw} Hz): {rows} pulses; "
+                      f"{step[0]:.2f} / {step[1]:.2f} A per pulse")
+                out[f"robustness_{name.split()[0]}"] = dict(rep, current_per_pulse_A=step.tolist())
             # the robot: the truth's emulator constants if given, else the identified ones
             robot_f, robot = res.f, None
             if args.truth is not None:

@@ -533,3 +533,23 @@ def test_a_puma_window_log_is_refused_by_load_arm_log(paper_rigid_path, tmp_path
     with pytest.raises(plant.LogError, match="window") as exc:
         load_arm_log(path)
     assert "\n" not in str(exc.value)
+
+
+def test_current_per_pulse_of_an_arm_ctc(arm):
+    """ctc.protocol.current_per_pulse on n joints: the P law's step is its gain, and doubling
+    the arm CTC's bandwidth multiplies its one-pulse current step by more than four."""
+    from types import SimpleNamespace
+
+    from ctc import PController
+    from ctc.arm import ArmComputedTorque
+    from ctc.design import default_bandwidth_hz
+    from ctc.protocol import current_per_pulse
+
+    rig = planar_rig(p_gain=(0.05, 0.07), limit=40.0)
+    log = SimpleNamespace(rig=rig, trajectory=TRAJ)
+    np.testing.assert_allclose(current_per_pulse(PController.from_log(rig), log), [0.05, 0.07],
+                               rtol=1e-12)
+    bw = default_bandwidth_hz(rig)
+    slow = current_per_pulse(ArmComputedTorque(arm, arm.beta(), rig, TRAJ, bandwidth_hz=bw), log)
+    fast = current_per_pulse(ArmComputedTorque(arm, arm.beta(), rig, TRAJ, bandwidth_hz=2 * bw), log)
+    assert slow.shape == (2,) and np.all(slow > 0) and np.all(fast > 4 * slow), (slow, fast)

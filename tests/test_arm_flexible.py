@@ -249,9 +249,11 @@ def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
     assert sel["worst_rigid_equivalent"] == worst_r
     # the default design and the robust candidates (faster motor loops) were checked; the
     # flexible design compared with the rigid-equivalent CTC is the one of smallest worst case
-    designs = sel["designs"]
-    assert designs[0]["name"] == "default" and 1 <= len(designs) <= 6
-    if len(designs) < 6:  # the search stopped at a design that holds +-1 pulse everywhere
+    designs, held = sel["designs"], sel["held_back"]
+    assert designs[0]["name"] == "default" and 1 <= len(designs) + len(held) <= 6
+    # without a cap on the current per pulse no design is held back
+    assert sel["current_per_pulse_limit_A"] == np.inf and held == []
+    if len(designs) + len(held) < 6:  # the search stopped at a design that holds +-1 pulse
         assert designs[-1]["worst"] <= 1 and sel["design"] == designs[-1]["name"]
     worsts = [np.nanmax(errors(d["errors"])[counted]) for d in designs]
     assert [d["worst"] for d in designs] == worsts
@@ -443,3 +445,32 @@ def test_flexible_ctc_link_sample_is_the_rk4_of_its_link_model():
     c.ql = np.array([np.nan, 0.0])
     assert np.array_equal(c(1, c.ts, np.array([0.3, -0.2]), np.zeros(2)), np.zeros(2))
     assert c.first  # the link estimate restarts at the motor on the next sample
+
+
+def test_current_per_pulse_of_the_arm_flexible_ctc():
+    """ctc.protocol.current_per_pulse measures the arm's flexible-joint CTC on a copy (the
+    controller's own state is untouched) and a faster motor loop steps more per pulse:
+    the measure the robust design's max_current_per_pulse cap reads."""
+    from types import SimpleNamespace
+
+    from ctc.design import default_bandwidth_hz
+    from ctc.protocol import current_per_pulse
+
+    model = planar_arm()
+    rigid = arm_plant(model)
+    ia = model.standard_parameters()[-2:]
+
+    def build(factor):
+        return ArmFlexibleComputedTorque(rigid, rigid.beta(), RIG, TRAJ, stiffness=[3e3, 2e3],
+                                         damping=[0.5, 0.3], motor_inertia=ia,
+                                         bandwidth_hz=factor * default_bandwidth_hz(RIG))
+
+    log = SimpleNamespace(rig=RIG, trajectory=TRAJ)
+    c = build(1.0)
+    c.reset()
+    c(0, 0.0, np.array([0.3, -0.2]), np.zeros(2))
+    first, ql = c.first, c.ql.copy()
+    slow = current_per_pulse(c, log)
+    assert c.first == first and np.array_equal(c.ql, ql)
+    fast = current_per_pulse(build(2.0), log)
+    assert np.all(slow > 0) and np.all(fast > 2 * slow), (slow, fast)

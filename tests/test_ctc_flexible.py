@@ -381,3 +381,59 @@ def test_a_model_switch_places_the_link_observer_for_the_new_link(held_out):
     np.testing.assert_array_equal(c.flexible_parameters.link_gain_w, lg[:, 3])
     law = c.logged_law_with(log, None, f)  # a window run under the unloaded model
     assert law.parameters.parameters == before
+
+
+def test_current_per_pulse_measures_the_laws_step(paper_log, truth):
+    """ctc.protocol.current_per_pulse: the P law's step is its gain; a faster CTC design
+    steps more (Kp ~ w^2, the observer's velocity correction ~ w^3); the controller measured
+    keeps its state (a run after the measurement equals one before it)."""
+    from ctc.design import design_gains
+    from ctc.protocol import PController, current_per_pulse
+
+    rig = paper_log.rig
+    p = PController(rig.p_gain_A_per_pulse, rig.current_full_scale_A)
+    np.testing.assert_allclose(current_per_pulse(p, paper_log), rig.p_gain_A_per_pulse, rtol=1e-12)
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    slow = ComputedTorqueController.from_log(f, paper_log)
+    fast = ComputedTorqueController.from_log(f, paper_log, gains=design_gains(
+        rig, bandwidth_hz=2 * slow.gains.bandwidth_hz))
+    s_slow, s_fast = current_per_pulse(slow, paper_log), current_per_pulse(fast, paper_log)
+    assert np.all(s_slow > 0) and np.all(s_fast > 4 * s_slow), (s_slow, s_fast)
+    before = plant.simulate_closed_loop(paper_log, f, slow, n_samples=300).e_pulses
+    current_per_pulse(slow, paper_log, sample=50)
+    np.testing.assert_array_equal(plant.simulate_closed_loop(paper_log, f, slow, n_samples=300).e_pulses,
+                                  before)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="sample must be"):
+            current_per_pulse(slow, paper_log, sample=bad)
+
+
+def test_robust_design_reports_and_caps_the_current_per_pulse(drill_log, drill_result):
+    """Issue 21: every checked design reports its one-pulse current step; with
+    max_current_per_pulse the robust design picks among the candidates whose step stays
+    within that fraction of full scale (the first design always counts), a faster one only
+    when none of those holds the model-error set; a bad cap is refused with one line."""
+    from ctc.flexible import _worst
+    from ctc.protocol import current_per_pulse
+
+    res = drill_result[0]
+    free = ComputedTorqueController.from_result(res, drill_log)
+    assert free.robustness["current_per_pulse_limit_A"] == np.inf
+    np.testing.assert_allclose(free.robustness["current_per_pulse_A"],
+                               current_per_pulse(free, drill_log), atol=1e-4)
+    c = ComputedTorqueController.from_result(res, drill_log, max_current_per_pulse=0.1)
+    assert isinstance(c, FlexibleJointComputedTorqueController)
+    rep = c.robustness
+    limit = 0.1 * drill_log.rig.current_full_scale_A
+    assert rep["current_per_pulse_limit_A"] == pytest.approx(limit)
+    np.testing.assert_allclose(rep["current_per_pulse_A"], current_per_pulse(c, drill_log), atol=1e-4)
+    first = ComputedTorqueController.from_result(res, drill_log, robust=None)
+    assert np.max(rep["current_per_pulse_A"]) <= limit or rep["robust"] or \
+        np.array_equal(c.gains.bandwidth_hz, first.gains.bandwidth_hz)
+    # on the drill robot a design within the cap holds the set: the drive stays linear
+    assert rep["robust"] and np.max(rep["current_per_pulse_A"]) <= limit
+    assert np.max(free.robustness["current_per_pulse_A"]) >= np.max(rep["current_per_pulse_A"])
+    assert _worst(free.robustness) <= _worst(rep)  # the cap costs robustness, never buys it
+    for bad in (0, -0.1, "a", True, np.inf):
+        with pytest.raises(ValueError, match="max_current_per_pulse must be"):
+            ComputedTorqueController.from_result(res, drill_log, max_current_per_pulse=bad)

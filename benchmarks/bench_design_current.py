@@ -1,0 +1,132 @@
+"""The robust flexible-joint design's price in current: one pulse of quantisation, in amperes.
+
+``ComputedTorqueController.from_result`` on a flexible result checks the
+default design and faster motor loops (:data:`ctc.flexible.ROBUST_DESIGNS`,
+up to three times the default bandwidth) over the model-error set and keeps
+the one with the smallest worst case in pulses
+(:func:`ctc.flexible.select_robust_design`).  A faster loop also multiplies
+the current the law commands for one pulse of quantisation (``Kp`` grows
+with the bandwidth squared, the observer's velocity correction times ``Kv``
+with its cube), so a robot tracking at +-1 pulse can see its drive current
+flick between the full-scale limits from sample to sample.
+``max_current_per_pulse=`` (a fraction of full scale) caps that step for
+the faster candidates.
+
+This script measures that on cases of the changes benchmark
+(``bench_changes.py``; its cache of logs and priors), on the INDEPENDENT
+simulator: per case, the CTC that switches to the true payload at the
+change (the benchmark's oracle; no payload change: the static CTC) built
+by ``from_result`` (the robust design), by ``from_result`` with
+``max_current_per_pulse=--cap`` and with the default gains
+(``robust=None``), each reporting
+
+* the current step for one pulse (A per joint,
+  :func:`ctc.protocol.current_per_pulse`),
+* max |e| (pulses per joint) from 0.5 s after the (last) change,
+* the samples with the commanded current at full scale, per joint,
+* the rms of the commanded current's sample-to-sample change (A), per
+  joint -- the current's chatter.
+
+Run (about 2 min per case)::
+
+    python benchmarks/bench_design_current.py --seed 20261130 --cases 1,2,8,16
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
+
+import bench_changes as bc  # noqa: E402
+import bench_robustness as br  # noqa: E402
+import independent_robot as ir  # noqa: E402
+
+
+def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.1) -> list[dict]:
+    """The two designs' runs on case ``index`` (one dict each)."""
+    import ctc
+    import plant
+
+    csv = br.generate(seed, index, robust_out)
+    truth = json.loads(csv.with_suffix(".truth.json").read_text())
+    s = ir.RobotSettings.from_dict(truth["settings"])
+    log = plant.load_log(csv)
+    ch = bc.draw_change(seed, index, s)
+    prior = bc._prior(csv, robust_out, out, log)
+    ts = s.sample_time_s
+    after = bc.changed_settings(s, ch)
+    changes = [(int(math.ceil(t / ts)), ir.IndependentRobot(c)) for t, c in zip(ch["times_s"], after)]
+    k_after = int(math.ceil((ch["times_s"][-1] + 0.5) / ts))
+    fs = float(s.current_full_scale_A)
+    rows = []
+    from ctc.protocol import current_per_pulse
+
+    for design, options in (("from_result", {}), (f"cap {cap:g}", dict(max_current_per_pulse=cap)),
+                            ("default gains", dict(robust=None))):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            inner = ctc.ComputedTorqueController.from_result(prior, log, **options)
+            step = current_per_pulse(inner, log)
+            switches = []
+            if ch["kind"] in bc.PAYLOAD_KINDS:
+                f0 = ir.rigid_equivalent_truth(s)["f"]
+                switches = [(k, inner.f + ir.rigid_equivalent_truth(c)["f"] - f0)
+                            for (k, _), c in zip(changes, after)]
+            run = ir.IndependentRobot(s).run(bc._Oracle(inner, switches), log.trajectory, log.n_total,
+                                             max_step_fraction=ir.max_step_fraction(s),
+                                             max_abs_e=bc.DIVERGED_PULSES, changes=changes)
+        e = np.abs(run["e"])
+        i = np.asarray(run["i_cmd"], dtype=float)
+        rows.append(dict(
+            index=index, kind=ch["kind"], ppr=list(s.encoder_ppr), design=design,
+            controller=type(inner).__name__,
+            bandwidth_hz=np.round(inner.gains.bandwidth_hz).astype(int).tolist(),
+            current_per_pulse_A=np.round(step, 2).tolist(),
+            max_e_after=e[k_after:].max(axis=0).astype(int).tolist() if k_after < len(e) else None,
+            saturated=(np.abs(i) >= 0.999 * fs).sum(axis=0).astype(int).tolist(), n=int(len(i)),
+            chatter_A=np.round(np.sqrt(np.mean(np.diff(i, axis=0) ** 2, axis=0)), 2).tolist()))
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seed", type=int, required=True, help="the changes benchmark's seed")
+    ap.add_argument("--cases", type=str, required=True, help="comma-separated case indices")
+    ap.add_argument("--out", type=Path, default=bc.DEFAULT_OUT,
+                    help="the changes benchmark's cache (its priors)")
+    ap.add_argument("--robust-out", type=Path, default=br.DEFAULT_OUT,
+                    help="the robustness suite's cache (logs and default identifications)")
+    ap.add_argument("--cap", type=float, default=0.1,
+                    help="max_current_per_pulse of the capped design (fraction of full scale)")
+    a = ap.parse_args(argv)
+    if not a.cap > 0:
+        ap.error("--cap must be > 0")
+    try:
+        cases = [int(c) for c in a.cases.split(",")]
+    except ValueError:
+        ap.error(f"--cases must be comma-separated integers, got {a.cases!r}")
+    print(f"{'case':>5} {'change':9} {'ppr':>11} {'design':17} {'bandwidth Hz':>13} "
+          f"{'A per pulse':>13} {'max|e| after':>13} {'at full scale':>15} {'chatter A rms':>14}")
+    for index in cases:
+        for r in run_case(a.seed, index, a.out, a.robust_out, a.cap):
+            if r["controller"] != "FlexibleJointComputedTorqueController":
+                r["design"] += " (rigid CTC)"
+            print(f"{r['index']:5d} {r['kind']:9} {str(r['ppr']):>11} {r['design']:17} "
+                  f"{str(r['bandwidth_hz']):>13} {str(r['current_per_pulse_A']):>13} "
+                  f"{str(r['max_e_after']):>13} "
+                  f"{str(r['saturated']) + '/' + str(r['n']):>15} {str(r['chatter_A']):>14}",
+                  flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
