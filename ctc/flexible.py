@@ -774,7 +774,7 @@ def controller_from_result(result, log, **options):
         largest P-control error in the log and 3 pulses, and beyond the
         flexible CTC's), when the
         flexible-joint CTC is kept, with the warning (issue 21, item 3: when the flexible design cannot hold the
-        uncertainty set, the design says so and falls back).  Every
+        uncertainty set, the design says so and falls back).  There, every
         checked design's report carries ``current_per_pulse_A``, its current
         step for one encoder pulse (:func:`ctc.protocol.current_per_pulse`).
         ``max_current_per_pulse`` (None, default, or a fraction of the
