@@ -119,8 +119,8 @@ def current_per_pulse(controller, log, *, trajectory=None, sample=20) -> np.ndar
     velocity correction times ``Kv`` with its cube, so a fast design on a
     coarse encoder can swing the drive across its range on every pulse
     (a relay, not the linear loop it was designed as).  Measured, not
-    derived: a copy of the controller runs ``sample`` samples on the
-    quantised reference (at rest on the reference's start), then sample
+    derived: a copy of the controller runs the first ``sample`` samples of
+    the quantised reference (zero pulse error), then sample
     ``sample`` is evaluated with the reading of each joint moved by one pulse
     up and down; the step is the largest change of that joint's own current
     whose two ends are inside the drive's full scale.  The controller itself
