@@ -217,6 +217,18 @@ class _Oracle:
         return self.inner(k, t, q_meas, e_pulses)
 
 
+def oracle_of(inner, s: ir.RobotSettings, ch: dict, changes) -> _Oracle:
+    """``inner`` (a CTC of the prior) switched to the true model at each of the change's
+    times: its f plus the true rigid-equivalent f's change (no switch for a non-payload
+    change)."""
+    switches = []
+    if ch["kind"] in PAYLOAD_KINDS:
+        f_unloaded = ir.rigid_equivalent_truth(s)["f"]
+        switches = [(k, inner.f + ir.rigid_equivalent_truth(c)["f"] - f_unloaded)
+                    for (k, _), c in zip(changes, changed_settings(s, ch))]
+    return _Oracle(inner, switches)
+
+
 def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = False,
              adaptive_options: dict | None = None, design_options: dict | None = None) -> dict:
     import ctc
@@ -249,14 +261,11 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
             "P": ir.PCard(s.p_gain),
             "static": ctc.ComputedTorqueController.from_result(prior, log, **design),
             "adaptive": ctc.AdaptiveComputedTorqueController.from_log(prior, log,
-                                                                      **(adaptive_options or {})),
+                                                                      **adaptive_options),
         }
         if ch["kind"] in PAYLOAD_KINDS:
-            f_unloaded = ir.rigid_equivalent_truth(s)["f"]
-            inner = ctc.ComputedTorqueController.from_result(prior, log, **design)
-            switches = [(k, inner.f + ir.rigid_equivalent_truth(c)["f"] - f_unloaded)
-                        for (k, _), c in zip(changes, changed_settings(s, ch))]
-            controllers["oracle"] = _Oracle(inner, switches)
+            controllers["oracle"] = oracle_of(
+                ctc.ComputedTorqueController.from_result(prior, log, **design), s, ch, changes)
     row["build_warnings"] = [str(w.message)[:160] for w in caught]
     for name, c in controllers.items():
         rob = ir.IndependentRobot(s)
@@ -287,7 +296,7 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
                            for r in c.identifications])
             if repeat:
                 c2 = ctc.AdaptiveComputedTorqueController.from_log(prior, log,
-                                                                   **(adaptive_options or {}))
+                                                                   **adaptive_options)
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     run2 = ir.IndependentRobot(s).run(

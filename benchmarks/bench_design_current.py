@@ -52,9 +52,10 @@ import independent_robot as ir  # noqa: E402
 
 
 def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.1) -> list[dict]:
-    """The two designs' runs on case ``index`` (one dict each)."""
+    """The three designs' runs on case ``index`` (one dict each)."""
     import ctc
     import plant
+    from ctc.protocol import current_per_pulse
 
     csv = br.generate(seed, index, robust_out)
     truth = json.loads(csv.with_suffix(".truth.json").read_text())
@@ -68,20 +69,14 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.
     k_after = int(math.ceil((ch["times_s"][-1] + 0.5) / ts))
     fs = float(s.current_full_scale_A)
     rows = []
-    from ctc.protocol import current_per_pulse
-
     for design, options in (("from_result", {}), (f"cap {cap:g}", dict(max_current_per_pulse=cap)),
                             ("default gains", dict(robust=None))):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             inner = ctc.ComputedTorqueController.from_result(prior, log, **options)
             step = current_per_pulse(inner, log)
-            switches = []
-            if ch["kind"] in bc.PAYLOAD_KINDS:
-                f0 = ir.rigid_equivalent_truth(s)["f"]
-                switches = [(k, inner.f + ir.rigid_equivalent_truth(c)["f"] - f0)
-                            for (k, _), c in zip(changes, after)]
-            run = ir.IndependentRobot(s).run(bc._Oracle(inner, switches), log.trajectory, log.n_total,
+            run = ir.IndependentRobot(s).run(bc.oracle_of(inner, s, ch, changes), log.trajectory,
+                                             log.n_total,
                                              max_step_fraction=ir.max_step_fraction(s),
                                              max_abs_e=bc.DIVERGED_PULSES, changes=changes)
         e = np.abs(run["e"])
