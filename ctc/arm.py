@@ -4,7 +4,7 @@ The law of :mod:`ctc.computed_torque`, for the n joints of a robot model
 (:class:`plant.robot.robot_model.RobotModel`) whose base parameters beta were
 identified (:func:`identification.arm.identify_arm`)::
 
-    a   = qdd_d(t_k + Ts/2) + Kv (qd_d - qd_hat) + Kp (q_d - q_hat)       (outer loop)
+    a   = qdd_d(t_k + Ts/2) + Kv (qd_d - qd_hat) + Kp (q_d - q_hat) + Ki z   (outer loop)
     tau = D_hat(q_m) a + n_hat(q_m, qd_d(t_k + Ts/2)) - tau_f(qd_d(t_k + Ts/2))
     i   = clip(tau / (k Kt), -I_fs, I_fs)                                  (motor current)
 
@@ -29,7 +29,8 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
 * ``q_hat, qd_hat`` the current observer of :mod:`ctc.design` per joint
   (double integrator driven by the commanded acceleration, measurement at
   the centre of the count's cell);
-* Kp, Kv and the observer gains by :func:`ctc.design.design_gains` per joint
+* Kp, Kv (and Ki, with ``integral_bandwidth_hz``: the error sum ``z``, frozen on a
+  joint whose current saturates) and the observer gains by :func:`ctc.design.design_gains` per joint
   (default bandwidth :func:`ctc.design.default_bandwidth_hz`);
 * the current is saturated at the drive's full scale; the observer is then
   driven by the acceleration the saturated current gives (no windup).
@@ -453,6 +454,7 @@ class ArmComputedTorque:
         q, qd, _ = self.trajectory.evaluate(np.zeros(1))
         self.x = np.vstack([q[0], qd[0]])  # rows: q_hat, qd_hat
         self.a_prev = np.zeros(self.n)
+        self.z = np.zeros(self.n)  # error sum of the integral action (rad s)
         self.fallback_t_s = None
 
     def __call__(self, k, t, q_meas, e_pulses):
@@ -478,16 +480,23 @@ class ArmComputedTorque:
         r = y - q_p
         self.x = np.vstack([q_p + L[:, 0] * r, w_p + L[:, 1] * r])
         q_d, qd_d, q_m, qd_m, qdd_m = self._reference(t)
-        a = qdd_m + self.gains.Kv * (qd_d - self.x[1]) + self.gains.Kp * (q_d - self.x[0])
+        a = (qdd_m + self.gains.Kv * (qd_d - self.x[1]) + self.gains.Kp * (q_d - self.x[0])
+             + self.gains.Ki * self.z)
         D, nv = self.terms(self.x[0] + (q_m - q_d), qd_m)
         tf = self._friction_torque(qd_m)
         tau = D @ a + nv - tf
         i = tau / self.torque_per_amp
+        self._integrate(q_d, self.x[0], i)
         if np.any(np.abs(i) > self.limit):  # saturated: the observer sees what the drive gives
             i = np.clip(i, -self.limit, self.limit)
             a = np.linalg.solve(D, i * self.torque_per_amp - nv + tf)
         self.a_prev = a
         return i
+
+    def _integrate(self, q_d, q_hat, i):
+        """The integral action's error sum: ``+ Ts (q_d - q_hat)`` on the joints whose current
+        ``i`` is within the limit (conditional integration: no windup)."""
+        self.z = np.where(np.abs(i) > self.limit, self.z, self.z + self.ts * (q_d - q_hat))
 
 
 class ArmFlexibleComputedTorque(ArmComputedTorque):
@@ -673,7 +682,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             self.ql = self.ql + self.link_gain[:, 0] * r
             self.wl = self.wl + self.link_gain[:, 1] * r
         th, v = self.x[0], self.x[1]
-        a = qdd_m + self.gains.Kv * (qd_d - v) + self.gains.Kp * (q_d - th)
+        a = qdd_m + self.gains.Kv * (qd_d - v) + self.gains.Kp * (q_d - th) + self.gains.Ki * self.z
         # the link model over the sample with the motor on its commanded path (RK4), and the
         # spring torque averaged over the sample (the same quadrature)
         try:
@@ -689,6 +698,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
             # the link estimate restarts at the motor
             self.first = True
             return np.zeros(self.n)
+        self._integrate(q_d, th, i)
         if np.any(np.abs(i) > self.limit):  # saturated: the observer sees what the drive gives
             i = np.clip(i, -self.limit, self.limit)
             a = (i * self.torque_per_amp - mean_ts + tf) / self.Ia

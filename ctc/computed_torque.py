@@ -4,9 +4,10 @@ Control law (Craig, *Introduction to Robotics*, sec. 10.5; Spong,
 Hutchinson & Vidyasagar, *Robot Modeling and Control*, sec. 8.3), per sample
 ``t_k = k Ts``::
 
-    a   = qdd_d + Kv (qd_d - qd_hat) + Kp (q_d - q_hat)          (outer loop)
+    a   = qdd_d + Kv (qd_d - qd_hat) + Kp (q_d - q_hat) + Ki z   (outer loop)
     tau = D_hat(q_hat) a + h_hat(q_hat, v_h) + g_hat(q_hat) - tau_f(v_f)
     i   = tau / (k Kt)                                            (motor current)
+    z  <- z + Ts (q_d - q_hat)   unless the current saturated     (error sum)
 
 * ``D_hat``, ``h_hat`` (Coriolis/centrifugal) and ``g_hat`` are the model of
   :mod:`plant.robot.model` instantiated with the controller's ``f`` (9,): the
@@ -23,6 +24,13 @@ Hutchinson & Vidyasagar, *Robot Modeling and Control*, sec. 8.3), per sample
   and by the quantised position taken at the centre of its pulse cell;
   alternative: a low-pass filtered backward difference), see
   :mod:`ctc.design`.
+* ``Ki z``: integral action, off by default (``Ki = 0``); with
+  ``integral_bandwidth_hz`` (:func:`ctc.design.design_gains`) ``Kp, Kv, Ki``
+  place the loop's poles and the sum's real pole (a PID outer loop, Craig
+  sec. 10.5's "partitioned control" with the error integral added).  It
+  removes the steady part of a torque the model gets wrong, which the PD law
+  leaves as ``d / (D Kp)`` rad.  The sum is frozen on a sample whose current
+  the drive's limit cuts (conditional integration, no windup).
 * ``v_h``, ``v_f``: the velocity used in ``h_hat`` and in the friction
   feed-forward.  Default: the reference velocity ``qd_d`` (``nonlinear_velocity=
   "reference"``), because the robot tracks to a pulse and ``qd_d`` is
@@ -91,6 +99,8 @@ class CTCParameters(NamedTuple):
         Joint-side drive constants of the rig (the core's rig layout).
     kp, kv : tuple of 2 float
         Outer-loop gains (s^-2, s^-1).
+    ki : tuple of 2 float
+        Integral gains (s^-3) on the summed position error (0: no integral action).
     observer_q, observer_w : tuple of 2 float
         Current-observer gains on the position residual (position: 1,
         velocity: 1/s).
@@ -111,6 +121,7 @@ class CTCParameters(NamedTuple):
     rig: RigConstants
     kp: tuple
     kv: tuple
+    ki: tuple
     observer_q: tuple
     observer_w: tuple
     alpha: tuple
@@ -126,7 +137,8 @@ S_Q = 1  # 1, 2 position estimate
 S_W = 3  # 3, 4 velocity estimate
 S_A = 5  # 5, 6 previous outer-loop command
 S_Y = 7  # 7, 8 previous measured position
-S_LEN = 9
+S_I = 9  # 9, 10 sum of the position error times Ts (integral action)
+S_LEN = 11
 
 _NLV = {"reference": 0.0, "estimate": 1.0}
 
@@ -158,9 +170,21 @@ def joint_update(j, k, qm, p, ref, S, lane):
         al = p.alpha[j]
         qh = y
         wh = al * S[S_W + j, lane] + (1.0 - al) * (y - S[S_Y + j, lane]) / ts
-    a = ref[k, 4 + j] + p.kv[j] * (ref[k, 2 + j] - wh) + p.kp[j] * (ref[k, j] - qh)
+    a = (ref[k, 4 + j] + p.kv[j] * (ref[k, 2 + j] - wh) + p.kp[j] * (ref[k, j] - qh)
+         + p.ki[j] * S[S_I + j, lane])
     vn = wh if p.estimate_in_nonlinear else ref[k, 2 + j]
     return y, qh, wh, a, vn
+
+
+@numba.njit(nogil=True)
+def integrate_error(j, k, qh, saturated_by, p, ref, S, lane):
+    """Add ``Ts (q_d - q_hat)`` of joint ``j`` to its error sum, unless its current saturated.
+
+    Conditional integration (anti-windup): while the drive's limit cuts the
+    current (``saturated_by != 0``), the sum is frozen.
+    """
+    if p.ki[j] != 0.0 and saturated_by == 0.0:
+        S[S_I + j, lane] += p.rig.sample_time_s * (ref[k, j] - qh)
 
 
 @numba.njit(nogil=True)
@@ -197,6 +221,8 @@ def _ctc_currents(k, qm2, qm3, f, p, ref, S, lane):
     S[S_A + 1, lane] = a3
     S[S_Y, lane] = y2
     S[S_Y + 1, lane] = y3
+    integrate_error(0, k, q2, u2, p, ref, S, lane)
+    integrate_error(1, k, q3, u3, p, ref, S, lane)
     S[S_INIT, lane] = 1.0
     return i2, i3
 
@@ -259,7 +285,7 @@ def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
         Measured joint angles (rad).
     e2, e3 : float
         Pulse errors (unused).
-    CS : ndarray, shape (9, lanes)
+    CS : ndarray, shape (S_LEN, lanes)
         Estimator states per lane.
     j : int
         Lane.
@@ -418,7 +444,7 @@ class ComputedTorqueController:
         self.cell_centre = bool(cell_centre)
         self.parameters = CTCParameters(
             rig=rig_constants(rig),
-            kp=as_pair(gains.Kp), kv=as_pair(gains.Kv),
+            kp=as_pair(gains.Kp), kv=as_pair(gains.Kv), ki=as_pair(gains.Ki),
             observer_q=as_pair(gains.observer_gain[:, 0]), observer_w=as_pair(gains.observer_gain[:, 1]),
             alpha=as_pair(gains.alpha), estimator=ESTIMATORS.index(gains.estimator),
             estimate_in_nonlinear=nonlinear_velocity == "estimate",

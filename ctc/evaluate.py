@@ -16,9 +16,9 @@ casadi graph and evaluates it over a run:
 * the run is ``step.mapaccum(n)``, evaluated once on the tabulated
   reference.
 
-State ``x`` (13,): robot ``q2, q3, qd2, qd3``; controller ``init``,
+State ``x`` (15,): robot ``q2, q3, qd2, qd3``; controller ``init``,
 ``q_hat`` (2), ``qd_hat`` (2), previous command ``a`` (2), previous position
-``y`` (2).  Per-sample input ``u`` (8,): ``q_d, qd_d, qdd_d`` (6) and the
+``y`` (2), error sum of the integral action (2).  Per-sample input ``u`` (8,): ``q_d, qd_d, qdd_d`` (6) and the
 unquantised reference counts (2).  Output ``y`` (6,): pulse errors (2),
 currents (2), robot angles (2) at ``t_k``.
 
@@ -49,7 +49,7 @@ from .computed_torque import ComputedTorqueController
 
 __all__ = ["CasadiEvaluation", "evaluate_ctc", "build_step_function"]
 
-_NX = 13
+_NX = 15
 _NU = 8
 _NY = 6
 
@@ -72,7 +72,7 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
     Returns
     -------
     casadi.Function
-        ``step(x (13,), u (8,)) -> (x_next (13,), y (6,))`` (layout in the
+        ``step(x (15,), u (8,)) -> (x_next (15,), y (6,))`` (layout in the
         module docstring).
     """
     p = controller.parameters
@@ -114,7 +114,8 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
             wh_run = al * x[7 + j] + (1.0 - al) * (yj - x[11 + j]) / ts
         qh = ca.if_else(init == 0, yj, qh_run)
         wh = ca.if_else(init == 0, wd_ref[j], wh_run)
-        a = ad_ref[j] + p.kv[j] * (wd_ref[j] - wh) + p.kp[j] * (qd_ref[j] - qh)
+        a = (ad_ref[j] + p.kv[j] * (wd_ref[j] - wh) + p.kp[j] * (qd_ref[j] - qh)
+             + p.ki[j] * x[13 + j])
         vn = wh if p.estimate_in_nonlinear else wd_ref[j]
         y_list.append(yj)
         qh_list.append(qh)
@@ -126,21 +127,26 @@ def build_step_function(controller: ComputedTorqueController, f_robot, *, subste
     a = ca.vertcat(*a_list)
     zero2 = ca.DM.zeros(2)
     tau = model.D(fm, qh, vn, zero2, grav) @ a + model.h(fm, qh, vn, zero2, grav) + model.g(fm, qh, vn, zero2, grav)
-    cur = []
+    cur, z_next = [], []
     for j in range(2):
         tj = tau[j]
         if p.friction:
             tj = tj - friction_sx(vn[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
                                   c.ramp_speed[j])
         ij = tj / c.torque_per_amp[j]
+        # error sum of the integral action, frozen while the current saturates
+        z_run = x[13 + j] + ts * (qd_ref[j] - qh[j])
         if i_fs is not None:
+            z_run = ca.if_else(ca.fabs(ij) > float(i_fs), x[13 + j], z_run)
             ij = ca.fmin(ca.fmax(ij, -float(i_fs)), float(i_fs))
         cur.append(ij)
+        z_next.append(z_run if p.ki[j] != 0.0 else x[13 + j])
     cur = ca.vertcat(*cur)
     # the robot: the casadi twin of the core's sample step (plant.simulation.twin)
     x_robot = sample_step_function(c, substeps)(ca.vertcat(q, w), cur, fr)
     qq, ww = x_robot[0:2], x_robot[2:4]
-    x_next = ca.vertcat(qq, ww, 1.0, qh, ca.vertcat(*wh_list), a, ca.vertcat(*y_list))
+    x_next = ca.vertcat(qq, ww, 1.0, qh, ca.vertcat(*wh_list), a, ca.vertcat(*y_list),
+                        ca.vertcat(*z_next))
     y = ca.vertcat(ca.vertcat(*e_out), cur, q)
     return ca.Function("ctc_step", [x, u], [x_next, y], ["x", "u"], ["x_next", "y"])
 
@@ -168,7 +174,7 @@ class CasadiEvaluation:
     after_s : float
         Start of the evaluated part (s).
     function : casadi.Function
-        The run Function ``(x0 (13,), U (8, n)) -> (X (13, n), Y (6, n))``
+        The run Function ``(x0 (15,), U (8, n)) -> (X (15, n), Y (6, n))``
         (``step.mapaccum(n)``).
     """
 

@@ -553,3 +553,23 @@ def test_current_per_pulse_of_an_arm_ctc(arm):
     slow = current_per_pulse(ArmComputedTorque(arm, arm.beta(), rig, TRAJ, bandwidth_hz=bw), log)
     fast = current_per_pulse(ArmComputedTorque(arm, arm.beta(), rig, TRAJ, bandwidth_hz=2 * bw), log)
     assert slow.shape == (2,) and np.all(slow > 0) and np.all(fast > 4 * slow), (slow, fast)
+
+
+def test_arm_ctc_integral_action_removes_a_steady_model_error(arm):
+    """The n-joint CTC with integral action (``integral_bandwidth_hz``): on a robot heavier than
+    its model the PD law sits off by pulses on some joint; the error sum removes that part."""
+    from ctc.arm import ArmComputedTorque
+
+    rig = planar_rig(p_gain=(0.05, 0.05), limit=40.0)
+    robot = arm.beta() * 1.3
+    bias = {}
+    for name, opts in (("pd", {}), ("pid", dict(integral_bandwidth_hz=2.0))):
+        ctc = ArmComputedTorque(arm, arm.beta(), rig, TRAJ, **opts)
+        r = plant.simulate_closed_loop(rig, robot, ctc, trajectory=TRAJ, n_samples=3000, plant=arm)
+        assert r.success
+        bias[name] = np.abs(r.e_pulses[1500:].mean(axis=0))
+        if name == "pid":
+            assert np.all(ctc.gains.Ki > 0) and np.any(ctc.z != 0)
+    j = int(np.argmax(bias["pd"]))
+    assert bias["pd"][j] > 1.0
+    assert bias["pid"][j] < 0.5 * bias["pd"][j]

@@ -342,8 +342,8 @@ def test_robust_design_candidates_stay_within_the_sample_rate(paper_log, ppr, ts
     candidates (for gearboxes with backlash) are capped below fs/6 and fs/3, and a
     larger factor never gives a slower loop."""
     from ctc.design import default_bandwidth_hz
-    from ctc.flexible import (MAX_BANDWIDTH_FRACTION, MAX_ESTIMATOR_FRACTION, ROBUST_DESIGNS,
-                              robust_design_gains)
+    from ctc.flexible import (INTEGRAL_FRACTION, MAX_BANDWIDTH_FRACTION, MAX_ESTIMATOR_FRACTION,
+                              ROBUST_DESIGNS, robust_design_gains, robust_design_options)
 
     rig = dataclasses.replace(paper_log.rig, encoder_ppr=ppr, sample_time_s=ts)
     fs = 1.0 / ts
@@ -356,6 +356,18 @@ def test_robust_design_candidates_stay_within_the_sample_rate(paper_log, ppr, ts
         np.testing.assert_allclose(g.bandwidth_hz, np.minimum(factor * default_bandwidth_hz(rig),
                                                               MAX_BANDWIDTH_FRACTION * fs))
         last = g.bandwidth_hz
+        # its integral-action twin: the same loop and observer bandwidths, the sum's pole at
+        # INTEGRAL_FRACTION of the loop's, stable
+        gi = robust_design_gains(rig, factor, integral=True)
+        np.testing.assert_array_equal(gi.bandwidth_hz, g.bandwidth_hz)
+        np.testing.assert_array_equal(gi.estimator_bandwidth_hz, g.estimator_bandwidth_hz)
+        np.testing.assert_allclose(gi.integral_bandwidth_hz, INTEGRAL_FRACTION * g.bandwidth_hz)
+        assert gi.stable and np.all(gi.Ki > 0) and np.all(g.Ki == 0)
+    # the candidates: the default's integral twin, then each design without and with it
+    names = [n for n, _ in robust_design_options(rig)]
+    assert len(names) == 1 + 2 * len(ROBUST_DESIGNS)
+    assert names[0].endswith("integral action") and not names[1].endswith("integral action")
+    assert sum(n.endswith("integral action") for n in names) == 1 + len(ROBUST_DESIGNS)
 
 
 def test_a_model_switch_places_the_link_observer_for_the_new_link(held_out):
