@@ -87,9 +87,11 @@ it in ``optimisers``):
 ``changes_fourth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261130 --jobs 2`` in a fresh
     output folder: a fourth draw, on a seed chosen before its first run, 56
-    cases of the version that refines the model in use's start state in the
-    payload's box too (``figures/changes_20261130.rst``,
-    ``figures/changes_20261130.txt``; about 110 min on 2 cores).
+    cases (``figures/changes_20261130.rst``, ``figures/changes_20261130.txt``;
+    about 110 min on 2 cores).  The saved figures are of the version whose
+    robust flexible-joint design tries integral action too: its 35 flexible
+    cases were rerun in the first run's folder, the rigid ones (which that
+    version does not change) kept.
 ``current_cap``
     ``benchmarks/bench_design_current.py --seed 20261130 --cases`` the fourth
     draw's 18 flexible payload changes (``figures/design_current_20261130.txt``:

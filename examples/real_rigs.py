@@ -151,10 +151,11 @@ def main(argv=None):
                 rep = c.robustness
                 rows = ", ".join(f"{sc['name']} {sc['max_abs_e'][0]} / {sc['max_abs_e'][1]}"
                                  for sc in rep["scenarios"])
-                bw = " / ".join(f"{v:.0f}" for v in c.gains.bandwidth_hz)
+                bw = " / ".join(f"{v:.0f}" for v in c.gains.bandwidth_hz) + (
+                    " Hz, integral action" if np.any(c.gains.Ki) else " Hz")
                 # the current the law commands for one pulse of quantisation
                 step = current_per_pulse(c, drill)
-                print(f"  {name} ({bw} Hz): {rows} pulses; "
+                print(f"  {name} ({bw}): {rows} pulses; "
                       f"{step[0]:.2f} / {step[1]:.2f} A per pulse")
                 out[f"robustness_{name.split()[0]}"] = dict(rep, current_per_pulse_A=step.tolist())
             # the robot: the truth's emulator constants if given, else the identified ones
