@@ -130,6 +130,12 @@ def ctc_errors(path_name, res, log, plog, f, joints, substeps):
             run = plant.simulate_closed_loop(log.rig, row, ctl, trajectory=log.trajectory,
                                              n_samples=log.n_samples, plant=robot, substeps=substeps)
     name = type(ctl).__name__
+    sel = getattr(ctl, "selection", None)
+    if sel and sel.get("designs"):  # the arm path's flexible designs over the model-error set
+        print(f"arm path's design check (ctrl.selection; worst max|e| pulses over "
+              f"{', '.join(sel['scenarios'])}; kept: {name}): "
+              + "; ".join(f"{d['name']} {d['worst']:g}" for d in sel["designs"])
+              + f"; rigid-equivalent {sel['worst_rigid_equivalent']:g}")
     if not run.success:
         return name, None
     return name, [int(v) for v in run.max_abs_error(0.1)]
