@@ -252,6 +252,7 @@ class ArmComputedTorque:
         self.c = c
         self.trajectory = trajectory
         self.gains = gains_for(rig, gains, **design)
+        self._integral = bool(np.any(self.gains.Ki))  # the error sum only where it acts
         if self.gains.estimator != "observer":
             raise ValueError("ArmComputedTorque uses the observer estimator")
         self.ts = c.sample_time_s
@@ -496,7 +497,8 @@ class ArmComputedTorque:
     def _integrate(self, q_d, q_hat, i):
         """The integral action's error sum: ``+ Ts (q_d - q_hat)`` on the joints whose current
         ``i`` is within the limit (conditional integration: no windup)."""
-        self.z = np.where(np.abs(i) > self.limit, self.z, self.z + self.ts * (q_d - q_hat))
+        if self._integral:
+            self.z = np.where(np.abs(i) > self.limit, self.z, self.z + self.ts * (q_d - q_hat))
 
 
 class ArmFlexibleComputedTorque(ArmComputedTorque):

@@ -1085,7 +1085,7 @@ def robust_design_options(rig):
         design's twin with integral action, then each of :data:`ROBUST_DESIGNS`
         without and with it.
     """
-    out = [("bandwidth x1, link damping {:g}, integral action".format(DEFAULT_LINK_OBSERVER_DAMPING),
+    out = [(f"bandwidth x1, link damping {DEFAULT_LINK_OBSERVER_DAMPING:g}, integral action",
             dict(gains=robust_design_gains(rig, 1.0, integral=True),
                  link_damping=DEFAULT_LINK_OBSERVER_DAMPING))]
     for factor, link_damping in ROBUST_DESIGNS:
