@@ -19,6 +19,13 @@ looking; rigid; friction known or ``null`` at random), this benchmark
    its defaults) on the independent robot through the change
    (``--run-s`` seconds), the first draw's adaptive run twice.
 
+With ``--compliant`` the draws have two-mass flexible joints (half of them
+with gearbox backlash; ``independent_arm.draw(..., compliant=True)``), the
+prior is the library's default identification (``model="auto"``: flexible
+when the springs show), and the adaptive CTC runs on a flexible prior the
+robust flexible-joint design, identifying each window's payload through the
+two-mass arm (:mod:`ctc.arm_adaptive`).
+
 Scores, from 0.5 s after the change to the end (max abs(e) per joint, pulses):
 payload changes -- adaptive within 1 pulse, last mass within 5 % of the
 carried one (of the tool's mass for a put-down); friction changes -- the
@@ -31,6 +38,8 @@ identical bit for bit.
 Usage::
 
     python benchmarks/bench_arm_adaptive.py --n 12 8 --seed 20261501 --jobs 2 [--json out.json]
+    python benchmarks/bench_arm_adaptive.py --compliant --n 6 2 --seed 20261901 --jobs 2
+    python benchmarks/bench_arm_adaptive.py --compliant --kinds pick-up,put-down --n 6 0 --seed 20262101
 
 Prints one line per draw, the summary and the worst cases with their
 settings.  Needs the ``bench`` extra (Robotics Toolbox).
@@ -60,26 +69,28 @@ MASS_TOLERANCE = 0.05
 MIN_RUN_S = 2.6
 
 
-def draw_change(seed: int) -> dict:
-    """The change of a draw: its own random stream (robot and payload draws unchanged)."""
+def draw_change(seed: int, kinds=KINDS) -> dict:
+    """The change of a draw: its own random stream (robot and payload draws unchanged); its
+    kind drawn from ``kinds`` (default all of :data:`KINDS`)."""
     rng = np.random.default_rng([seed, 31])
-    kind = str(rng.choice(KINDS))
+    kind = str(rng.choice(list(kinds)))
     ch = dict(kind=kind, t_s=float(rng.uniform(0.6, 2.0)))
     if kind == "friction":
         ch["factor"] = float(np.exp(rng.uniform(math.log(0.5), math.log(2.0))))
     return ch
 
 
-def run_case(family: str, seed: int, run_s: float, repeat: bool) -> dict:
+def run_case(family: str, seed: int, run_s: float, repeat: bool, compliant: bool = False,
+             kinds=KINDS) -> dict:
     from ctc.arm import ArmComputedTorque
     from ctc.arm_adaptive import ArmAdaptiveComputedTorque
     from identification.arm import identify_arm
 
-    s = ia.draw(family, seed)
+    s = ia.draw(family, seed, compliant=compliant)
     tool = draw_payload(seed)
-    ch = draw_change(seed)
+    ch = draw_change(seed, kinds)
     log = ia.make_log(s)
-    prior = identify_arm(log, model="rigid")
+    prior = identify_arm(log, model="auto" if compliant else "rigid")
     ts = s.sample_time_s
     n = int(round(run_s / ts))
     k_change = int(math.ceil(ch["t_s"] / ts))
@@ -100,6 +111,8 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool) -> dict:
     i_fs = math.inf if s.current_full_scale is None else float(s.current_full_scale)
     row = dict(family=family, seed=seed, n_joints=len(s.active), change=ch, tool=tool,
                m_end=m_end, friction_known=s.friction_known, prior_s=prior.elapsed_s,
+               compliant=compliant, prior_model=prior.model,
+               backlash=bool(compliant and s.backlash is not None and max(s.backlash) > 0),
                settings=dict(encoder_ppr=list(s.encoder_ppr),
                              gear_ratio=[round(g, 1) for g in s.gear_ratio],
                              sample_time_s=ts))
@@ -117,12 +130,17 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool) -> dict:
                          i_max_over_fs=float(np.max(np.abs(out["i"])) / i_fs),
                          warnings=sorted({type(w.message).__name__ for w in caught}))
 
-    _, row["static"] = run(ArmComputedTorque.from_result(prior, log))
-    t0 = time.perf_counter()
-    adaptive = ArmAdaptiveComputedTorque(prior, log)
-    build_s = time.perf_counter() - t0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the design's warnings: the adaptive CTC keeps them
+        static = ArmComputedTorque.from_result(prior, log)
+        t0 = time.perf_counter()
+        adaptive = ArmAdaptiveComputedTorque(prior, log)
+        build_s = time.perf_counter() - t0
+    _, row["static"] = run(static)
+    row["static"]["controller"] = type(static).__name__
     out, row["adaptive"] = run(adaptive)
     row["adaptive"].update(
+        inner=type(adaptive._ctc).__name__, design_warnings=adaptive.design_warnings,
         build_s=build_s, history=[list(map(float, h)) for h in adaptive.payload_history],
         events=[dict(t_s=float(ev["t_s"]), kind=ev["kind"], message=ev["message"])
                 for ev in adaptive.events],
@@ -131,7 +149,9 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool) -> dict:
                    for r in adaptive.identifications],
         fallback=adaptive.fallback_t_s)
     if repeat:
-        again = ArmAdaptiveComputedTorque(prior, log)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            again = ArmAdaptiveComputedTorque(prior, log)
         out2, _ = run(again)
         row["repeat_identical"] = bool(np.array_equal(out["e"], out2["e"])
                                        and np.array_equal(out["i"], out2["i"]))
@@ -177,9 +197,9 @@ TARGETS = (("payload_ok", "payload change: adaptive <= 1 pulse from 0.5 s after"
 
 
 def _job(args):
-    family, seed, run_s, repeat = args
+    family, seed, run_s, repeat, compliant, kinds = args
     try:
-        return run_case(family, seed, run_s, repeat)
+        return run_case(family, seed, run_s, repeat, compliant, kinds)
     except Exception as exc:  # a draw that fails is reported, not hidden
         return dict(family=family, seed=seed, error=f"{type(exc).__name__}: {exc}")
 
@@ -192,7 +212,9 @@ def _line(r) -> str:
             else f"friction x{ch['factor']:.2f}" if ch["kind"] == "friction" else "none")
     a = r["adaptive"]
     ev = ",".join(sorted({e["kind"] for e in a["events"]})) or "-"
-    return (f"{r['family']:8s} {r['seed']}  {what:22s} @ {ch['t_s']:.2f} s  static {r['static']['max_after']}"
+    prior = (f"  prior {r['prior_model']}{'+backlash' if r.get('backlash') else ''}"
+             f" inner {a.get('inner', '?')}" if r.get("compliant") else "")
+    return (f"{r['family']:8s} {r['seed']}  {what:22s} @ {ch['t_s']:.2f} s{prior}  static {r['static']['max_after']}"
             f"  adaptive {a['max_after']}  last {a['history'][-1][1]:.3f} kg  events {ev}  "
             f"window {a['window_s_median']:.2f} s")
 
@@ -205,10 +227,17 @@ def main(argv=None):
     ap.add_argument("--run-s", type=float, default=3.5, help="seconds of each closed-loop run")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--compliant", action="store_true",
+                    help="two-mass flexible joints (half with backlash), the default identification")
+    ap.add_argument("--kinds", default=",".join(KINDS),
+                    help=f"comma-separated kinds of change to draw from (default {','.join(KINDS)})")
     a = ap.parse_args(argv)
+    kinds = tuple(k.strip() for k in a.kinds.split(",") if k.strip())
+    if not kinds or any(k not in KINDS for k in kinds):
+        ap.error(f"--kinds must name some of {', '.join(KINDS)}, got {a.kinds!r}")
     if a.run_s < MIN_RUN_S:
         ap.error(f"--run-s must be at least {MIN_RUN_S} s (a change at 2 s, scored from 0.5 s after)")
-    jobs = [(fam, a.seed + i, a.run_s, (fam, i) == (FAMILIES[0], 0))
+    jobs = [(fam, a.seed + i, a.run_s, (fam, i) == (FAMILIES[0], 0), a.compliant, kinds)
             for fam, n in zip(FAMILIES, a.n) for i in range(n)]
     t0 = time.perf_counter()
     rows = ia.run_jobs(_job, jobs, a.jobs, _line)
@@ -216,7 +245,9 @@ def main(argv=None):
     for r in ok:
         r["score"] = score(r)
     print()
-    print(f"summary over {len(rows)} draws ({len(rows) - len(ok)} errors), seed {a.seed}, "
+    print(f"summary over {len(rows)} {'compliant ' if a.compliant else ''}draws "
+          f"({len(rows) - len(ok)} errors), seed {a.seed}"
+          f"{'' if kinds == KINDS else ', changes ' + '/'.join(kinds)}, "
           f"{time.perf_counter() - t0:.0f} s:")
     for key, text in TARGETS:
         vals = [r["score"][key] for r in ok if r["score"][key] is not None]
@@ -227,9 +258,14 @@ def main(argv=None):
         print(f"  {'fixed latency: two runs identical bit for bit':55s} {'yes' if all(rep) else 'NO'}")
     med = [r["adaptive"]["window_s_median"] for r in ok]
     if med:
-        print(f"  median identification time per window (two fits): "
+        print("  median identification time per window (two fits): "
               + ", ".join(f"{fam} {np.median([r['adaptive']['window_s_median'] for r in ok if r['family'] == fam]):.2f} s"
                           for fam in FAMILIES if any(r['family'] == fam for r in ok)))
+    if a.compliant:
+        models = [f"{r['prior_model']}{'+backlash' if r.get('backlash') else ''} -> {r['adaptive']['inner']}"
+                  for r in ok]
+        print("  priors and inner controllers: "
+              + ", ".join(f"{m} {models.count(m)}" for m in sorted(set(models))))
     bad = [r for r in ok if not all(v for v in r["score"].values() if v is not None)]
     print(f"draws missing a target: {len(bad)}")
     for r in bad[:5]:

@@ -606,6 +606,8 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         self.link_substeps = int(link_substeps)
         if self.link_substeps < 1:
             raise ValueError(f"link_substeps must be >= 1, got {link_substeps!r}")
+        self.link_damping = float(link_damping)
+        self._q_start = q0
         L = two_mass_observer_gains(np.diag(Dl), self.K, self.D, self.Ia, self.gains, link_damping)
         self.link_gain = L[:, 2:4]
         # the link model over a sample, compiled here (never inside the loop)
@@ -646,6 +648,48 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
                    stiffness=m.stiffness_Nm_per_rad, damping=m.damping_Nms_per_rad,
                    motor_inertia=m.motor_inertia_reflected_kgm2, backlash=m.backlash_rad,
                    **options)
+
+    def set_beta(self, beta) -> np.ndarray:
+        """Switch the model to the rigid-equivalent ``beta``; the link model follows.
+
+        The link's beta becomes ``beta - Ia @ columns`` and the link estimate's
+        observer gains are placed anew for its diagonal inertia at the
+        reference's start (:func:`ctc.flexible.two_mass_observer_gains`; a
+        payload lowers the link mode the link poles sit at), as
+        :meth:`ctc.flexible.FlexibleJointComputedTorqueController.set_model_f`
+        does on the PUMA path; the motor loop keeps its gains and every
+        estimate its state.
+
+        Parameters
+        ----------
+        beta : array_like, shape (r,)
+            Rigid-equivalent base parameters (link plus ``Ia``).
+
+        Returns
+        -------
+        ndarray, shape (r,)
+
+        Raises
+        ------
+        ValueError
+            beta of the wrong size or not finite, or whose link model's inertia
+            matrix is not positive definite at the reference's start (the model
+            in use is then kept).
+        """
+        from .flexible import two_mass_observer_gains
+
+        old = self.beta, self.link_beta
+        super().set_beta(beta)
+        self.link_beta = self.beta - self.Ia @ self.plant.motor_inertia_columns
+        Dl, _ = self._link_terms(self._q_start, np.zeros(self.n))
+        if np.any(np.linalg.eigvalsh(Dl) <= 0):
+            self.beta, self.link_beta = old
+            raise ValueError("the link model's inertia matrix (beta minus the motor inertias) is "
+                             "not positive definite at the reference's start")
+        L = two_mass_observer_gains(np.diag(Dl), self.K, self.D, self.Ia, self.gains,
+                                    self.link_damping)
+        self.link_gain = L[:, 2:4]
+        return self.beta
 
     def _link_terms(self, q, qd):
         """The link model's ``D_link(q)`` (n, n) and ``n_link(q, qd)`` (n,)."""

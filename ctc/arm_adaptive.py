@@ -3,8 +3,8 @@
 The paper's proposal (sec. 5: identify a carried load from a 100-200 ms
 window and feed it to the computed-torque controller), for a robot model of
 n joints (:class:`plant.robot.robot_model.RobotModel`), with the safety
-rules of the PUMA path's supervisor (:mod:`ctc.adaptive`, issue 21) that
-carry over to an arm whose prior is rigid:
+rules of the PUMA path's supervisor (:mod:`ctc.adaptive`, issue 21), on a
+rigid or a two-mass flexible prior (the last paragraph):
 
 1. **Windows.**  The inner controller is the arm's computed torque
    (:class:`ctc.arm.ArmComputedTorque`, with its current limit and its
@@ -92,10 +92,44 @@ carry over to an arm whose prior is rigid:
    pending no other window is identified.  The kernels are compiled when
    the controller is built (one identification of the prior's log).
 
-A flexible prior is refused: the payload identification of
-:mod:`identification.arm_payload` fits a rigid arm (identify the arm with
-``model="rigid"``, or use the static controller of
-:meth:`ctc.arm.ArmComputedTorque.from_result`).
+**A flexible prior** (an arm identified with two-mass joints,
+``model == "flexible"``) gets the inner controller of
+:meth:`ctc.arm.ArmComputedTorque.from_result`: the robust flexible-joint
+design (:class:`ctc.arm.ArmFlexibleComputedTorque`), or the
+rigid-equivalent CTC when no flexible design holds the model-error set
+(its warning is kept in ``design_warnings``).  Each window's payload is
+identified through the prior's two-mass arm
+(:func:`identification.arm_payload.identify_arm_payload`: the springs,
+dampers, motor inertias and backlash held, the links' start state the
+springs' quasi-static deflection under the loaded link plus refined
+offsets), and so is the friction rival; an update switches the
+controller's rigid-equivalent model, whose link model and link-observer
+gains follow (:meth:`ctc.arm.ArmFlexibleComputedTorque.set_beta`).  The
+PUMA path does the same (:class:`ctc.adaptive.AdaptiveComputedTorqueController`
+on a flexible prior).
+
+**The switch check** (flexible priors).  The inner controller's design was
+checked on the identified arm as it was (its model-error set: stiffness
++-30 %, damping x0.5-2), not carrying a payload, and a computed torque
+multiplies its feedback by the model's inertia: a heavier model raises
+the loop gain at the springs' modes.  Measured on
+``benchmarks/bench_arm_adaptive.py --compliant`` (seed 20261901, planar
+draw 20261902, a soft second joint, the rigid-equivalent CTC chosen): the
+right 4.22 kg installed at 1.9 s drove the arm from 17 / 62 to 6521 / 760
+pulses within 0.09 s, past the watchdog, and the P law could not hold the
+loaded arm either.  So before an update to another payload takes effect,
+a copy of the inner controller with the new model runs on the prior's
+two-mass arm carrying that payload along the first
+:data:`ctc.arm.FLEXIBLE_CHECK_S` seconds of the reference (the design
+check's simulation), and the update is made only when its error after
+0.1 s stays within :data:`SWITCH_MARGIN_PULSES` of the worst case the
+design check accepted (at least :data:`ctc.arm.GOAL_PULSES`).  Otherwise
+the model is kept (decision ``'unsafe'``, an event ``'unsafe'`` and a
+``RuntimeWarning`` once per payload): the controller says that it
+cannot carry the payload it found, rather than carry it unstably.  A
+later estimate of the same payload (within 25 % + 50 g) is refused
+without another check.  Rigid priors skip the check (a rigid arm's CTC
+with its right model is the design).
 
 The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
@@ -113,10 +147,10 @@ import numpy as np
 
 from .adaptive import (DEFAULT_LATENCY_S, UnmodelledChangeWarning, residual_statistics,
                        same_payload, vuong_residual_statistic)
-from .arm import ArmComputedTorque, log_envelope
+from .arm import ArmComputedTorque, ArmFlexibleComputedTorque, log_envelope
 
 __all__ = ["ArmAdaptiveComputedTorque", "DEFAULT_ARM_LATENCY_S", "DEFAULT_ARM_WINDOW_S",
-           "ARM_PERSISTENCE_WINDOWS", "REFINEMENT_KG"]
+           "ARM_PERSISTENCE_WINDOWS", "REFINEMENT_KG", "SWITCH_MARGIN_PULSES"]
 
 #: Default window (s): the paper's 100-200 ms, its upper end (a window of an n-joint arm
 #: determines the mass and the first moment of a point mass on the last link;
@@ -128,6 +162,11 @@ DEFAULT_ARM_LATENCY_S = DEFAULT_LATENCY_S
 
 #: Successive agreeing estimates that update after a rollback or an unexplained change.
 ARM_PERSISTENCE_WINDOWS = 2
+
+
+#: The switch check's tolerance (flexible priors, module docstring): an update's model may
+#: track the loaded identified arm this many pulses worse than the design check's worst case.
+SWITCH_MARGIN_PULSES = 1.0
 
 
 #: A new estimate whose mass is within this many kg (plus 5 %) of the payload in use
@@ -175,8 +214,9 @@ class ArmAdaptiveComputedTorque:
     Parameters
     ----------
     prior : identification.arm.ArmIdentificationResult
-        The unloaded arm, identified rigid (its plant, base parameters and
-        rig, with the identified friction when the sidecar had none).
+        The unloaded arm, identified rigid or flexible (its plant, base
+        parameters and rig, with the identified friction when the sidecar
+        had none; a flexible result also its joints, ``plant_row``).
     log : plant.logs.arm_log.ArmLog
         The log the prior was identified from (rig, reference; its first
         window compiles the kernels).
@@ -200,10 +240,17 @@ class ArmAdaptiveComputedTorque:
         (default): :func:`ctc.arm.log_envelope`, twice the log's largest
         P-control errors.
     **design
-        Gains of the inner controller (:class:`ctc.arm.ArmComputedTorque`).
+        Gains of the inner controller (:class:`ctc.arm.ArmComputedTorque`; of
+        a flexible prior's also ``max_current_per_pulse``, as
+        :meth:`ctc.arm.ArmComputedTorque.from_result`).
 
     Attributes
     ----------
+    flexible : bool
+        The prior is a two-mass arm (module docstring).
+    design_warnings : list of str
+        A flexible prior's design warnings (e.g. the rigid-equivalent CTC
+        kept because no flexible design holds the model-error set).
     beta : ndarray, shape (r,)
         The base parameters in use.
     payload : dict or None
@@ -213,11 +260,13 @@ class ArmAdaptiveComputedTorque:
         ``(0.0, 0.0)``.
     events : list of dict
         ``t_s``, ``kind`` (``'update'``, ``'refinement'``, ``'rollback'``,
-        ``'unexplained'``) and ``message``.
+        ``'unexplained'``, ``'unsafe'``) and ``message``.
     identifications : list of dict
         Per identified window: ``window_s``, ``decision`` (``'no change'``,
         ``'update'``, ``'refinement'``, ``'held'``, ``'implausible'``,
-        ``'unexplained'``, ``'friction'``, ``'failed'``; a fitted friction
+        ``'unexplained'``, ``'friction'``, ``'unsafe'``, ``'failed'``; a
+        flexible prior's switch check adds ``switch_check_pulses`` and
+        ``switch_check_bound``; a fitted friction
         rival adds ``friction_z``, ``friction_y`` and ``friction_factors``), ``mass_kg``, ``mass_std``, ``lr``, ``threshold``,
         ``y_now``, ``y_new`` (pulses^2), ``tracking_mse`` (pulses^2),
         ``elapsed_s``, ``reason`` and, when the decision was taken on the
@@ -226,7 +275,8 @@ class ArmAdaptiveComputedTorque:
     Raises
     ------
     ValueError
-        A prior that is not a successful rigid arm identification, a window
+        A prior that is not a successful arm identification (a flexible one
+        without its joints), a window
         shorter than 20 samples, a latency that is neither >= 0 nor
         ``"measured"``, ``false_alarm`` outside (0, 1), ``explain_factor`` <= 1,
         or any error of :class:`ctc.arm.ArmComputedTorque`.
@@ -244,10 +294,10 @@ class ArmAdaptiveComputedTorque:
         if not (hasattr(prior, "get") and prior.get("plant") is not None
                 and prior.get("beta") is not None):
             raise ValueError("prior must be an identification.arm.identify_arm result")
-        if prior.get("model", "rigid") != "rigid":
-            raise ValueError("ArmAdaptiveComputedTorque needs a rigid prior (the payload "
-                             "identification fits a rigid arm): identify the arm with "
-                             "model='rigid'")
+        self.flexible = prior.get("model", "rigid") != "rigid"
+        if self.flexible and prior.get("plant_row") is None:
+            raise ValueError("a flexible prior needs its two-mass arm's joints (plant_row of an "
+                             "identification.arm.identify_arm result with model 'flexible')")
         if not prior.get("success", False):
             raise ValueError(f"the prior's identification did not succeed: {prior.get('message')}")
         self.prior = prior
@@ -280,16 +330,33 @@ class ArmAdaptiveComputedTorque:
                 raise ValueError(f"envelope must be n pulses, None or 'log', got {envelope!r}")
             envelope = log_envelope(log)
         self.prior_beta = np.asarray(prior["beta"], dtype=float).copy()
-        self._ctc = ArmComputedTorque(prior["plant"], self.prior_beta, prior["rig"],
-                                      self.trajectory, envelope=envelope, **design)
+        self.design_warnings = []
+        if self.flexible:
+            # the robust flexible-joint design of the prior (ctc.arm.ArmComputedTorque.from_result:
+            # the flexible-joint CTC, or the rigid-equivalent one when no flexible design holds
+            # the model-error set), for the reference to be tracked
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                self._ctc = ArmComputedTorque.from_result(
+                    prior, dataclasses.replace(log, trajectory=self.trajectory),
+                    envelope=envelope, **design)
+            for w in caught:
+                self.design_warnings.append(str(w.message))
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        else:
+            self._ctc = ArmComputedTorque(prior["plant"], self.prior_beta, prior["rig"],
+                                          self.trajectory, envelope=envelope, **design)
         self.n = self._ctc.n
         self._identify_payload = identify_arm_payload
         self._identify_friction = identify_arm_friction_change
         self._z_threshold = float(norm.isf(self.false_alarm))
-        # compile the replay kernels now, not inside the loop: one window of the prior's log
+        # compile the replay kernels now, not inside the loop: one window of the prior's log,
+        # the payload's and the friction rival's
         k1 = min(log.n_samples, max(self.window_n, 20))
-        identify_arm_payload(log, prior, window_s=(0.0, (k1 - 1) * ts), bounds=self.bounds,
-                             workers=1, max_iter=2)
+        first = (0.0, (k1 - 1) * ts)
+        identify_arm_payload(log, prior, window_s=first, bounds=self.bounds, workers=1, max_iter=2)
+        identify_arm_friction_change(log, prior, window_s=first, currents=None, workers=1,
+                                     max_iter=2)
         self.reset()
 
     @classmethod
@@ -335,6 +402,7 @@ class ArmAdaptiveComputedTorque:
         self._causes = []  # their causes ('friction', 'unknown')
         self._friction_named = False  # a friction change reported in this episode
         self._warned = False
+        self._unsafe = []  # payloads (kg) the switch check refused (flexible priors)
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (n,) A for sample ``k`` (sampled-controller protocol)."""
@@ -546,8 +614,14 @@ class ArmAdaptiveComputedTorque:
         # update the estimates it rests on, pooled by their information (inverse variances
         # of the mass; equal weights without them): single windows of a small payload
         # scatter by 10 %
-        self._pool = (self._pool + agreed) if kind == "refinement" else list(agreed)
-        beta, m_pool, com = _pooled(self._pool)
+        pool = (self._pool + agreed) if kind == "refinement" else list(agreed)
+        beta, m_pool, com = _pooled(pool)
+        if kind == "update" and m_pool > 0 and self.flexible:
+            refused = self._switch_refused(k1, m_pool, beta, rec)
+            if refused:
+                rec.update(decision="unsafe", reason=refused)
+                return
+        self._pool = pool
         # the effective sample is set by _identify once the window's wall time is known
         self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com) if m_pool > 0 else None, mse)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"
@@ -555,6 +629,54 @@ class ArmAdaptiveComputedTorque:
                       else "")
                    + (f"; {len(self._pool)} estimates pooled: {m_pool:.3g} kg"
                       if len(self._pool) > 1 else ""))
+
+    def _switch_refused(self, k1, mass, beta, rec):
+        """The switch check of a flexible prior (module docstring): None when the update to
+        ``beta`` may take effect, else the reason it may not."""
+        import copy
+
+        import plant as _plant
+
+        from .arm import FLEXIBLE_CHECK_S, GOAL_PULSES
+
+        if any(same_payload(mass, m) for m in self._unsafe):
+            return (f"{mass:.3g} kg is a payload the switch check refused; the model is kept")
+        sel = getattr(self._ctc, "selection", None) or {}
+        worsts = [sel.get("worst_flexible"), sel.get("worst_rigid_equivalent")]
+        promised = (sel.get("worst_flexible") if isinstance(self._ctc, ArmFlexibleComputedTorque)
+                    else sel.get("worst_rigid_equivalent"))
+        if promised is None or not np.isfinite(promised):
+            promised = min((w for w in worsts if w is not None and np.isfinite(w)),
+                           default=GOAL_PULSES)
+        bound = max(float(promised), GOAL_PULSES) + SWITCH_MARGIN_PULSES
+        rig = self.prior["rig"]
+        n = int(round(FLEXIBLE_CHECK_S / rig.sample_time_s))
+        row = np.array(self.prior["plant_row"], dtype=float)
+        row[:self.prior_beta.size] = beta
+        ctrl = copy.deepcopy(self._ctc)
+        ctrl.envelope = None  # the law itself, as the design check saw it
+        ctrl.reset()
+        ctrl.set_beta(beta)
+        try:
+            r = _plant.simulate_closed_loop(rig, row, ctrl, trajectory=self.trajectory,
+                                            n_samples=n, plant=self.prior["flexible_plant"],
+                                            substeps=int(self.prior.get("flexible_substeps") or 8))
+            err = float(r.max_abs_error(0.1).max()) if r.success else math.inf
+        except ValueError:
+            err = math.inf
+        rec["switch_check_pulses"] = err
+        rec["switch_check_bound"] = bound
+        if np.isfinite(err) and err <= bound:
+            return None
+        self._unsafe.append(mass)
+        msg = (f"the controller cannot carry the {mass:.3g} kg payload it identified: with "
+               f"that model, on the identified arm carrying it, it tracks "
+               f"{err:.4g} pulses after 0.1 s, more than {bound:.4g} (its design check's "
+               f"worst case {float(promised):.4g} + {SWITCH_MARGIN_PULSES:g}); the model in "
+               "use is kept")
+        self._event(k1, "unsafe", msg, mass_kg=mass, check_pulses=err)
+        warnings.warn(msg, RuntimeWarning, stacklevel=4)
+        return msg
 
     def _unexplained(self, k1, rec) -> None:
         """A window no plausible payload describes: reported the second time in a row."""

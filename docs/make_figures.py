@@ -127,6 +127,11 @@ it in ``optimisers``):
     arms and PUMA joints 1-3 of the independent simulator, the static and the
     adaptive CTC of the arm side by side (``figures/bench_arm_adaptive.txt``); then
     ``--n 20 12 --seed 20261601``, a second draw (``figures/bench_arm_adaptive_20261601.txt``).
+``arm_adaptive_compliant``
+    ``benchmarks/bench_arm_adaptive.py --compliant --n 6 2 --seed 20262001 --jobs 2``:
+    the same changes on compliant arms (two-mass joints, half with backlash), the
+    prior the default identification, flexible priors adapted through their
+    two-mass arm (``figures/bench_arm_adaptive_compliant_20262001.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -160,7 +165,8 @@ SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
             "changes_fourth", "current_cap",
-            "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive")
+            "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive",
+            "arm_adaptive_compliant")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -506,6 +512,14 @@ def arm_adaptive(ctx):
         if ctx["quick"]:
             break
     return out
+
+
+def arm_adaptive_compliant(ctx):
+    # compliant arms, a seed chosen before looking (20261901 served development)
+    q = ["--n", "1", "0", "--run-s", "2.6"] if ctx["quick"] else ["--n", "6", "2", "--jobs", "2"]
+    text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", *q, "--seed", "20262001"],
+                      ctx["raw"], "bench_arm_adaptive_compliant_20262001", timeout=3 * 3600)
+    return {"20262001": {"printed": text.splitlines()[-18:], "wall_s": wall}}
 
 
 # -------------------------------------------------------------------------------- main

@@ -31,6 +31,21 @@ the rig's P law on the logged errors (a P-control log, exact) or the
 controller's own logged commands (``currents="logged"``: a
 computed-torque run, where the controller knows what it commanded).
 
+A **flexible prior** (an :func:`identification.arm.identify_arm` result with
+``model == "flexible"``) is searched through its two-mass arm
+(:func:`plant.simulation.arm.arm_plant` with ``flexible=True``; its springs,
+dampers, reflected motor inertias and backlash held at the identified
+values): the payload loads the link, whose base parameters move by the same
+``K dp``.  The encoders read the motors, so the refined start angles and
+rates are the motors'; the links start where the springs carry the loaded
+link's inverse dynamics along the reference at the window's start
+(``tau_s = D_link(q) qdd_ref + n_link(q, qd)``, the deflection ``tau_s / K``
+plus half the backlash gap in its direction, the link rates the motors'):
+a payload bends the springs, and a start state that ignored that would
+start each window with a spring transient of the payload's size (M. W.
+Spong, J. Dyn. Syst. Meas. Control 109, 1987: the link is driven by the
+spring torque alone).
+
 Bounded Levenberg--Marquardt (:func:`identification.refinement.refine`)
 from several masses; standard errors from the Gauss--Newton sandwich
 (:func:`identification.uncertainty.sandwich_covariance`).  A centre-of-mass
@@ -75,22 +90,28 @@ _RATE_BOX = 0.2
 #: Samples each side of the window's start for the start-rate guess.
 _RATE_SAMPLES = 5
 
+#: Half-width (pulses) of a two-mass arm's link-angle offsets from the springs'
+#: quasi-static start (:meth:`ArmPayloadProblem.start_box`): the springs' ringing.
+_LINK_BOX_PULSES = 20.0
+
 
 class ArmPayloadProblem:
     """Residuals of the logged-input predictor over a window, one payload per row of X.
 
     ``X = [m, cx, cy, cz, qd0_1 .. qd0_n, dq0_1 .. dq0_n]``: the payload
     (point mass on the last link), the window's start rates (rad/s) and its
-    start angles' offsets from the centres of their count cells (pulses; a
-    row of 4 + n values starts at the centres).
+    start angles' offsets from the centres of their count cells (pulses;
+    zero offsets start at the centres).  A two-mass arm's rows go on with
+    its links' start angle offsets (pulses) and rate offsets (rad/s) from
+    the springs' quasi-static start (module docstring; :meth:`start_box`).
 
     Parameters
     ----------
     log : plant.logs.arm_log.ArmLog
     plant : plant.simulation.arm.ArmPlant
-        The arm (rigid; the rig's friction).
+        The arm (rigid, or two-mass with ``joints``; the rig's friction).
     prior : array_like, shape (r,)
-        The unloaded arm's base parameters.
+        The unloaded arm's base parameters (rigid-equivalent for a two-mass arm).
     k0, k1 : int
         The window: samples ``k0 .. k1 - 1``.
     currents : ndarray, shape (n_samples, n)
@@ -101,15 +122,24 @@ class ArmPayloadProblem:
         RK4 steps per sample.
     workers : int, optional
         Threads of the simulations.
+    joints : array_like, shape (4 n,), optional
+        A two-mass arm's ``[K (n), D (n), Ia (n), b (n)]`` (N m/rad, N m s/rad,
+        kg m^2, rad; :meth:`plant.simulation.arm.ArmPlant.lane_parameters`),
+        required with a flexible ``plant``.
 
     Attributes
     ----------
     nfev : int
         Candidates simulated so far.
+
+    Raises
+    ------
+    ValueError
+        A flexible plant without its joints (or joints for a rigid one).
     """
 
     def __init__(self, log, plant, prior, k0, k1, currents, *, gain=DEFAULT_GAIN,
-                 substeps=ARM_REFINE_SUBSTEPS, workers=None):
+                 substeps=ARM_REFINE_SUBSTEPS, workers=None, joints=None):
         self.log, self.plant = log, plant
         self.model = plant.model
         self.prior = np.asarray(prior, dtype=float)
@@ -127,23 +157,89 @@ class ArmPayloadProblem:
         self.nfev = 0
         self.bound = 1e6
         self.sim_plant = plant
+        self.joints = None
+        if plant.flexible != (joints is not None):
+            raise ValueError("a two-mass plant needs its joints [K, D, Ia, b] (and a rigid one none)")
+        if joints is not None:
+            self.joints = np.asarray(joints, dtype=float).reshape(-1)
+            if self.joints.shape != (4 * self.n,) or not np.all(np.isfinite(self.joints)):
+                raise ValueError(f"joints must be 4 n = {4 * self.n} finite numbers [K, D, Ia, b]")
+            # the reference's acceleration at the window's start: the springs carry the
+            # link's inverse dynamics along it (the links' start state, _link_start)
+            t0 = np.array([self.k0 * log.rig.sample_time_s])
+            self.qdd0 = np.asarray(log.trajectory.evaluate(t0)[2], dtype=float).reshape(self.n)
+            self._dyn = plant.dynamics_kernel
 
     #: Values of the hypothesis in front of the start state in a row of X (the payload's 4).
     n_model = 4
+
+    @property
+    def n_nuisance(self) -> int:
+        """Start-state values after the hypothesis in a row of X: the motors' (encoders')
+        rates and count offsets (2 n), and a two-mass arm's link angle offsets (pulses)
+        and rate offsets (rad/s) from the springs' quasi-static start (2 n more)."""
+        return (4 if self.joints is not None else 2) * self.n
+
+    def start_box(self, k0):
+        """The start-state nuisances' guess ``(n_nuisance,)`` and box ``(n_nuisance, 2)``.
+
+        The rates: the reference's minus the logged error's slope, +- 0.2 rad/s
+        + 20 %; the count offsets within +-0.5 pulse of the cell's centre; a
+        two-mass arm's link offsets within +-20 pulses and its link rate
+        offsets within the rates' half-width (the springs ring about their
+        quasi-static deflection).
+        """
+        n = self.n
+        qd_guess, rate_box = _start_box(self.log, self, k0)
+        guess = [qd_guess, np.zeros(n)]
+        box = [rate_box, np.tile([-0.5, 0.5], (n, 1))]
+        if self.joints is not None:
+            half = 0.5 * (rate_box[:, 1] - rate_box[:, 0])
+            guess += [np.zeros(n), np.zeros(n)]
+            box += [np.tile([-_LINK_BOX_PULSES, _LINK_BOX_PULSES], (n, 1)),
+                    np.column_stack([-half, half])]
+        return np.concatenate(guess), np.vstack(box)
+
+    def row(self, beta, *extra) -> np.ndarray:
+        """The plant's lane row of base parameters ``beta``: ``[beta, joints, *extra]``."""
+        parts = [np.asarray(beta, dtype=float).reshape(-1)]
+        if self.joints is not None:
+            parts.append(self.joints)
+        return np.concatenate(parts + [np.asarray(e, dtype=float).reshape(-1) for e in extra])
+
+    def _link_start(self, beta, th, thd) -> np.ndarray:
+        """A two-mass arm's start state ``(q, qd, th, thd)`` (4 n,) for motors at ``th, thd``:
+        the links where the springs carry the link's inverse dynamics along the reference
+        (module docstring), two fixed-point passes for the link angle in ``D_link(q)``."""
+        n = self.n
+        K, Ia, b = self.joints[:n], self.joints[2 * n:3 * n], self.joints[3 * n:]
+        link_beta = np.asarray(beta, dtype=float) - Ia @ self.plant.motor_inertia_columns
+        q = np.array(th, dtype=float)
+        sc = np.empty(2 * n)
+        for _ in range(2):
+            sc[0::2], sc[1::2] = np.sin(q), np.cos(q)
+            lower, nvec = self._dyn(sc, np.asarray(thd, dtype=float), link_beta)
+            D = np.zeros((n, n))
+            D[np.tril_indices(n)] = lower
+            D = D + np.tril(D, -1).T
+            tau = D @ self.qdd0 + nvec
+            q = th - (tau / K + 0.5 * b * np.sign(tau))
+        return np.concatenate([q, thd, th, thd])
 
     def lane(self, x) -> np.ndarray:
         """Lane parameters of the row ``x`` for the replay: the loaded arm's beta.
 
         Parameters
         ----------
-        x : array_like, shape (4 + 2 n,) or (4,)
+        x : array_like, shape (4 + n_nuisance,) or (4,)
             A row of X.
 
         Returns
         -------
-        ndarray, shape (1, r)
+        ndarray, shape (1, r) or (1, r + 4 n)
+            A two-mass arm's row holds its joints after beta.
         """
-        return self.beta(x)[None]
+        return self.row(self.beta(x))[None]
 
     def beta(self, x) -> np.ndarray:
         """Base parameters (r,) of the arm carrying the payload ``x[:4]``.
@@ -165,7 +261,7 @@ class ArmPayloadProblem:
 
         Parameters
         ----------
-        X : array_like, shape (m, 4 + 2 n) or (4 + 2 n,)
+        X : array_like, shape (m, 4 + n_nuisance) or (4 + n_nuisance,)
 
         Returns
         -------
@@ -175,17 +271,25 @@ class ArmPayloadProblem:
         Raises
         ------
         ValueError
-            Rows of another length than ``n_model + 2 n``.
+            Rows of another length than ``n_model + n_nuisance``.
         """
         X = np.asarray(X, dtype=float)
         single = X.ndim == 1
         X = np.atleast_2d(X)
         n, p = self.n, self.n_model
-        if X.shape[1] != p + 2 * n:
-            raise ValueError(f"a row of X holds {p + 2 * n} values, got {X.shape[1]}")
+        width = p + self.n_nuisance
+        if X.shape[1] != width:
+            raise ValueError(f"a row of X holds {width} values, got {X.shape[1]}")
         # each row has its own start state: one batch, a lane per row
         starts = np.hstack([self.q0 + X[:, p + n:p + 2 * n] / self.spr, X[:, p:p + n]])
-        sim = replay_arm(self.sim_plant, np.vstack([self.lane(x) for x in X]), self.log.rig,
+        lanes = np.vstack([self.lane(x) for x in X])
+        if self.joints is not None:  # the encoders read the motors; the links at the springs'
+            starts = np.vstack([self._link_start(row[:self.prior.size], s[:n], s[n:])
+                                for row, s in zip(lanes, starts)])
+            # the springs' ringing at the window's start: the links' offsets from there
+            starts[:, :n] += X[:, p + 2 * n:p + 3 * n] / self.spr
+            starts[:, n:2 * n] += X[:, p + 3 * n:p + 4 * n]
+        sim = replay_arm(self.sim_plant, lanes, self.log.rig,
                          self.ref, self.e, self.i, gain=self.gain, substeps=self.substeps,
                          initial_state=starts, bound=self.bound, workers=self.workers)
         R = sim.errors.reshape(X.shape[0], -1).copy()
@@ -212,10 +316,11 @@ class ArmFrictionChangeProblem(ArmPayloadProblem):
     """
 
     def __init__(self, log, plant, beta, k0, k1, currents, *, gain=DEFAULT_GAIN,
-                 substeps=ARM_REFINE_SUBSTEPS, workers=None):
+                 substeps=ARM_REFINE_SUBSTEPS, workers=None, joints=None):
         super().__init__(log, plant, beta, k0, k1, currents, gain=gain, substeps=substeps,
-                         workers=workers)
-        self.sim_plant = arm_plant(plant.model, plant.base, lane_friction=True)
+                         workers=workers, joints=joints)
+        self.sim_plant = arm_plant(plant.model, plant.base, lane_friction=True,
+                                   flexible=plant.flexible)
         self.friction = friction_layout(log.rig)[0]  # (n, 3) joint side
         self.n_model = 2 * self.n
 
@@ -229,12 +334,14 @@ class ArmFrictionChangeProblem(ArmPayloadProblem):
 
         Returns
         -------
-        ndarray, shape (1, r + 3 n)
+        ndarray, shape (1, r + 3 n) or (1, r + 7 n)
+            A two-mass arm's row holds its joints between beta and the friction
+            (which acts on its motors).
         """
         n = self.n
         fv, fc = np.exp(np.asarray(x[:n], dtype=float)), np.exp(np.asarray(x[n:2 * n], dtype=float))
         F = self.friction * np.column_stack([fv, fc, fc])
-        return np.concatenate([self.prior, F.reshape(-1)])[None]
+        return self.row(self.prior, F)[None]
 
 
 def _start_box(log, problem, k0):
@@ -257,7 +364,7 @@ FRICTION_CHANGE_LOG_BOX = math.log(4.0)
 
 
 def identify_arm_friction_change(log, prior, *, beta=None, window_s, currents="logged",
-                                 gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, max_iter=40,
+                                 gain=DEFAULT_GAIN, substeps=None, max_iter=40,
                                  workers=None) -> OptimizeResult:
     """Fit a change of the drive friction on a window of an arm's log (the payload's rival).
 
@@ -296,7 +403,8 @@ def identify_arm_friction_change(log, prior, *, beta=None, window_s, currents="l
     ValueError
         As :func:`identify_arm_payload`.
     """
-    plant, rig, beta_prior = _prior_of(prior, log, None)
+    plant, rig, beta_prior, joints = _prior_of(prior, log, None)
+    substeps = _substeps_of(prior, joints, substeps)
     if rig is not log.rig:
         import dataclasses
 
@@ -308,11 +416,11 @@ def identify_arm_friction_change(log, prior, *, beta=None, window_s, currents="l
     i = _currents_of(log, currents)
     n = log.n_joints
     problem = ArmFrictionChangeProblem(log, plant, held, k0, k1, i, gain=gain, substeps=substeps,
-                                       workers=workers)
-    qd_guess, rate_box = _start_box(log, problem, k0)
+                                       workers=workers, joints=joints)
+    guess, nuisance_box = problem.start_box(k0)
     box = np.vstack([np.tile([-FRICTION_CHANGE_LOG_BOX, FRICTION_CHANGE_LOG_BOX], (2 * n, 1)),
-                     rate_box, np.tile([-0.5, 0.5], (n, 1))])
-    start = np.concatenate([np.zeros(2 * n), qd_guess, np.zeros(n)])
+                     nuisance_box])
+    start = np.concatenate([np.zeros(2 * n), guess])
     ref = refine(problem, start[None], box, max_iter=max_iter, ftol=1e-8)
     x_all = np.asarray(ref.x, dtype=float)
     ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
@@ -434,33 +542,57 @@ class ArmPayloadResult(OptimizeResult):
         return ax
 
 
+def _substeps_of(prior, joints, substeps) -> int:
+    """RK4 steps per sample: the caller's, else the refinement's, at least a flexible fit's."""
+    if substeps is not None:
+        return int(substeps)
+    fit = prior.get("flexible_substeps") if joints is not None and hasattr(prior, "get") else None
+    return max(ARM_REFINE_SUBSTEPS, int(fit or 0))
+
+
 def _prior_of(prior, log, plant):
-    """(plant, rig, beta) of a prior: an identification result or a vector."""
+    """(plant, rig, beta, joints) of a prior: an identification result or a vector.
+
+    A flexible result gives its two-mass arm with the rig's friction and its joints
+    ``[K, D, Ia, b]`` (4 n,); a rigid prior ``joints`` None."""
     rig = log.rig
-    if hasattr(prior, "beta") and hasattr(prior, "plant"):
-        if getattr(prior, "model", "rigid") != "rigid":
-            raise ValueError("identify_arm_payload needs a rigid prior (the two-mass arm's "
-                             "payload is not implemented)")
-        rig = prior.rig  # the identified friction, when the sidecar had none
-        plant = prior.plant if plant is None else plant
-        beta = np.asarray(prior.beta, dtype=float)
+    joints = None
+    if hasattr(prior, "get") and prior.get("beta") is not None and prior.get("plant") is not None:
+        rig = prior.get("rig") or rig  # the identified friction, when the sidecar had none
+        beta = np.asarray(prior["beta"], dtype=float)
+        if prior.get("model", "rigid") != "rigid":
+            row = prior.get("plant_row")
+            row = np.zeros(0) if row is None else np.asarray(row, dtype=float).reshape(-1)
+            n, r = prior["plant"].n_joints, prior["plant"].base.rank
+            if row.size < r + 4 * n:
+                raise ValueError("a flexible prior needs its two-mass arm's joints (plant_row of "
+                                 "an identification.arm.identify_arm result)")
+            joints = row[r:r + 4 * n].copy()
+            if plant is None:  # the two-mass arm with the rig's (identified) friction
+                plant = arm_plant(prior["plant"].model, prior["plant"].base, flexible=True)
+        plant = prior["plant"] if plant is None else plant
     else:
         beta = np.asarray(prior, dtype=float).reshape(-1)
     if plant is None:
         plant = arm_plant(log.model)
-    if not isinstance(plant, ArmPlant) or plant.flexible or plant.lane_friction:
-        raise ValueError("plant must be a rigid plant.simulation.arm.ArmPlant with the rig's friction")
+    if not isinstance(plant, ArmPlant) or plant.lane_friction:
+        raise ValueError("plant must be a plant.simulation.arm.ArmPlant with the rig's friction")
+    if plant.flexible and joints is None:
+        raise ValueError("a two-mass plant needs a flexible prior (an identify_arm result with "
+                         "model 'flexible', which carries the joints)")
+    if not plant.flexible and joints is not None:
+        raise ValueError("a flexible prior needs its two-mass plant (flexible=True), not a rigid one")
     if beta.shape != (plant.base.rank,) or not np.all(np.isfinite(beta)):
         raise ValueError(f"prior must be {plant.base.rank} finite base parameters "
                          f"({', '.join(plant.base.names)}), got shape {beta.shape}")
     if friction_layout(rig)[1]:
         raise ValueError("the rig's friction is unknown: give the prior's identification result "
                          "(identification.arm.identify_arm), which carries the identified friction")
-    return plant, rig, beta
+    return plant, rig, beta, joints
 
 
 def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None, bounds=None,
-                         gain=DEFAULT_GAIN, substeps=ARM_REFINE_SUBSTEPS, max_iter=40,
+                         gain=DEFAULT_GAIN, substeps=None, max_iter=40,
                          workers=None) -> ArmPayloadResult:
     """Identify a payload on an arm's last link from a window of its log (module docstring).
 
@@ -470,13 +602,16 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         The logged run of the loaded arm.
     prior : identification.arm.ArmIdentificationResult or array_like, shape (r,)
         The unloaded arm: an identification result (its base parameters,
-        plant and -- when the sidecar had none -- identified friction), or
-        its base parameters (the rig's friction must then be known).
+        plant and -- when the sidecar had none -- identified friction; a
+        flexible result also its joints, and the payload is searched through
+        its two-mass arm, module docstring), or its base parameters (a rigid
+        arm; the rig's friction must then be known).
     window_s : (float, float), optional
         Start and end time of the window (s); default the whole log.  At
         least 20 samples.
     plant : plant.simulation.arm.ArmPlant, optional
-        The rigid arm (default the prior's, else :func:`plant.simulation.arm.arm_plant`
+        The arm with the rig's friction (default the prior's -- a flexible
+        prior's two-mass arm -- else :func:`plant.simulation.arm.arm_plant`
         of the log's robot).
     currents : {None, "logged"} or array_like, shape (n_samples, n)
         The current the drive applied: None (default), the rig's P law on
@@ -487,8 +622,10 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         Box of ``[m, cx, cy, cz]`` (default :data:`DEFAULT_ARM_PAYLOAD_BOUNDS`).
     gain : float
         Output-injection gain of the predictor (fraction of the P gain).
-    substeps : int
-        RK4 steps per sample.
+    substeps : int, optional
+        RK4 steps per sample (default :data:`identification.arm.ARM_REFINE_SUBSTEPS`;
+        a flexible prior's at least its fit's, ``flexible_substeps``: the springs'
+        modes need them).
     max_iter : int
         Refinement iterations at most.
     workers : int, optional
@@ -503,12 +640,13 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
     Raises
     ------
     ValueError
-        A prior of the wrong size, a flexible prior, unknown friction with
-        a bare vector, a window outside the log or shorter than 20 samples,
+        A prior of the wrong size, a flexible prior without its joints or
+        with a rigid plant, unknown friction with a bare vector, a window outside the log or shorter than 20 samples,
         malformed currents or bounds.
     """
     t_start = time.perf_counter()
-    plant, rig, beta_prior = _prior_of(prior, log, plant)
+    plant, rig, beta_prior, joints = _prior_of(prior, log, plant)
+    substeps = _substeps_of(prior, joints, substeps)
     if rig is not log.rig:
         import dataclasses
 
@@ -521,12 +659,12 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
             or box[0, 0] < 0:
         raise ValueError("bounds must be 4 finite (low, high) pairs with low < high and a mass >= 0")
     problem = ArmPayloadProblem(log, plant, beta_prior, k0, k1, i, gain=gain, substeps=substeps,
-                                workers=workers)
+                                workers=workers, joints=joints)
     # the start rates: the reference's minus the logged error's slope, refined as nuisances
-    qd_guess, rate_box = _start_box(log, problem, k0)
-    full_box = np.vstack([box, rate_box, np.tile([-0.5, 0.5], (n, 1))])
+    guess, nuisance_box = problem.start_box(k0)
+    full_box = np.vstack([box, nuisance_box])
     mid_com = 0.5 * (box[1:, 0] + box[1:, 1])
-    starts = np.array([[box[0, 0] + f * (box[0, 1] - box[0, 0]), *mid_com, *qd_guess, *np.zeros(n)]
+    starts = np.array([[box[0, 0] + f * (box[0, 1] - box[0, 0]), *mid_com, *guess]
                        for f in (0.1, 0.35, 0.65)])
     if box[0, 1] - box[0, 0] < 1e-6:  # a pinned mass (a model's own fit): one start
         starts = starts[:1]
@@ -553,6 +691,6 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         mass_kg=float(x[0]), com_m=x[1:4].copy(), x_std=x_std, com_identifiable=identifiable,
         beta=problem.beta(x), beta_prior=beta_prior, names=tuple(plant.base.names),
         window_s=(float(k0 * ts), float((k1 - 1) * ts)), start_rates_rad_s=x_all[4:4 + n].copy(),
-        start_offsets_pulses=x_all[4 + n:].copy(),
+        start_offsets_pulses=x_all[4 + n:4 + 2 * n].copy(),
         residuals_pulses=residuals, joint_names=tuple(log.joint_names),
         elapsed_s=time.perf_counter() - t_start)

@@ -176,8 +176,8 @@ def test_a_cautious_update_installs_its_agreeing_estimates_pooled(setting):
 def test_bad_priors_and_options_are_refused_with_one_line(setting):
     _, _, log, prior, _ = setting
     flexible = type(prior)(dict(prior))
-    flexible["model"] = "flexible"
-    with pytest.raises(ValueError, match="rigid prior"):
+    flexible["model"] = "flexible"  # without its joints
+    with pytest.raises(ValueError, match="joints"):
         ArmAdaptiveComputedTorque(flexible, log)
     with pytest.raises(ValueError, match="identify_arm result"):
         ArmAdaptiveComputedTorque(np.zeros(7), log)

@@ -474,3 +474,137 @@ def test_current_per_pulse_of_the_arm_flexible_ctc():
     assert c.first == first and np.array_equal(c.ql, ql)
     fast = current_per_pulse(build(2.0), log)
     assert np.all(slow > 0) and np.all(fast > 2 * slow), (slow, fast)
+
+
+# ----------------------------------------------------------------------------- on-line payload
+TOOL_KG, TOOL_COM = 2.0, (0.05, 0.02, 0.0)
+
+
+def _loaded_row(res, mass, com):
+    row = np.array(res.plant_row, dtype=float)
+    nb = res.plant.base.rank
+    row[:nb] += res.plant.model.payload_delta(mass, com, base=res.plant.base)
+    return row
+
+
+def test_payload_of_a_two_mass_arm_from_a_window(compliant):
+    """A flexible prior: the payload is searched through its two-mass arm, and 0.2 s windows
+    of a loaded arm's P log (the library's two-mass plant) give its mass within 3 %, at the
+    quantisation floor; the unloaded model does not describe them."""
+    from identification.arm_payload import identify_arm_payload
+    from identification.flexible import quantisation_floor
+    from plant.simulation.synthetic import emulate_arm_log
+
+    log, _, res = compliant
+    llog = emulate_arm_log(res.flexible_plant, _loaded_row(res, 1.5, TOOL_COM), res.rig,
+                           log.trajectory, 3000)
+    nulled = [(0.0, 1e-9)] * 4
+    for w in ((0.2, 0.4), (0.6, 0.8), (1.2, 1.4)):
+        est = identify_arm_payload(llog, res, window_s=w, workers=1)
+        floor = quantisation_floor(est.residuals_pulses.size)
+        assert est.success and est.mass_kg == pytest.approx(1.5, rel=0.03)
+        assert est.fun <= 1.5 * floor
+        assert est.start_offsets_pulses.shape == (2,)
+        null = identify_arm_payload(llog, res, window_s=w, workers=1, bounds=nulled)
+        assert null.fun > 20 * est.fun
+    # a flexible prior needs its joints, and its two-mass plant
+    with pytest.raises(ValueError, match="joints"):
+        identify_arm_payload(llog, dict(res, plant_row=None), window_s=(0.5, 0.6))
+    with pytest.raises(ValueError, match="two-mass plant"):
+        identify_arm_payload(llog, res, window_s=(0.5, 0.6), plant=res.plant)
+
+
+def test_flexible_ctc_switches_its_link_model_with_beta(compliant):
+    """set_beta of the flexible-joint CTC: the link model is the new beta minus the motor
+    inertias and the link observer is placed for it; a beta whose link model is not positive
+    definite is refused and the model in use kept."""
+    from ctc.flexible import two_mass_observer_gains
+
+    log, _, res = compliant
+    c = ArmFlexibleComputedTorque.from_result(res, log, link_damping=0.5)
+    g0 = c.link_gain.copy()
+    loaded = _loaded_row(res, 3.0, TOOL_COM)[:res.plant.base.rank]
+    c.set_beta(loaded)
+    assert np.allclose(c.link_beta, loaded - c.Ia @ res.plant.motor_inertia_columns)
+    Dl, _ = c._link_terms(c._q_start, np.zeros(c.n))
+    L = two_mass_observer_gains(np.diag(Dl), c.K, c.D, c.Ia, c.gains, 0.5)
+    assert np.allclose(c.link_gain, L[:, 2:4]) and not np.allclose(c.link_gain, g0)
+    kept = c.beta.copy()
+    with pytest.raises(ValueError, match="positive definite"):
+        c.set_beta(-np.abs(loaded))
+    assert np.array_equal(c.beta, kept)
+    c.set_beta(res.beta)
+    assert np.allclose(c.link_gain, g0)
+
+
+@pytest.fixture(scope="module")
+def flexible_adaptive(compliant):
+    """The static and the adaptive CTC of the flexible prior, the design fixed at the one
+    from_result's robust search chooses on this log (twice the default bandwidth, link
+    damping 0.5; fixing it keeps the test short), and a run through a 2 kg pick-up at 1 s."""
+    import warnings
+
+    from ctc.arm_adaptive import ArmAdaptiveComputedTorque
+    from ctc.flexible import robust_design_gains
+
+    log, _, res = compliant
+    design = dict(gains=robust_design_gains(log.rig, 2.0), link_damping=0.5)
+    static = ArmFlexibleComputedTorque.from_result(res, log, **design)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        adaptive = ArmAdaptiveComputedTorque(res, log, **design)
+    return static, adaptive, design
+
+
+def _pick_up_run(compliant, ctrl):
+    log, _, res = compliant
+    r = plant.simulate_closed_loop(res.rig, res.plant_row, ctrl, trajectory=log.trajectory,
+                                   n_samples=int(round(2.6 / log.rig.sample_time_s)),
+                                   plant=res.flexible_plant, substeps=16,
+                                   f_schedule=[(1.0, _loaded_row(res, TOOL_KG, TOOL_COM))])
+    assert r.success and r.n_clipped == 0
+    return r
+
+
+def test_adaptive_ctc_on_a_flexible_prior_tracks_a_pick_up(compliant, flexible_adaptive):
+    """The adaptive CTC of a flexible prior runs the flexible-joint CTC: a 2 kg tool picked up
+    at 1 s by the two-mass arm is identified through it (within 3 %, nothing installed
+    before; the switch check passed), and the arm tracks within +-1 pulse from 0.5 s after
+    the pick-up, where the static CTC does not; two runs are identical bit for bit."""
+    log = compliant[0]
+    static, c, _ = flexible_adaptive
+    assert c.flexible and isinstance(c._ctc, ArmFlexibleComputedTorque)
+    k = int(round(1.5 / log.rig.sample_time_s))
+    r = _pick_up_run(compliant, c)
+    assert np.abs(r.e_pulses[k:]).max() <= 1
+    assert np.abs(_pick_up_run(compliant, static).e_pulses[k:]).max() > 1
+    assert c.payload_mass_kg == pytest.approx(TOOL_KG, rel=0.03)
+    assert all(m == 0.0 for t, m in c.payload_history if t < 1.0)
+    assert c.events[0]["kind"] == "update"
+    first = next(rec for rec in c.identifications if rec["decision"] == "update")
+    assert first["switch_check_pulses"] <= first["switch_check_bound"]
+    e, i = r.e_pulses.copy(), r.i_A.copy()
+    c.reset()
+    r2 = _pick_up_run(compliant, c)
+    assert np.array_equal(r2.e_pulses, e) and np.array_equal(r2.i_A, i)
+
+
+def test_an_update_the_flexible_ctc_cannot_carry_is_refused(compliant, flexible_adaptive,
+                                                           monkeypatch):
+    """The switch check: an update whose model does not track the identified arm carrying
+    the payload within the design check's worst case (here made impossible: a margin of
+    -100 pulses) is not made -- decision and event 'unsafe', one RuntimeWarning, the model in
+    use kept; a later estimate of the same payload is refused without another check."""
+    import ctc.arm_adaptive as aa
+
+    _, c, _ = flexible_adaptive
+    monkeypatch.setattr(aa, "SWITCH_MARGIN_PULSES", -100.0)
+    c.reset()
+    with pytest.warns(RuntimeWarning, match="cannot carry the 2"):
+        _pick_up_run(compliant, c)
+    assert c.payload_history == [(0.0, 0.0)] and c.payload_mass_kg == 0.0
+    unsafe = [rec for rec in c.identifications if rec["decision"] == "unsafe"]
+    assert len(unsafe) >= 2 and "switch_check_pulses" in unsafe[0]
+    assert all("switch_check_pulses" not in rec for rec in unsafe[1:])
+    assert [ev["kind"] for ev in c.events].count("unsafe") == 1
+    c.reset()
