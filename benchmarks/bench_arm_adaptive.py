@@ -231,6 +231,8 @@ def main(argv=None):
                     help="two-mass flexible joints (half with backlash), the default identification")
     ap.add_argument("--kinds", default=",".join(KINDS),
                     help=f"comma-separated kinds of change to draw from (default {','.join(KINDS)})")
+    ap.add_argument("--only", default=None,
+                    help="rerun just these draws of the call, e.g. planar2:20262001,puma123:20262002")
     a = ap.parse_args(argv)
     kinds = tuple(k.strip() for k in a.kinds.split(",") if k.strip())
     if not kinds or any(k not in KINDS for k in kinds):
@@ -239,6 +241,11 @@ def main(argv=None):
         ap.error(f"--run-s must be at least {MIN_RUN_S} s (a change at 2 s, scored from 0.5 s after)")
     jobs = [(fam, a.seed + i, a.run_s, (fam, i) == (FAMILIES[0], 0), a.compliant, kinds)
             for fam, n in zip(FAMILIES, a.n) for i in range(n)]
+    if a.only:
+        wanted = {w.strip() for w in a.only.split(",") if w.strip()}
+        jobs = [j for j in jobs if f"{j[0]}:{j[1]}" in wanted]
+        if len(jobs) != len(wanted):
+            ap.error(f"--only names draws this call does not make: {a.only!r}")
     t0 = time.perf_counter()
     rows = ia.run_jobs(_job, jobs, a.jobs, _line)
     ok = [r for r in rows if "error" not in r]

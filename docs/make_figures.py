@@ -131,7 +131,11 @@ it in ``optimisers``):
     ``benchmarks/bench_arm_adaptive.py --compliant --n 6 2 --seed 20262001 --jobs 2``:
     the same changes on compliant arms (two-mass joints, half with backlash), the
     prior the default identification, flexible priors adapted through their
-    two-mass arm (``figures/bench_arm_adaptive_compliant_20262001.txt``).
+    two-mass arm (``figures/bench_arm_adaptive_compliant_20262001.txt``); its first
+    planar draw rerun after the start-window fix (``--only planar2:20262001``,
+    ``figures/bench_arm_adaptive_compliant_20262001_rerun.txt``); and a draw of
+    payload changes only (``--kinds pick-up,put-down --n 3 0 --seed 20262101 --jobs 1``,
+    ``figures/bench_arm_adaptive_compliant_payload_20262101.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -517,9 +521,17 @@ def arm_adaptive(ctx):
 def arm_adaptive_compliant(ctx):
     # compliant arms, a seed chosen before looking (20261901 served development)
     q = ["--n", "1", "0", "--run-s", "2.6"] if ctx["quick"] else ["--n", "6", "2", "--jobs", "2"]
-    text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", *q, "--seed", "20262001"],
-                      ctx["raw"], "bench_arm_adaptive_compliant_20262001", timeout=3 * 3600)
-    return {"20262001": {"printed": text.splitlines()[-18:], "wall_s": wall}}
+    out = {}
+    runs = (("20262001", q, "bench_arm_adaptive_compliant_20262001"),
+            ("20262001", ["--n", "6", "2", "--only", "planar2:20262001"],
+             "bench_arm_adaptive_compliant_20262001_rerun"),
+            ("20262101", ["--kinds", "pick-up,put-down", "--n", "3", "0", "--jobs", "1"],
+             "bench_arm_adaptive_compliant_payload_20262101"))
+    for seed, args, name in runs[:1] if ctx["quick"] else runs:
+        text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", *args, "--seed", seed],
+                          ctx["raw"], name, timeout=3 * 3600)
+        out[name] = {"printed": text.splitlines()[-18:], "wall_s": wall}
+    return out
 
 
 # -------------------------------------------------------------------------------- main

@@ -44,7 +44,10 @@ plus half the backlash gap in its direction, the link rates the motors'):
 a payload bends the springs, and a start state that ignored that would
 start each window with a spring transient of the payload's size (M. W.
 Spong, J. Dyn. Syst. Meas. Control 109, 1987: the link is driven by the
-spring torque alone).
+spring torque alone).  The springs' ringing about that deflection is
+refined too: per joint a link angle offset (within +-20 pulses) and a link
+rate offset.  A window at the log's first sample starts as the plant's
+simulation of a log does, springs relaxed (the links where the motors are).
 
 Bounded Levenberg--Marquardt (:func:`identification.refinement.refine`)
 from several masses; standard errors from the Gauss--Newton sandwich
@@ -210,8 +213,12 @@ class ArmPayloadProblem:
     def _link_start(self, beta, th, thd) -> np.ndarray:
         """A two-mass arm's start state ``(q, qd, th, thd)`` (4 n,) for motors at ``th, thd``:
         the links where the springs carry the link's inverse dynamics along the reference
-        (module docstring), two fixed-point passes for the link angle in ``D_link(q)``."""
+        (module docstring), two fixed-point passes for the link angle in ``D_link(q)``; a
+        window at the log's first sample starts as the plant does (springs relaxed, the links
+        where the motors are: :meth:`plant.simulation.plants.Plant.initial_state`)."""
         n = self.n
+        if self.k0 == 0:
+            return np.concatenate([th, thd, th, thd])
         K, Ia, b = self.joints[:n], self.joints[2 * n:3 * n], self.joints[3 * n:]
         link_beta = np.asarray(beta, dtype=float) - Ia @ self.plant.motor_inertia_columns
         q = np.array(th, dtype=float)
