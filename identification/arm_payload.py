@@ -191,6 +191,16 @@ class ArmPayloadProblem:
         two-mass arm's link offsets within +-20 pulses and its link rate
         offsets within the rates' half-width (the springs ring about their
         quasi-static deflection).
+
+        Parameters
+        ----------
+        k0 : int
+            The window's first sample.
+
+        Returns
+        -------
+        (ndarray, ndarray)
+            Shapes ``(n_nuisance,)`` and ``(n_nuisance, 2)``.
         """
         n = self.n
         qd_guess, rate_box = _start_box(self.log, self, k0)
@@ -204,7 +214,20 @@ class ArmPayloadProblem:
         return np.concatenate(guess), np.vstack(box)
 
     def row(self, beta, *extra) -> np.ndarray:
-        """The plant's lane row of base parameters ``beta``: ``[beta, joints, *extra]``."""
+        """The plant's lane row of base parameters ``beta``: ``[beta, joints, *extra]``.
+
+        Parameters
+        ----------
+        beta : array_like, shape (r,)
+            Base parameters (rigid-equivalent for a two-mass arm).
+        *extra : array_like
+            Further lane parameters after the joints (the friction of a rival).
+
+        Returns
+        -------
+        ndarray
+            ``(r,)``, plus ``4 n`` for a two-mass arm, plus the extras.
+        """
         parts = [np.asarray(beta, dtype=float).reshape(-1)]
         if self.joints is not None:
             parts.append(self.joints)
@@ -316,7 +339,7 @@ class ArmFrictionChangeProblem(ArmPayloadProblem):
 
     Parameters
     ----------
-    log, plant, k0, k1, currents, gain, substeps, workers
+    log, plant, k0, k1, currents, gain, substeps, workers, joints
         As :class:`ArmPayloadProblem`.
     beta : array_like, shape (r,)
         The base parameters held (the model in use).
