@@ -136,6 +136,11 @@ it in ``optimisers``):
     ``figures/bench_arm_adaptive_compliant_20262001_rerun.txt``); and a draw of
     payload changes only (``--kinds pick-up,put-down --n 3 0 --seed 20262101 --jobs 1``,
     ``figures/bench_arm_adaptive_compliant_payload_20262101.txt``).
+``arm_excitation``
+    ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
+    excitation design for any arm (``design_excitation(..., model=)``) against each
+    draw's own multisine, within its envelope, on the independent simulator
+    (``figures/bench_arm_excitation_20262611.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -170,7 +175,7 @@ SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
             "changes_fourth", "current_cap",
             "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive",
-            "arm_adaptive_compliant")
+            "arm_adaptive_compliant", "arm_excitation")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -532,6 +537,15 @@ def arm_adaptive_compliant(ctx):
                           ctx["raw"], name, timeout=3 * 3600)
         out[name] = {"printed": text.splitlines()[-18:], "wall_s": wall}
     return out
+
+
+def arm_excitation(ctx):
+    # a seed chosen before looking (20262601 served development)
+    q = ["--n", "1", "0", "0", "--generations", "4"] if ctx["quick"] else \
+        ["--n", "4", "4", "0", "--jobs", "2"]
+    text, wall = _run(["benchmarks/bench_arm_excitation.py", *q, "--seed", "20262611"],
+                      ctx["raw"], "bench_arm_excitation_20262611", timeout=2 * 3600)
+    return {"printed": text.splitlines()[-12:], "wall_s": wall}
 
 
 # -------------------------------------------------------------------------------- main

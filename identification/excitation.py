@@ -1,4 +1,4 @@
-"""Excitation design: a reference trajectory that identifies all nine f.
+"""Excitation design: a reference trajectory that identifies a robot's base parameters.
 
 :func:`design_excitation` returns a :class:`plant.Trajectory` in the
 sidecar's form (``c``, ``terms_A_omega_phi``, ``t_ramp_s``) that starts at
@@ -7,6 +7,16 @@ and minimises the predicted relative standard error of the *worst*
 determined parameter (a minimax, "E-like" criterion on relative errors: the
 quantity the acceptance of a design is judged on, and the one a user reads
 in the result's ``f_rse``).
+
+The robot is the PUMA 560 links 2--3 of the paper (f1..f9, the closed
+forms of :mod:`plant.robot.model`) by default, or any robot model
+(``model=``: a :class:`plant.RobotModel` from a DH table or a URDF, e.g. an
+:class:`~plant.logs.arm_log.ArmLog`'s ``model``): the same family, limits,
+criterion and search, its regressor and inverse dynamics those of its arm
+plant (:meth:`plant.simulation.arm.ArmPlant.base_regressor`,
+:meth:`~plant.simulation.arm.ArmPlant.inverse_dynamics`) in its base
+parameters beta, and the prediction-error criterion that of
+:func:`identification.arm.identify_arm`'s refinement.
 
 Trajectory family
 -----------------
@@ -23,13 +33,18 @@ the P loop's ~10 Hz mode.  The start at rest:
 * any other q0: no ramp, phases 0 or pi (signed amplitudes: qd(0) = 0) and
   ``c_j = q0_j - sum_l A_jl`` (q(0) = q0).
 
-Limits (checked on a 2 ms grid of the reference): the joint range (default:
-the paper trajectory's, ``q2 in [-pi/2, 0]``, ``q3 in [0, pi/2]``), the rate
-(default none) and the current the rigid model needs along the reference,
-``(Y(q, qd, qdd) f - tau_friction(qd)) / (k Kt)``, at ``f_prior`` (default
-the centre of the rig's search box) kept below ``CURRENT_MARGIN`` times the
-drive's full scale (the P loop's tracking transients come on top of the
-feed-forward current).
+Limits (checked on a grid of the reference: 2 ms for the PUMA 560 links
+2--3, ``max(2 ms, duration / 500)`` for a robot model): the joint range
+(default: the paper trajectory's, ``[-pi/2, 0]`` for the first joint and
+``[0, pi/2]`` for the second, on the PUMA 560 links 2--3 -- the default
+robot, or a model whose base parameters are f1..f9; a quarter turn each
+way of the start state on any other robot), the rate (default none) and the
+current the rigid model needs along the reference, ``(Y(q, qd, qdd) f -
+tau_friction(qd)) / (k Kt)``, at ``f_prior`` (default the centre of the
+rig's search box; a robot model without one: its own base parameters, from
+its DH table or URDF) kept below ``CURRENT_MARGIN`` times the drive's full
+scale (the P loop's tracking transients come on top of the feed-forward
+current; unknown friction, ``null`` in the sidecar, is left out).
 
 Criterion and why
 -----------------
@@ -39,8 +54,9 @@ logged-input prediction errors (:mod:`identification.refinement`), ``J`` their
 sensitivity to f, ``sigma^2 = 1/12`` pulse^2 (encoder quantisation).  That
 needs an emulated log and 10 replays per candidate (~0.5 s); the search
 instead minimises the same criterion computed from the information matrix of
-the *regressor* along the reference, ``Y^T Y`` (:func:`plant.robot.model.regressor`;
-equation error of constant variance), ~0.3 ms per candidate, and the
+the *regressor* along the reference, ``Y^T Y`` (:func:`plant.robot.model.regressor`,
+or a robot model's base regressor; equation error of constant variance),
+~0.3 ms per candidate on the PUMA 560 links 2--3, and the
 ``RERANK`` best distinct candidates of the GA's final population are then
 ranked by the prediction-error criterion (:func:`predicted_f_std`), which
 also gives ``predicted_f_std``.  Measured (``benchmarks/bench_excitation.py
@@ -48,7 +64,8 @@ also gives ``predicted_f_std``.  Measured (``benchmarks/bench_excitation.py
 two criteria's Spearman rank correlation is 0.95 over 12 random feasible
 trajectories (``docs/optimisers.rst``).  Relative errors are taken relative to
 ``max(|f_prior|, 5 % of the search range)`` (a parameter near zero in the
-prior still gets a finite scale).
+prior still gets a finite scale); without a search range (a robot model
+whose sidecar gives none) ``max(|f_prior|, 5 % of the rms of |f_prior|)``.
 
 The search is the project's GA (:func:`identification.ga.run_ga`, Gray-coded,
 4 x 20 individuals).  A candidate outside the limits is repaired, not
@@ -59,13 +76,16 @@ state held, or the ramp to the offsets), so every individual is feasible.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 import plant
 from plant.robot.model import friction_torques, regressor
-from plant.logs.rig import rig_constants
+from plant.logs.rig import F_NAMES, rig_constants
+
+from .friction import friction_layout
 
 __all__ = ["design_excitation", "predicted_f_std", "trajectory_limits", "regressor_rse",
            "DEFAULT_HARMONICS", "CURRENT_MARGIN"]
@@ -92,7 +112,114 @@ def _paper_range():
 
 
 def _scale(f_prior, bounds):
+    if bounds is None:  # no search box: a floor from the prior's own size
+        return np.maximum(np.abs(f_prior), SCALE_FLOOR * math.sqrt(np.mean(f_prior ** 2)))
     return np.maximum(np.abs(f_prior), SCALE_FLOOR * (bounds[:, 1] - bounds[:, 0]))
+
+
+class _Robot:
+    """What a design needs of its robot: the regressor and inverse dynamics along a reference.
+
+    ``model`` None: the PUMA 560 links 2--3 of :mod:`plant.robot.model`
+    (f1..f9, the closed forms); else a robot model (or its rigid arm plant),
+    through :func:`plant.simulation.arm.arm_plant`.
+    """
+
+    def __init__(self, rig, model=None, *, gravity=None, friction_prior=None):
+        self.rig = rig
+        self.c = None if rig is None else rig_constants(rig)
+        self.unknown, self.friction = [], None
+        if model is None:
+            self.plant, self.names, self.n = None, F_NAMES, 2
+            self.gravity = self.c.gravity if gravity is None else float(gravity)
+            self.box = rig.bounds if rig is not None and rig.f_bounds else None
+            self.paper = True
+        else:
+            self._model(rig, model)
+        if rig is not None:
+            self._friction(rig, friction_prior)
+
+    def _friction(self, rig, prior):
+        """Joint-side friction (n, 3): the rig's, its unknown components from ``prior`` (or 0)."""
+        known, self.unknown = friction_layout(rig)
+        self.friction = known.copy()
+        if prior is None:
+            return
+        prior = np.asarray(prior, dtype=float)
+        if prior.shape != (self.n, 3) or not np.all(np.isfinite(prior)) or np.any(prior < 0):
+            raise ValueError(f"friction_prior must be ({self.n}, 3) finite values >= 0 (joint "
+                             f"side: viscous N m s/rad, Coulomb + and - N m), got shape "
+                             f"{prior.shape}")
+        for j, w in self.unknown:
+            self.friction[j, w] = prior[j, w]
+
+    def friction_columns(self, qd):
+        """The unknown friction components' regressor columns along the states, (m n, u).
+
+        ``tau_f = v qd + Tc+ r [qd > 0] + Tc- r [qd <= 0]``, ``r = clip(qd / v_ramp, -1,
+        1)``: the identification estimates them with the base parameters
+        (:func:`identification.friction.friction_layout`), nuisance parameters here.
+        """
+        m = qd.shape[0]
+        r_ = np.clip(qd / np.asarray(self.c.ramp_speed), -1.0, 1.0)
+        cols = np.zeros((m, self.n, len(self.unknown)))
+        for k, (j, w) in enumerate(self.unknown):
+            cols[:, j, k] = (qd[:, j] if w == 0 else
+                             r_[:, j] * (qd[:, j] > 0) if w == 1 else r_[:, j] * (qd[:, j] <= 0))
+        return cols.reshape(m * self.n, -1)
+
+    def _model(self, rig, model):
+        from plant.simulation.arm import ArmPlant, arm_plant
+
+        from .arm import rig_search_box
+
+        if isinstance(model, ArmPlant):
+            pl = model if not (model.flexible or model.lane_friction) else \
+                arm_plant(model.model, model.base)
+        elif hasattr(model, "active") and hasattr(model, "joint_names"):
+            pl = arm_plant(model)
+        else:
+            raise ValueError(f"model must be a plant.RobotModel (or its arm plant), got "
+                             f"{type(model).__name__}")
+        self.plant, self.names, self.n = pl, tuple(pl.base.names), pl.n_joints
+        if len(rig.gear_ratio) != self.n:
+            raise ValueError(f"the rig has {len(rig.gear_ratio)} joints, the robot model "
+                             f"{self.n} ({', '.join(pl.model.joint_names)})")
+        self.box = rig_search_box(rig, pl.base)
+        self.paper = self.names == F_NAMES  # the PUMA 560 links 2-3 instance
+
+    @property
+    def r(self) -> int:
+        """Base parameters."""
+        return len(self.names)
+
+    def default_limits(self, q0):
+        """The paper trajectory's range (PUMA 560 links 2-3), else q0 +- pi/4."""
+        if self.paper:
+            return _paper_range()
+        return np.column_stack([q0 - math.pi / 4, q0 + math.pi / 4])
+
+    def default_prior(self):
+        """The centre of the search box, else the model's own base parameters."""
+        if self.box is not None:
+            return self.box.mean(axis=1)
+        return self.plant.beta()
+
+    def regressor(self, q, qd, qdd):
+        """Stacked regressor along the states, (m n, r)."""
+        if self.plant is None:
+            return regressor(q, qd, qdd, self.gravity).reshape(-1, 9)
+        return self.plant.base_regressor(q, qd, qdd).reshape(-1, self.r)
+
+    def torque(self, q, qd, qdd, f):
+        """Rigid inverse dynamics along the states, (m, n) N m."""
+        if self.plant is None:
+            return regressor(q, qd, qdd, self.gravity) @ f
+        return self.plant.inverse_dynamics(q, qd, qdd, f)
+
+    def grid(self, duration_s):
+        """Time step of the limit checks and the regressor criterion (s)."""
+        return GRID_S if self.plant is None else max(GRID_S, float(duration_s) / 500.0)
 
 
 class _Family:
@@ -100,6 +227,7 @@ class _Family:
 
     def __init__(self, q0, duration, n_harmonics, limits, t_ramp_s):
         self.q0 = np.asarray(q0, dtype=float)
+        self.n = self.q0.shape[0]
         self.L = int(n_harmonics)
         self.duration = float(duration)
         self.omega = 2 * math.pi * np.arange(1, self.L + 1) / self.duration
@@ -108,7 +236,7 @@ class _Family:
             if self.ramp else 0.0
         half = 0.5 * (limits[:, 1] - limits[:, 0])
         rows = []
-        for j in range(2):
+        for j in range(self.n):
             # amplitudes fall off with the harmonic (same peak acceleration share)
             amax = half[j] / np.arange(1, self.L + 1)
             if self.ramp:
@@ -121,7 +249,7 @@ class _Family:
     def trajectory(self, x, s=1.0):
         x = np.asarray(x, dtype=float)
         c, terms, k = [], [], 0
-        for j in range(2):
+        for j in range(self.n):
             if self.ramp:
                 cj = x[k]
                 amp = s * x[k + 1:k + 1 + self.L]
@@ -138,54 +266,73 @@ class _Family:
 
 
 def trajectory_limits(trajectory, duration_s, rig, f, *, joint_limits_rad=None,
-                      max_velocity_rad_s=None, max_current_A=None, grid_s=GRID_S):
+                      max_velocity_rad_s=None, max_current_A=None, grid_s=None, model=None,
+                      friction_prior=None):
     """Peak excursions of a reference and its normalised limit violation.
 
     Parameters
     ----------
     trajectory : plant.Trajectory
-        The reference.
+        The reference (n joints).
     duration_s : float
         Length of the run (s).
     rig : plant.logs.rig.Rig
         Gear, torque constants, friction and gravity of the current check.
-    f : array_like, shape (9,)
-        Base parameters of the rigid model's inverse dynamics.
-    joint_limits_rad : array_like, shape (2, 2), optional
-        ``[[q2_min, q2_max], [q3_min, q3_max]]`` (default: the paper
-        trajectory's range).
-    max_velocity_rad_s : float or array_like (2,), optional
+    f : array_like, shape (r,)
+        Base parameters of the rigid model's inverse dynamics (f1..f9 by
+        default; the model's base parameters with ``model``).
+    joint_limits_rad : array_like, shape (n, 2), optional
+        ``[[q_min, q_max], ...]`` per joint (rad); default the paper
+        trajectory's range on the PUMA 560 links 2--3, else the start state
+        +- pi/4 (module docstring).
+    max_velocity_rad_s : float or array_like (n,), optional
         Rate limit per joint (default none).
-    max_current_A : float or array_like (2,), optional
+    max_current_A : float or array_like (n,), optional
         Current limit (default the rig's ``current_full_scale_A``; none if
         the rig gives none).
-    grid_s : float
-        Time step of the check (s).
+    grid_s : float, optional
+        Time step of the check (s); default 2 ms, for a robot model
+        ``max(2 ms, duration_s / 500)``.
+    model : plant.RobotModel, optional
+        The robot (default the PUMA 560 links 2--3 of :mod:`plant.robot.model`).
+    friction_prior : array_like, shape (n, 3), optional
+        Joint-side friction of the components the rig leaves unknown
+        (default 0; :func:`design_excitation`).
 
     Returns
     -------
     dict
         ``q_min``, ``q_max``, ``qd_max``, ``i_max`` (feed-forward current,
-        A), each (2,), and ``violation`` (>= 0; 0 when every limit holds,
+        A), each (n,), and ``violation`` (>= 0; 0 when every limit holds,
         the current against ``CURRENT_MARGIN`` times its limit).
+
+    Raises
+    ------
+    ValueError
+        A model that is not a robot model or does not match the rig's joints, or a
+        malformed friction prior.
     """
-    lim = _paper_range() if joint_limits_rad is None else np.asarray(joint_limits_rad, float)
-    t = np.arange(0.0, float(duration_s) + 1e-12, grid_s)
+    robot = _Robot(rig, model, friction_prior=friction_prior)
+    q0 = np.zeros(robot.n) if rig.q0_rad is None else np.asarray(rig.q0_rad, float)
+    lim = robot.default_limits(q0) if joint_limits_rad is None else \
+        np.asarray(joint_limits_rad, float)
+    grid = robot.grid(duration_s) if grid_s is None else float(grid_s)
+    t = np.arange(0.0, float(duration_s) + 1e-12, grid)
     q, qd, qdd = trajectory.evaluate(t)
-    return _limits(q, qd, qdd, rig, np.asarray(f, float), lim,
-                   _pair_or_none(max_velocity_rad_s),
-                   _pair_or_none(rig.current_full_scale_A if max_current_A is None
-                                 else max_current_A))
+    return _limits(robot, q, qd, qdd, np.asarray(f, float), lim,
+                   _per_joint(max_velocity_rad_s, robot.n),
+                   _per_joint(rig.current_full_scale_A if max_current_A is None
+                              else max_current_A, robot.n))
 
 
-def _pair_or_none(v):
-    return None if v is None else np.broadcast_to(np.asarray(v, dtype=float), (2,))
+def _per_joint(v, n):
+    return None if v is None else np.broadcast_to(np.asarray(v, dtype=float), (n,))
 
 
-def _limits(q, qd, qdd, rig, f, lim, vmax, imax):
-    c = rig_constants(rig)
-    tau = regressor(q, qd, qdd, c.gravity) @ f - friction_torques(
-        qd, c.viscous, c.coulomb_pos, c.coulomb_neg, c.ramp_speed)
+def _limits(robot, q, qd, qdd, f, lim, vmax, imax):
+    c, fr = robot.c, robot.friction
+    tau = robot.torque(q, qd, qdd, f) - friction_torques(
+        qd, fr[:, 0], fr[:, 1], fr[:, 2], c.ramp_speed)
     i = np.abs(tau / np.asarray(c.torque_per_amp))
     out = dict(q_min=q.min(0), q_max=q.max(0), qd_max=np.abs(qd).max(0), i_max=i.max(0))
     span = lim[:, 1] - lim[:, 0]
@@ -199,7 +346,7 @@ def _limits(q, qd, qdd, rig, f, lim, vmax, imax):
     return out
 
 
-def regressor_rse(trajectory, duration_s, f_scale, *, g=9.81, grid_s=GRID_S):
+def regressor_rse(trajectory, duration_s, f_scale, *, g=9.81, grid_s=None, model=None, rig=None):
     """Relative standard errors from the regressor's information matrix (up to one factor).
 
     ``sqrt(diag((Y^T Y)^-1)) / f_scale`` with Y the regressor stacked along
@@ -210,31 +357,51 @@ def regressor_rse(trajectory, duration_s, f_scale, *, g=9.81, grid_s=GRID_S):
     Parameters
     ----------
     trajectory : plant.Trajectory
+        The reference (n joints).
     duration_s : float
         Length of the run (s).
-    f_scale : array_like, shape (9,)
+    f_scale : array_like, shape (r,)
         Scale of each parameter (its prior magnitude).
     g : float
-        Gravity (m/s^2).
-    grid_s : float
-        Time step (s).
+        Gravity (m/s^2) of the PUMA 560 links 2--3's closed forms (a robot
+        model carries its own).
+    grid_s : float, optional
+        Time step (s); default as :func:`trajectory_limits`.
+    model : plant.RobotModel, optional
+        The robot (default the PUMA 560 links 2--3: f1..f9).
+    rig : plant.logs.rig.Rig, optional
+        The rig of ``model`` (needed with it: its joint count is checked).
 
     Returns
     -------
-    ndarray, shape (9,)
+    ndarray, shape (r,)
+
+    Raises
+    ------
+    ValueError
+        A model without its rig, or one that does not match it.
     """
-    t = np.arange(0.0, float(duration_s) + 1e-12, grid_s)
+    if model is not None and rig is None:
+        raise ValueError("regressor_rse needs the rig with a robot model (rig=)")
+    robot = _Robot(rig, model, gravity=g)
+    grid = robot.grid(duration_s) if grid_s is None else float(grid_s)
+    t = np.arange(0.0, float(duration_s) + 1e-12, grid)
     q, qd, qdd = trajectory.evaluate(t)
-    return _rse_from_states(q, qd, qdd, np.asarray(f_scale, float), g)
+    return _rse_from_states(robot, q, qd, qdd, np.asarray(f_scale, float))
 
 
-def _rse_from_states(q, qd, qdd, scale, g):
-    Y = regressor(q, qd, qdd, g).reshape(-1, 9) * scale
+def _rse_from_states(robot, q, qd, qdd, scale):
+    r = scale.shape[0]
+    Y = robot.regressor(q, qd, qdd) * scale
+    if robot.unknown:  # unknown friction: nuisance columns, each of unit norm
+        F = robot.friction_columns(qd)
+        norm = np.linalg.norm(F, axis=0)
+        Y = np.hstack([Y, F / np.where(norm > 0, norm, 1.0)])
     try:
         M = np.linalg.inv(Y.T @ Y)
     except np.linalg.LinAlgError:
-        return np.full(9, np.inf)
-    d = np.diag(M)
+        return np.full(r, np.inf)
+    d = np.diag(M)[:r]
     return np.where(d > 0, np.sqrt(np.abs(d)), np.inf)
 
 
@@ -250,41 +417,68 @@ def _template(rig, name="excitation", path="excitation.csv"):
 
 
 def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
-                    substeps=None, workers=None):
+                    substeps=None, workers=None, model=None, friction_prior=None):
     """Predicted standard errors of the default identification on a trajectory.
 
-    Emulates the P experiment (:func:`plant.emulate_log`, optionally on
-    flexible joints) at ``f``, then forms the forward-difference Jacobian of
-    the refinement's prediction errors (:class:`~identification.refinement.PredictionErrorProblem`,
-    the identification's substeps) at ``f`` and returns
-    ``sqrt(diag(sigma^2 (J^T J)^-1))`` with ``sigma^2`` the mean square
-    prediction error at ``f`` (quantisation: ~1/12 pulse^2 on a rigid plant).
+    Emulates the P experiment at ``f`` (:func:`plant.emulate_log`, optionally
+    on flexible joints; with ``model``, :func:`plant.simulation.synthetic.emulate_arm_log`
+    on the robot model's rigid arm), then forms the forward-difference
+    Jacobian of the refinement's prediction errors at ``f``
+    (:class:`~identification.refinement.PredictionErrorProblem`, the
+    identification's substeps; with ``model``,
+    :class:`~identification.arm.ArmPredictionErrorProblem`, the arm
+    refinement's) and returns ``sqrt(diag(sigma^2 (J^T J)^-1))`` with
+    ``sigma^2`` the mean square prediction error at ``f`` (quantisation:
+    ~1/12 pulse^2 on a rigid plant).
 
     Parameters
     ----------
     rig : plant.logs.rig.Rig
         The rig.
     trajectory : plant.Trajectory
-        The reference.
+        The reference (n joints).
     duration_s : float
         Length of the run (s).
-    f : array_like, shape (9,)
-        The robot's base parameters (a prior, or the truth in a benchmark).
+    f : array_like, shape (r,)
+        The robot's base parameters (a prior, or the truth in a benchmark):
+        f1..f9, or the model's base parameters with ``model``.
     flexible : plant.FlexibleJoints, optional
-        Emulate flexible joints; the replay is then the same flexible plant
-        (its joint constants known: the errors of f alone).
+        Emulate flexible joints (PUMA 560 links 2--3 only); the replay is
+        then the same flexible plant (its joint constants known: the errors
+        of f alone).
     base : plant.ExperimentLog, optional
-        Template of the emulated log (default: a minimal one from ``rig``).
+        Template of the emulated log (default: a minimal one from ``rig``;
+        PUMA 560 links 2--3 only).
     substeps : int, optional
         RK4 substeps of the replay (default the identification's).
     workers : int, optional
         Threads of the simulation.
+    model : plant.RobotModel, optional
+        The robot (default the PUMA 560 links 2--3 of :mod:`plant.robot.model`).
+    friction_prior : array_like, shape (n, 3), optional
+        With ``model``: joint-side friction (viscous N m s/rad, Coulomb + and
+        - N m) of the components the rig leaves unknown (``null``), at which
+        the P experiment is emulated (default 0); those components are then
+        estimated with the base parameters (nuisance parameters), as the
+        identification does.  The PUMA 560 links 2--3 path holds the
+        friction at the rig's values.
 
     Returns
     -------
-    ndarray, shape (9,)
-        Predicted standard errors of f1..f9.
+    ndarray, shape (r,)
+        Predicted standard errors of the base parameters.
+
+    Raises
+    ------
+    ValueError
+        A failed emulation, or ``flexible``/``base`` with a robot model.
     """
+    if model is not None:
+        if flexible is not None or base is not None:
+            raise ValueError("flexible= and base= are for the PUMA 560 links 2-3 path; with a "
+                             "robot model the design's emulation is its rigid arm")
+        return _predicted_arm_std(_Robot(rig, model, friction_prior=friction_prior), trajectory,
+                                  duration_s, f, substeps=substeps, workers=workers)
     from .objective import IDENTIFICATION_SUBSTEPS
     from .refinement import FD_STEP, PredictionErrorProblem
 
@@ -295,6 +489,11 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
     prob = PredictionErrorProblem(log, substeps=IDENTIFICATION_SUBSTEPS if substeps is None
                                   else substeps, workers=workers, plant=flexible)
     h = FD_STEP * 1e2 * (rig.bounds[:, 1] - rig.bounds[:, 0])
+    return _gauss_newton_std(prob, f, h)
+
+
+def _gauss_newton_std(prob, f, h):
+    """``sqrt(diag(sigma^2 (J^T J)^-1))`` of a prediction-error problem at f (forward differences h)."""
     X = np.vstack([f, f + np.diag(h)])
     R = prob.residuals(X)
     J = (R[1:] - R[0]).T / h
@@ -302,30 +501,69 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
     try:
         cov = sigma2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
-        return np.full(9, np.inf)
+        return np.full(f.shape[0], np.inf)
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
+def _predicted_arm_std(robot, trajectory, duration_s, f, *, substeps=None, workers=None):
+    """:func:`predicted_f_std` on a robot model's rigid arm (emulated P log, arm refinement).
+
+    Unknown friction (``null`` in the sidecar) is emulated at the robot's
+    friction prior and estimated with beta, as :func:`identification.arm.identify_arm`
+    does: its components are nuisance parameters of the Jacobian.
+    """
+    from plant.simulation.arm import ARM_SUBSTEPS, arm_plant
+    from plant.simulation.synthetic import emulate_arm_log
+
+    from .arm import ARM_REFINE_SUBSTEPS, ArmPredictionErrorProblem
+    from .refinement import FD_STEP
+
+    f = np.asarray(f, dtype=float).reshape(robot.r)
+    rig = robot.rig
+    n_samples = int(round(float(duration_s) / rig.sample_time_s)) + 1
+    pl, row, x = robot.plant, f, f
+    if robot.unknown:  # the friction per lane: the prior's in the emulation, estimated in the fit
+        pl = arm_plant(robot.plant.model, robot.plant.base, lane_friction=True)
+        row = np.concatenate([f, robot.friction.reshape(-1)])
+        x = np.concatenate([f, [robot.friction[j, w] for j, w in robot.unknown]])
+    # an in-memory log, never written: its sidecar names the robot by text (a URDF or
+    # named-basis model has no inline DH table)
+    log = emulate_arm_log(pl, row, rig, trajectory, n_samples, name="excitation_prediction",
+                          substeps=ARM_SUBSTEPS, robot=robot.plant.model.name)
+    prob = ArmPredictionErrorProblem(log, pl, workers=workers,
+                                     substeps=ARM_REFINE_SUBSTEPS if substeps is None
+                                     else int(substeps))
+    # the step of the PUMA path (1e-4 of the search range), the range twice the scale without
+    # one; a friction component's range twice its value (at least 0.01 N m s/rad or N m)
+    width = (robot.box[:, 1] - robot.box[:, 0]) if robot.box is not None else \
+        2.0 * _scale(f, None)
+    width = np.concatenate([width, 2.0 * np.maximum(np.abs(x[robot.r:]), 1e-2)])
+    return _gauss_newton_std(prob, x, FD_STEP * 1e2 * width)[:robot.r]
 
 
 def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_rad_s=None,
                       max_current_A=None, n_harmonics=DEFAULT_HARMONICS, rng=None,
-                      f_prior=None, t_ramp_s=None, generations=30, rerank=RERANK,
-                      workers=None, full_output=False):
-    """Design an excitation trajectory that identifies all nine f.
+                      f_prior=None, t_ramp_s=None, generations=None, rerank=RERANK,
+                      workers=None, full_output=False, model=None, grid_s=None,
+                      friction_prior=None):
+    """Design an excitation trajectory that identifies a robot's base parameters.
 
     Parameters
     ----------
     rig : plant.logs.rig.Rig
         The rig (start state, gears, encoders, P gains, friction, search box,
-        current full scale), e.g. ``plant.load_log(path).rig``.
+        current full scale), e.g. ``plant.load_log(path).rig``, or an
+        :class:`~plant.logs.arm_log.ArmLog`'s ``rig`` with its ``model``.
     duration_s : float
         Length of the experiment (s).
-    joint_limits_rad : array_like, shape (2, 2), optional
-        ``[[q2_min, q2_max], [q3_min, q3_max]]`` (rad); default the paper
-        trajectory's range ``[[-pi/2, 0], [0, pi/2]]``.  Must contain the
-        start state.
-    max_velocity_rad_s : float or array_like (2,), optional
+    joint_limits_rad : array_like, shape (n, 2), optional
+        ``[[q_min, q_max], ...]`` per joint (rad); default the paper
+        trajectory's range ``[[-pi/2, 0], [0, pi/2]]`` on the PUMA 560
+        links 2--3, the start state +- pi/4 on any other robot.  Must
+        contain the start state.
+    max_velocity_rad_s : float or array_like (n,), optional
         Joint rate limit (rad/s); default none.
-    max_current_A : float or array_like (2,), optional
+    max_current_A : float or array_like (n,), optional
         Drive current limit (A); default the rig's ``current_full_scale_A``.
         The rigid model's feed-forward current along the reference at
         ``f_prior`` stays below ``CURRENT_MARGIN`` times it.
@@ -333,14 +571,20 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         Harmonics of ``2 pi / duration_s`` per joint (>= 1).
     rng : numpy.random.Generator or int, optional
         Random source of the GA.
-    f_prior : array_like, shape (9,), optional
+    f_prior : array_like, shape (r,), optional
         Prior base parameters (current check, scales of the relative errors,
-        linearisation point); default the centre of the rig's search box.
+        linearisation point); default the centre of the rig's search box, or
+        (a robot model without one) the model's own base parameters.
     t_ramp_s : float, optional
         Start ramp (s) when the start state is q = 0 (default
         ``min(0.3, duration_s / 5)``).
-    generations : int
-        GA generations (4 x 20 individuals).
+    generations : int, optional
+        GA generations (4 x 20 individuals); default 30 on the PUMA 560
+        links 2--3 (14 searched numbers), ``max(30, 2 g)`` for a robot
+        model searching g numbers (``n (1 + 2 n_harmonics)`` from rest at
+        q = 0): the regressor criterion of a three-joint arm with 6
+        harmonics still improves markedly from 30 to 100 generations
+        (``benchmarks/bench_arm_excitation.py``).
     rerank : int
         Best distinct GA candidates re-ranked by the prediction-error
         criterion (0: keep the GA's best, no simulation).
@@ -348,6 +592,21 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         Threads of the simulations.
     full_output : bool
         Also return the design's figures (scipy's convention).
+    model : plant.RobotModel, optional
+        The robot (n joints; module docstring); default the PUMA 560 links
+        2--3 of :mod:`plant.robot.model` (f1..f9).
+    grid_s : float, optional
+        Time step of the limit checks and the regressor criterion (s);
+        default 2 ms, ``max(2 ms, duration_s / 500)`` with a robot model.
+    friction_prior : array_like, shape (n, 3), optional
+        Joint-side friction (viscous N m s/rad, Coulomb + and - N m) for
+        the components the rig leaves unknown (``null``): in the current
+        check and, with a robot model, the emulated P experiment of the
+        prediction-error criterion (default 0; a P loop that relies on its
+        friction for damping may not run without it -- then the design
+        keeps the regressor criterion's best and says so).  Either way the
+        unknown components are nuisance parameters of both criteria, as
+        the identification estimates them with the base parameters.
 
     Returns
     -------
@@ -355,16 +614,26 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         The design (``to_parameters()`` is the sidecar's
         ``trajectory.parameters``).
     info : dict
-        Only with ``full_output``: ``predicted_f_std`` (9,) (prediction-error criterion at ``f_prior``;
-        None with ``rerank=0``), ``predicted_f_rse``, ``regressor_rse``
+        Only with ``full_output``: ``names`` (the r parameters),
+        ``predicted_f_std`` (r,) (prediction-error criterion at ``f_prior``;
+        None with ``rerank=0``; inf when no candidate's emulated P
+        experiment ran), ``predicted_f_rse``, ``regressor_rse``
         (relative, up to one factor), ``limits``
-        (:func:`trajectory_limits`), ``f_prior``, ``nfev``.
+        (:func:`trajectory_limits`), ``f_prior``, ``nfev``, ``generations``,
+        ``message``.
+
+    Warns
+    -----
+    RuntimeWarning
+        When the prediction-error criterion failed on every candidate (the
+        design is then the regressor criterion's best).
 
     Raises
     ------
     ValueError
         On a bad duration, limits that exclude the start state, an unknown
-        start state, or when no candidate satisfies the limits.
+        start state, a model that does not match the rig, or when no
+        candidate satisfies the limits.
     """
     from .ga import run_ga
 
@@ -373,27 +642,39 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         raise ValueError(f"duration_s must be a positive number, got {duration_s!r}")
     if int(n_harmonics) != n_harmonics or n_harmonics < 1:
         raise ValueError(f"n_harmonics must be an integer >= 1, got {n_harmonics!r}")
+    robot = _Robot(rig, model, friction_prior=friction_prior)
+    n, r = robot.n, robot.r
     if rig.q0_rad is None:
         raise ValueError("the rig has no start state (start_state.q_rad); a designed "
                          "trajectory starts at rest there")
     q0 = np.asarray(rig.q0_rad, dtype=float)
-    lim = _paper_range() if joint_limits_rad is None else np.asarray(joint_limits_rad, float)
-    if lim.shape != (2, 2) or not np.all(np.isfinite(lim)) or np.any(lim[:, 0] >= lim[:, 1]):
-        raise ValueError("joint_limits_rad must be [[q2_min, q2_max], [q3_min, q3_max]] "
+    if q0.shape != (n,):
+        raise ValueError(f"the rig's start state has {q0.size} angles, the robot {n} joints")
+    lim = robot.default_limits(q0) if joint_limits_rad is None else \
+        np.asarray(joint_limits_rad, float)
+    if lim.shape != (n, 2) or not np.all(np.isfinite(lim)) or np.any(lim[:, 0] >= lim[:, 1]):
+        raise ValueError(f"joint_limits_rad must be {n} rows [q_min, q_max] (one per joint) "
                          f"with min < max, got {joint_limits_rad!r}")
     if np.any(q0 < lim[:, 0] - 1e-12) or np.any(q0 > lim[:, 1] + 1e-12):
         raise ValueError(f"the start state q0 = {q0.tolist()} lies outside joint_limits_rad")
-    vmax = _pair_or_none(max_velocity_rad_s)
-    imax = _pair_or_none(rig.current_full_scale_A if max_current_A is None else max_current_A)
+    vmax = _per_joint(max_velocity_rad_s, n)
+    imax = _per_joint(rig.current_full_scale_A if max_current_A is None else max_current_A, n)
     for name, v in (("max_velocity_rad_s", vmax), ("max_current_A", imax)):
         if v is not None and not np.all(np.isfinite(v) & (v > 0)):
             raise ValueError(f"{name} must be positive, got {v.tolist()}")
-    bounds = rig.bounds
-    f_prior = bounds.mean(axis=1) if f_prior is None else np.asarray(f_prior, float).reshape(9)
+    grid = robot.grid(duration_s) if grid_s is None else float(grid_s)
+    if not (math.isfinite(grid) and 0 < grid < float(duration_s)):
+        raise ValueError(f"grid_s must lie in (0, duration_s), got {grid_s!r}")
+    bounds = robot.box
+    f_prior = robot.default_prior() if f_prior is None else np.asarray(f_prior, float)
+    if f_prior.shape != (r,) or not np.all(np.isfinite(f_prior)):
+        raise ValueError(f"f_prior must be {r} finite numbers ({', '.join(robot.names)}), "
+                         f"got shape {f_prior.shape}")
     scale = _scale(f_prior, bounds)
-    c = rig_constants(rig)
     fam = _Family(q0, duration_s, n_harmonics, lim, t_ramp_s)
-    t = np.arange(0.0, float(duration_s) + 1e-12, GRID_S)
+    if generations is None:
+        generations = 30 if model is None else max(30, 2 * fam.bounds.shape[0])
+    t = np.arange(0.0, float(duration_s) + 1e-12, grid)
     nfev = [0]
 
     def states(x, s):
@@ -401,7 +682,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
 
     def feasible(x, s):
         q, qd, qdd = states(x, s)
-        return _limits(q, qd, qdd, rig, f_prior, lim, vmax, imax)["violation"] == 0.0
+        return _limits(robot, q, qd, qdd, f_prior, lim, vmax, imax)["violation"] == 0.0
 
     def repair(x):
         # the largest amplitude factor s in (0, 1] within the limits (bisection;
@@ -422,7 +703,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
                 out[m] = np.inf
                 continue
             q, qd, qdd = states(x, s)
-            out[m] = float(np.log(np.max(_rse_from_states(q, qd, qdd, scale, c.gravity))))
+            out[m] = float(np.log(np.max(_rse_from_states(robot, q, qd, qdd, scale))))
         nfev[0] += X.shape[0]
         return out
 
@@ -448,20 +729,33 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         for x in cands:
             try:
                 sd = predicted_f_std(rig, fam.trajectory(x, repair(x)), duration_s, f_prior,
-                                     workers=workers)
+                                     workers=workers, model=model,
+                                     friction_prior=None if model is None else robot.friction)
             except ValueError:
-                sd = np.full(9, np.inf)
+                sd = np.full(r, np.inf)
             scores.append((float(np.max(sd / scale)), sd))
         k = int(np.argmin([s for s, _ in scores]))
         best, best_std = cands[k], scores[k][1]
+        if not np.isfinite(scores[k][0]):
+            message = ("the prediction-error criterion failed on every candidate (the emulated "
+                       "P experiment did not run at the prior"
+                       + ("; give friction_prior=" if robot.unknown else "")
+                       + "): the design is the regressor criterion's best")
+            warnings.warn(message, RuntimeWarning, stacklevel=2)
+        else:
+            message = "designed; ranked by the prediction-error criterion"
+    else:
+        message = "designed; the regressor criterion's best (rerank=0)"
     traj = fam.trajectory(best, repair(best))
+    q, qd, qdd = traj.evaluate(t)
     info = dict(
+        names=robot.names,
         predicted_f_std=best_std,
         predicted_f_rse=None if best_std is None else best_std / scale,
-        regressor_rse=regressor_rse(traj, duration_s, scale, g=c.gravity),
-        limits=trajectory_limits(traj, duration_s, rig, f_prior, joint_limits_rad=lim,
-                                 max_velocity_rad_s=vmax, max_current_A=imax),
-        f_prior=f_prior, nfev=nfev[0], candidates=len(cands))
+        regressor_rse=_rse_from_states(robot, q, qd, qdd, scale),
+        limits=_limits(robot, q, qd, qdd, f_prior, lim, vmax, imax),
+        f_prior=f_prior, nfev=nfev[0], generations=int(generations), candidates=len(cands),
+        message=message)
     return (traj, info) if full_output else traj
 
 
@@ -472,23 +766,37 @@ def _parser():
     ap = argparse.ArgumentParser(
         prog="python -m identification.excitation",
         description="Design an excitation trajectory for the rig of a sidecar (writes "
-                    "{'trajectory': {'parameters', 'duration_s'}, 'predicted_f_std'}).")
+                    "{'trajectory': {'parameters', 'duration_s'}, 'predicted_f_std'}); a "
+                    "sidecar with a 'robot' object designs for that robot model.")
     ap.add_argument("sidecar", help="the rig's JSON sidecar (STEM.json)")
     ap.add_argument("--duration-s", type=float, required=True, help="length of the run (s)")
     ap.add_argument("--seed", type=int, default=None, help="seed of the GA")
     ap.add_argument("--output", required=True, help="JSON file to write")
     ap.add_argument("--n-harmonics", type=int, default=DEFAULT_HARMONICS,
                     help=f"harmonics per joint (default {DEFAULT_HARMONICS})")
-    ap.add_argument("--generations", type=int, default=30, help="GA generations (default 30)")
+    ap.add_argument("--generations", type=int, default=None,
+                    help="GA generations (default 30 on the PUMA 560 links 2-3, more for a robot "
+                         "model with more searched numbers: design_excitation's rule)")
     ap.add_argument("--max-current", type=float, default=None,
                     help="current limit (A; default the sidecar's current_full_scale_A)")
     ap.add_argument("--max-velocity", type=float, default=None,
                     help="joint rate limit (rad/s; default none)")
-    ap.add_argument("--joint-limits", type=float, nargs=4, default=None,
-                    metavar=("Q2MIN", "Q2MAX", "Q3MIN", "Q3MAX"),
-                    help="joint range (rad; default the paper trajectory's)")
+    ap.add_argument("--joint-limits", type=float, nargs="+", default=None,
+                    metavar="QMIN QMAX",
+                    help="joint range, a min and a max per joint (rad; default the paper "
+                         "trajectory's on the PUMA 560 links 2-3, else the start state +- pi/4)")
+    ap.add_argument("--friction-prior", type=float, nargs="+", default=None,
+                    metavar="V C+ C-",
+                    help="joint-side friction guess for the components the sidecar leaves null: "
+                         "viscous (N m s/rad), Coulomb + and - (N m) per joint, 3 numbers a joint "
+                         "(default 0)")
     ap.add_argument("--workers", type=int, default=None, help="simulation threads")
     return ap
+
+
+def _finite_or_none(v):
+    v = float(v)
+    return v if math.isfinite(v) else None
 
 
 def main(argv=None):
@@ -508,6 +816,7 @@ def main(argv=None):
     import json
     import sys
 
+    from plant.logs.arm_log import arm_rig, is_arm_sidecar
     from plant.logs.fileio import write_text_atomic
     from plant.logs.sidecar import read_sidecar, rig_from_sidecar
 
@@ -516,18 +825,41 @@ def main(argv=None):
         if not (math.isfinite(args.duration_s) and args.duration_s > 0):
             raise ValueError(f"--duration-s must be a positive number, got {args.duration_s}")
         path = Path(args.sidecar)
-        rig = rig_from_sidecar(read_sidecar(path), source=path)
-        lim = None if args.joint_limits is None else np.reshape(args.joint_limits, (2, 2))
-        traj, info = design_excitation(
-            rig, args.duration_s, joint_limits_rad=lim, max_velocity_rad_s=args.max_velocity,
-            max_current_A=args.max_current, n_harmonics=args.n_harmonics, rng=args.seed,
-            generations=args.generations, workers=args.workers, full_output=True)
+        sidecar = read_sidecar(path)
+        model = None
+        if is_arm_sidecar(sidecar):
+            model, rig = arm_rig(sidecar, path)
+        else:
+            rig = rig_from_sidecar(sidecar, source=path)
+        n = len(rig.gear_ratio)
+        lim = None
+        if args.joint_limits is not None:
+            if len(args.joint_limits) != 2 * n:
+                raise ValueError(f"--joint-limits takes a min and a max per joint: {2 * n} "
+                                 f"numbers for {n} joints, got {len(args.joint_limits)}")
+            lim = np.reshape(args.joint_limits, (n, 2))
+        friction = None
+        if args.friction_prior is not None:
+            if len(args.friction_prior) != 3 * n:
+                raise ValueError(f"--friction-prior takes 3 numbers per joint (viscous, Coulomb + "
+                                 f"and -): {3 * n} for {n} joints, got {len(args.friction_prior)}")
+            friction = np.reshape(args.friction_prior, (n, 3))
+        with warnings.catch_warnings():  # a failed prediction: its message is printed below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            traj, info = design_excitation(
+                rig, args.duration_s, joint_limits_rad=lim, max_velocity_rad_s=args.max_velocity,
+                max_current_A=args.max_current, n_harmonics=args.n_harmonics, rng=args.seed,
+                generations=args.generations, workers=args.workers, full_output=True,
+                model=model, friction_prior=friction)
         lims = info["limits"]
         out = {
             "trajectory": {"parameters": traj.to_parameters(),
                            "duration_s": float(args.duration_s)},
-            "predicted_f_std": [float(v) for v in info["predicted_f_std"]],
-            "predicted_f_rse": [float(v) for v in info["predicted_f_rse"]],
+            "parameter_names": list(info["names"]),
+            # null where the prediction failed (no candidate's emulated run: the message says so)
+            "predicted_f_std": [_finite_or_none(v) for v in info["predicted_f_std"]],
+            "predicted_f_rse": [_finite_or_none(v) for v in info["predicted_f_rse"]],
+            "message": info["message"],
             "f_prior": [float(v) for v in info["f_prior"]],
             "peak_feedforward_current_A": [float(v) for v in lims["i_max"]],
             "q_range_rad": [[float(a), float(b)] for a, b in zip(lims["q_min"], lims["q_max"])],
@@ -542,8 +874,11 @@ def main(argv=None):
         print(f"error: {msg}", file=sys.stderr)
         return 1
     rse = 100 * np.asarray(info["predicted_f_rse"])
+    if not np.all(np.isfinite(rse)):
+        print(f"wrote {args.output}: {info['message']}")
+        return 0
     print(f"wrote {args.output}: predicted max relative standard error {rse.max():.2f} % "
-          f"({', '.join(f'f{i + 1} {v:.2f}' for i, v in enumerate(rse))})")
+          f"({', '.join(f'{a} {v:.2f}' for a, v in zip(info['names'], rse))})")
     return 0
 
 

@@ -265,6 +265,32 @@ def test_compiled_dynamics_kernel_gives_the_casadi_functions_numbers():
             assert np.array_equal(np.asarray(nvec).ravel(), k_nvec)
 
 
+def test_base_regressor_and_inverse_dynamics_are_the_models(arm):
+    """ArmPlant.base_regressor (time-first (m, n, r)) is the model's standard regressor's
+    independent columns (Gautier's base regressor) at every state, and
+    ArmPlant.inverse_dynamics is the model's inverse dynamics at beta of its own
+    parameters -- equal to Y beta -- for the planar arm and the three-joint PUMA 560;
+    wrong shapes give one line."""
+    rng = np.random.default_rng(12)
+    for model in (planar_arm(), RobotModel.puma560(active=(0, 1, 2))):
+        pl = arm_plant(model)
+        n, m = model.n_joints, 7
+        q, qd, qdd = rng.uniform(-3.0, 3.0, (m, n)), rng.standard_normal((m, n)), \
+            rng.standard_normal((m, n))
+        Y = pl.base_regressor(q, qd, qdd)
+        assert Y.shape == (m, n, pl.base.rank)
+        ref = model.stacked_regressor(q, qd, qdd)[:, pl.base.independent].reshape(m, n, -1)
+        np.testing.assert_allclose(Y, ref, rtol=1e-12, atol=1e-12)
+        tau = pl.inverse_dynamics(q, qd, qdd, pl.beta())
+        np.testing.assert_allclose(tau, Y @ pl.beta(), rtol=1e-12, atol=1e-10)
+        np.testing.assert_allclose(tau, [model.inverse_dynamics(*x) for x in zip(q, qd, qdd)],
+                                   rtol=1e-10, atol=1e-10)
+    with pytest.raises(ValueError, match="same shape"):
+        arm.base_regressor(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="beta"):
+        arm.inverse_dynamics(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3))
+
+
 def test_bad_inputs_give_one_line_errors(arm):
     from ctc.arm import ArmComputedTorque
 

@@ -52,7 +52,7 @@ from plant.logs.sidecar import read_sidecar, read_text, rig_from_sidecar, sideca
 from plant.logs.trajectory import Trajectory
 
 __all__ = ["ArmLog", "load_arm_log", "robot_from_sidecar", "robot_section",
-           "column_names", "is_arm_sidecar"]
+           "column_names", "is_arm_sidecar", "arm_rig"]
 
 
 def __getattr__(name):
@@ -301,6 +301,40 @@ class ArmLog:
         return path
 
 
+def arm_rig(sidecar, side):
+    """The robot model and the rig of a sidecar with a ``robot`` object (module docstring).
+
+    Parameters
+    ----------
+    sidecar : dict
+        The parsed sidecar (``plant.logs.sidecar.read_sidecar``).
+    side : path-like
+        Its file (error messages; a URDF path is relative to its folder).
+
+    Returns
+    -------
+    model : plant.robot.robot_model.RobotModel
+    rig : plant.Rig
+        Per-joint tuples of the model's n joints.
+
+    Raises
+    ------
+    LogError
+        A missing or malformed ``robot``, ``gear_ratio`` or rig key (one line).
+    """
+    side = Path(side)
+    robot = sidecar.get("robot")
+    gear = sidecar.get("gear_ratio")
+    if not isinstance(gear, list) or not gear:
+        raise sidecar_error(side, "key 'gear_ratio' must be a list of numbers, one per joint")
+    nj = len(gear)
+    if not isinstance(robot, dict):
+        raise sidecar_error(side, "key 'robot' must be an object (a DH table or a URDF) or, for a "
+                            "PUMA 560 links 2-3 log, text or absent")
+    rig = rig_from_sidecar(sidecar, side, n_joints=nj, robot_model=True)
+    return robot_from_sidecar(robot, rig.gear_ratio, side.parent, side), rig
+
+
 def load_arm_log(path) -> ArmLog:
     """Read a robot model's log (``STEM.csv`` and ``STEM.json``; module docstring).
 
@@ -332,15 +366,7 @@ def load_arm_log(path) -> ArmLog:
     robot = sidecar.get("robot")
     if robot is None or isinstance(robot, str):
         return _links23_log(path)
-    gear = sidecar.get("gear_ratio")
-    if not isinstance(gear, list) or not gear:
-        raise sidecar_error(side, "key 'gear_ratio' must be a list of numbers, one per joint")
-    nj = len(gear)
-    if not isinstance(robot, dict):
-        raise sidecar_error(side, "key 'robot' must be an object (a DH table or a URDF) or, for a "
-                            "PUMA 560 links 2-3 log, text or absent")
-    rig = rig_from_sidecar(sidecar, side, n_joints=nj, robot_model=True)
-    model = robot_from_sidecar(robot, rig.gear_ratio, side.parent, side)
+    model, rig = arm_rig(sidecar, side)
     trajectory = Trajectory.from_sidecar(sidecar, str(side), n_joints=model.n_joints)
     text = read_text(path, "log")
     rows = list(csv.reader(io.StringIO(text)))

@@ -74,7 +74,7 @@ from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
 from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
-           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound", "kernels_cached"]
+           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound", "kernels_cached", "sin_cos"]
 
 #: RK4 substeps per sample of the arm's logged runs by default: the exact
 #: reproduction of a log, the same rule as the PUMA 560 path's
@@ -247,6 +247,89 @@ class ArmPlant(Plant):
             fn(np.zeros(2 * n), np.zeros(n), np.zeros(r))
         return fn
 
+    @property
+    def base_regressor_function(self) -> ca.Function:
+        """casadi ``(sc, qd, qdd) -> Y`` (n, r): the regressor of the base parameters.
+
+        ``tau = Y(q, qd, qdd) beta`` is the plant's inverse dynamics
+        (:attr:`dynamics_function`: ``D(q) qdd + n(q, qd)``), ``sc`` as there.
+        Derived from the same expressions: ``Y = d tau / d beta``.
+        """
+        fn = _BASE_REGRESSOR.get(type(self.kind))
+        if fn is None:
+            fn = _BASE_REGRESSOR[type(self.kind)] = _base_regressor_function(self.model, self.base)
+        return fn
+
+    def base_regressor(self, q, qd, qdd) -> np.ndarray:
+        """The base parameters' regressor at many states, time-first: shape (m, n, r).
+
+        ``tau_k = Y[k] @ beta`` (N m) is the rigid arm's inverse dynamics at
+        state k (Gautier 1990: the base regressor is the standard one's
+        independent columns, the dependent ones regrouped into them).
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like, shape (m, n)
+            Joint angles (rad), rates (rad/s) and accelerations (rad/s^2).
+
+        Raises
+        ------
+        ValueError
+            Arrays that are not (m, n) of the plant's n joints.
+        """
+        n = self.n_joints
+        arrs = [np.asarray(v, dtype=float) for v in (q, qd, qdd)]
+        if any(a.ndim != 2 or a.shape[1] != n or a.shape != arrs[0].shape for a in arrs):
+            raise ValueError(f"q, qd and qdd must have the same shape (m, {n}), got "
+                             f"{[a.shape for a in arrs]}")
+        m, r = arrs[0].shape[0], self.base.rank
+        if m == 0:
+            return np.zeros((0, n, r))
+        fn = self.base_regressor_function.map(m)
+        Y = np.asarray(fn(sin_cos(arrs[0]).T, arrs[1].T, arrs[2].T))
+        # map() puts the (n, r) blocks side by side: [Y(s0) | Y(s1) | ...]
+        return Y.reshape(n, m, r).transpose(1, 0, 2)
+
+    def inverse_dynamics(self, q, qd, qdd, beta) -> np.ndarray:
+        """The rigid arm's joint torques ``D(q) qdd + n(q, qd)`` at many states (N m), shape (m, n).
+
+        Evaluated by :attr:`dynamics_kernel` (the plant's own expressions,
+        compiled; the same numbers as ``base_regressor(q, qd, qdd) @ beta``
+        to rounding), state by state.
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like, shape (m, n)
+            Joint angles (rad), rates (rad/s) and accelerations (rad/s^2).
+        beta : array_like, shape (r,)
+            Base parameters.
+
+        Raises
+        ------
+        ValueError
+            Arrays of the wrong shape.
+        """
+        n, r = self.n_joints, self.base.rank
+        q, qd, qdd = (np.asarray(v, dtype=float) for v in (q, qd, qdd))
+        beta = np.ascontiguousarray(beta, dtype=float)
+        if any(a.ndim != 2 or a.shape[1] != n or a.shape != q.shape for a in (q, qd, qdd)) \
+                or beta.shape != (r,):
+            raise ValueError(f"q, qd, qdd must be (m, {n}) and beta ({r},), got "
+                             f"{q.shape}, {qd.shape}, {qdd.shape}, {beta.shape}")
+        kernel = self.dynamics_kernel
+        sc = sin_cos(q)
+        m = q.shape[0]
+        lower = np.empty((m, n * (n + 1) // 2))
+        tau = np.empty((m, n))
+        qdc = np.ascontiguousarray(qd)
+        for k in range(m):
+            lower[k], tau[k] = kernel(sc[k], qdc[k], beta)
+        rows, cols = np.tril_indices(n)
+        D = np.zeros((m, n, n))
+        D[:, rows, cols] = lower
+        D[:, cols, rows] = lower
+        return tau + np.einsum("mjk,mk->mj", D, qdd)
+
     def beta(self, p=None) -> np.ndarray:
         """Base parameters of standard parameters ``p`` (default the model's own), shape (r,).
 
@@ -258,8 +341,12 @@ class ArmPlant(Plant):
         return self.base(p)
 
 
-def _dynamics_function(model, base) -> ca.Function:
-    """casadi ``(sc, qd, beta) -> (D lower triangle row by row, n)`` of a model's base parameters."""
+def _tau_of_beta(model, base):
+    """casadi SX ``tau(sc, qd, qdd; beta)`` of a model's base parameters, with its symbols.
+
+    Returns ``(tau, sc, qd, qdd, beta)``: ``sc = (sin q_1, cos q_1, ..., sin q_n,
+    cos q_n)``.
+    """
     _, qd, qdd, p = model._symbols
     s, c = model._trig_symbols
     n = model.n_joints
@@ -272,14 +359,46 @@ def _dynamics_function(model, base) -> ca.Function:
     for k, col in enumerate(base.independent):
         p_beta[int(col)] = beta[k]
     tau_b = ca.substitute(model._tau_sc, p, ca.vertcat(*p_beta))
+    sc = ca.vertcat(*[v for k in range(n) for v in (s[k], c[k])])
+    return tau_b, sc, qd, qdd, beta
+
+
+def _dynamics_function(model, base) -> ca.Function:
+    """casadi ``(sc, qd, beta) -> (D lower triangle row by row, n)`` of a model's base parameters."""
+    tau_b, sc, qd, qdd, beta = _tau_of_beta(model, base)
+    n = model.n_joints
     D = ca.jacobian(tau_b, qdd)
     nvec = ca.substitute(tau_b, qdd, ca.SX.zeros(n))
     lower = ca.vertcat(*[D[j, k] for j in range(n) for k in range(j + 1)])
-    sc = ca.vertcat(*[v for k in range(n) for v in (s[k], c[k])])
     outs = [ca.densify(lower), ca.densify(nvec)]
     if hasattr(ca, "cse"):
         outs = [ca.cse(o) for o in outs]
     return ca.Function("arm_dynamics", [sc, qd, beta], outs)
+
+
+def _base_regressor_function(model, base) -> ca.Function:
+    """casadi ``(sc, qd, qdd) -> Y (n, r)``: the regressor of the base parameters, ``tau = Y beta``."""
+    tau_b, sc, qd, qdd, beta = _tau_of_beta(model, base)
+    Y = ca.densify(ca.jacobian(tau_b, beta))  # tau is linear in beta: Y holds no beta
+    if hasattr(ca, "cse"):
+        Y = ca.cse(Y)
+    return ca.Function("arm_base_regressor", [sc, qd, qdd], [Y])
+
+
+def sin_cos(q) -> np.ndarray:
+    """``(sin q_1, cos q_1, ..., sin q_n, cos q_n)`` per state: the arm kernels' ``sc`` input.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., n)
+        Joint angles (rad), the joints along the last axis.
+
+    Returns
+    -------
+    ndarray, shape (..., 2 n)
+    """
+    q = np.asarray(q, dtype=float)
+    return np.stack([np.sin(q), np.cos(q)], axis=-1).reshape(q.shape[:-1] + (2 * q.shape[-1],))
 
 
 def _dynamics_source(code) -> str:
@@ -394,6 +513,8 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
 
 _PLANTS: dict = {}
 _DYNAMICS: dict = {}
+#: The base regressor per robot kind (:attr:`ArmPlant.base_regressor_function`), built on first use.
+_BASE_REGRESSOR: dict = {}
 
 
 def arm_plant(model, base=None, *, lane_friction=False, flexible=False) -> ArmPlant:
