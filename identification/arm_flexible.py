@@ -51,7 +51,7 @@ import math
 
 import numpy as np
 
-from plant.simulation.arm import arm_plant, link_mode_bound
+from plant.simulation.arm import arm_plant, link_mode_bound, symmetric_from_lower
 
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA
 from .friction import FRICTION_COMPONENTS, friction_layout
@@ -422,10 +422,7 @@ def inertia_matrices(plant, beta, q, eig=False) -> np.ndarray:
     sc = np.stack([np.sin(q), np.cos(q)], axis=2).reshape(p, 2 * n).T  # (2n, p)
     lower = np.asarray(_mapped(fn, m * p)(np.tile(sc, (1, m)), np.zeros((n, 1)),
                                           np.repeat(B.T, p, axis=1))[0])  # (n(n+1)/2, m p)
-    il = np.tril_indices(n)
-    out = np.zeros((m * p, n, n))
-    out[:, il[0], il[1]] = lower.T
-    out = out + np.tril(out, -1).transpose(0, 2, 1)
+    out = symmetric_from_lower(lower.T, n)  # (m p, n, n)
     out = out.reshape(m, p, n, n) if batch else out
     return np.linalg.eigvalsh(out)[..., 0] if eig else out
 

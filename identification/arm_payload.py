@@ -66,7 +66,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from plant.logs.rig import p_law_current, rig_constants
-from plant.simulation.arm import ArmPlant, arm_plant, replay_arm
+from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, symmetric_from_lower
 from plant.simulation.core import cell_centre
 
 from .arm import ARM_REFINE_SUBSTEPS
@@ -249,10 +249,7 @@ class ArmPayloadProblem:
         for _ in range(2):
             sc[0::2], sc[1::2] = np.sin(q), np.cos(q)
             lower, nvec = self._dyn(sc, np.asarray(thd, dtype=float), link_beta)
-            D = np.zeros((n, n))
-            D[np.tril_indices(n)] = lower
-            D = D + np.tril(D, -1).T
-            tau = D @ self.qdd0 + nvec
+            tau = symmetric_from_lower(lower, n) @ self.qdd0 + nvec
             q = th - (tau / K + 0.5 * b * np.sign(tau))
         return np.concatenate([q, thd, th, thd])
 

@@ -74,7 +74,8 @@ from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
 from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
-           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound", "kernels_cached", "sin_cos"]
+           "reference_counts", "ARM_SUBSTEPS", "link_mode_bound", "kernels_cached", "sin_cos",
+           "symmetric_from_lower"]
 
 #: RK4 substeps per sample of the arm's logged runs by default: the exact
 #: reproduction of a log, the same rule as the PUMA 560 path's
@@ -324,11 +325,7 @@ class ArmPlant(Plant):
         qdc = np.ascontiguousarray(qd)
         for k in range(m):
             lower[k], tau[k] = kernel(sc[k], qdc[k], beta)
-        rows, cols = np.tril_indices(n)
-        D = np.zeros((m, n, n))
-        D[:, rows, cols] = lower
-        D[:, cols, rows] = lower
-        return tau + np.einsum("mjk,mk->mj", D, qdd)
+        return tau + np.einsum("mjk,mk->mj", symmetric_from_lower(lower, n), qdd)
 
     def beta(self, p=None) -> np.ndarray:
         """Base parameters of standard parameters ``p`` (default the model's own), shape (r,).
@@ -383,6 +380,31 @@ def _base_regressor_function(model, base) -> ca.Function:
     if hasattr(ca, "cse"):
         Y = ca.cse(Y)
     return ca.Function("arm_base_regressor", [sc, qd, qdd], [Y])
+
+
+def symmetric_from_lower(lower, n) -> np.ndarray:
+    """Symmetric (n, n) matrices from their lower triangles given row by row.
+
+    The layout of :attr:`ArmPlant.dynamics_function`'s first output (``D(q)``).
+    A -0.0 comes out as 0.0.
+
+    Parameters
+    ----------
+    lower : array_like, shape (..., n (n + 1) / 2)
+        Lower triangles, row by row (``D11, D21, D22, D31, ...``).
+    n : int
+        Matrix size.
+
+    Returns
+    -------
+    ndarray, shape (..., n, n)
+    """
+    lower = np.asarray(lower, dtype=float)
+    il = np.tril_indices(n)
+    out = np.zeros(lower.shape[:-1] + (n, n))
+    out[..., il[0], il[1]] = lower
+    out[..., il[1], il[0]] = lower
+    return out + 0.0
 
 
 def sin_cos(q) -> np.ndarray:
