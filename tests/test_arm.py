@@ -291,6 +291,42 @@ def test_base_regressor_and_inverse_dynamics_are_the_models(arm):
         arm.inverse_dynamics(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3))
 
 
+def test_casadi_twin_of_an_arm_gives_the_cores_pulses(data_dir):
+    """plant.simulation.twin on a robot model's log: the P experiment through casadi (the
+    arm's casadi dynamics, casadi's linear solve, mapaccum) gives the compiled core's pulses
+    (generated right-hand side, L diag(d) L^T) sample for sample -- the committed planar
+    log's robot and rig at the default substeps, and the three-joint PUMA 560 at 8 -- and
+    refuses a flexible arm in one line."""
+    import dataclasses
+
+    from plant.simulation.twin import sample_step_function, simulate_experiment_twin
+
+    log = load_arm_log(data_dir / "independent_arm" / "indep_arm_planar2_payload.csv")
+    m = 1500
+    log = dataclasses.replace(log, t=log.t[:m], q_ref=log.q_ref[:m], e_pulses=log.e_pulses[:m],
+                              i_A=log.i_A[:m])
+    pl = arm_plant(log.model)
+    e = simulate_experiment_twin(log, pl.beta())
+    assert e.shape == (m, 2) and np.abs(e).max() > 50  # a run that moves
+    np.testing.assert_array_equal(
+        e, simulate_arm(pl, pl.beta()[None], log.rig, log.trajectory, m, workers=1).errors[0])
+    puma = RobotModel.puma560(active=(0, 1, 2))
+    rig = Rig(**{**planar_rig().__dict__, "gear_ratio": (62.6, 107.8, 53.7),
+                 "encoder_ppr": (1000,) * 3, "p_gain_A_per_pulse": (0.4, 0.6, 0.3),
+                 "torque_constant_Nm_per_A": (0.3,) * 3, "viscous_friction_Nms_per_rad": (1e-3,) * 3,
+                 "coulomb_friction_Nm": ((0.01, 0.012),) * 3, "q0_rad": (0.0,) * 3,
+                 "qd0_rad_per_s": (0.0,) * 3})
+    traj = Trajectory.from_terms([0.1, -0.2, 0.15], [[(0.3, 3.0, 0.0)], [(0.4, 2.0, 0.5)],
+                                                     [(0.3, 4.0, 1.0)]], t_ramp_s=0.2)
+    pl3 = arm_plant(puma)
+    log3 = emulate_arm_log(pl3, pl3.beta(), rig, traj, 400)
+    np.testing.assert_array_equal(
+        simulate_experiment_twin(log3, pl3.beta(), substeps=8),
+        simulate_arm(pl3, pl3.beta()[None], rig, traj, 400, substeps=8, workers=1).errors[0])
+    with pytest.raises(ValueError, match="rigid arm"):
+        sample_step_function(rig_constants(rig), 2, plant=arm_plant(puma, flexible=True))
+
+
 def test_bad_inputs_give_one_line_errors(arm):
     from ctc.arm import ArmComputedTorque
 

@@ -12,6 +12,14 @@ arithmetic as :func:`plant.simulation.core.advance_sample`.  It serves two purpo
   with :func:`plant.simulate_experiment` sample for sample;
 * the plant side of :func:`ctc.evaluate.evaluate_ctc`, the casadi closed-loop
   evaluation of the computed-torque controller (design card).
+
+Any robot model's rigid arm has its twin too (``plant=`` an
+:class:`~plant.simulation.arm.ArmPlant`): the arm's casadi dynamics
+(:attr:`~plant.simulation.arm.ArmPlant.dynamics_function`, ``D(q)`` and
+``n(q, qd)`` in the base parameters) solved by casadi's own linear solve,
+not by the generated kernels' ``L diag(d) L^T`` (:mod:`plant.simulation.arm`),
+so the twin checks the code generation as well; :func:`simulate_experiment_twin`
+takes an :class:`~plant.logs.arm_log.ArmLog`.
 """
 from __future__ import annotations
 
@@ -26,6 +34,7 @@ __all__ = [
     "trunc_sx",
     "cell_centre_sx",
     "rigid_rhs_sx",
+    "arm_rhs_sx",
     "sample_step_function",
     "simulate_experiment_twin",
 ]
@@ -110,7 +119,48 @@ def rigid_rhs_sx(f, c: RigConstants, x, i):
     return ca.vertcat(w, model.forward(f, q, w, tau, c.gravity))
 
 
-def sample_step_function(c: RigConstants, substeps: int) -> ca.Function:
+def arm_rhs_sx(plant, beta, c: RigConstants, x, i):
+    """Right-hand side of a robot model's rigid arm (twin of the generated one, :mod:`plant.simulation.arm`).
+
+    ``qdd = D(q)^-1 (k Kt i + friction(qd) - n(q, qd))`` with ``D`` and
+    ``n`` from the arm's casadi :attr:`~plant.simulation.arm.ArmPlant.dynamics_function`,
+    solved by ``casadi.solve``.
+
+    Parameters
+    ----------
+    plant : plant.simulation.arm.ArmPlant
+        The rigid arm (n joints, r base parameters).
+    beta : casadi.SX or DM, shape (r,)
+        Base parameters.
+    c : plant.logs.rig.RigConstants
+        Rig layout.
+    x : casadi.SX, shape (2 n,)
+        State (q, qd).
+    i : casadi.SX, shape (n,)
+        Held motor currents (A).
+
+    Returns
+    -------
+    casadi.SX, shape (2 n,)
+        (qd, qdd).
+    """
+    n = plant.n_joints
+    q, w = x[:n], x[n:]
+    sc = ca.vertcat(*[v for j in range(n) for v in (ca.sin(q[j]), ca.cos(q[j]))])
+    lower, nvec = plant.dynamics_function(sc, w, beta)
+    rows = []
+    for j in range(n):
+        rows.append(ca.horzcat(*[lower[j * (j + 1) // 2 + k] if k <= j
+                                 else lower[k * (k + 1) // 2 + j] for k in range(n)]))
+    D = ca.vertcat(*rows)
+    tau = ca.vertcat(*[
+        c.torque_per_amp[j] * i[j]
+        + friction_sx(w[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j], c.ramp_speed[j])
+        for j in range(n)])
+    return ca.vertcat(w, ca.solve(D, tau - nvec))
+
+
+def sample_step_function(c: RigConstants, substeps: int, plant=None) -> ca.Function:
     """One sample of the rigid plant under held currents, as a casadi Function.
 
     The twin of :func:`plant.simulation.core.advance_sample` for the rigid plant: RK4
@@ -123,32 +173,48 @@ def sample_step_function(c: RigConstants, substeps: int) -> ca.Function:
         Rig layout (Ts, drive constants, gravity).
     substeps : int
         RK4 steps per sample (>= 1).
+    plant : plant.simulation.arm.ArmPlant, optional
+        A robot model's rigid arm (default the PUMA 560 links 2--3 of
+        :mod:`plant.robot.symbolic`, f1..f9).
 
     Returns
     -------
     casadi.Function
-        ``step(x (4,), i (2,), f (9,)) -> x_next (4,)``.
+        ``step(x (2 n,), i (n,), f (r,)) -> x_next (2 n,)``: n = 2, r = 9 by
+        default.
 
     Raises
     ------
     ValueError
-        If ``substeps < 1``.
+        If ``substeps < 1``, or the plant is not a rigid arm.
     """
     substeps = int(substeps)
     if substeps < 1:
         raise ValueError(f"substeps must be >= 1, got {substeps}")
-    x = ca.SX.sym("x", 4)
-    i = ca.SX.sym("i", 2)
-    f = ca.SX.sym("f", 9)
+    if plant is None:
+        n, r = 2, 9
+
+        def rhs(f, xk, i):
+            return rigid_rhs_sx(f, c, xk, i)
+    else:
+        if getattr(plant, "flexible", True) or getattr(plant, "lane_friction", True):
+            raise ValueError("the twin takes a robot model's rigid arm (arm_plant(model))")
+        n, r = plant.n_joints, plant.base.rank
+
+        def rhs(f, xk, i):
+            return arm_rhs_sx(plant, f, c, xk, i)
+    x = ca.SX.sym("x", 2 * n)
+    i = ca.SX.sym("i", n)
+    f = ca.SX.sym("f", r)
     h = c.sample_time_s / substeps
     hh = 0.5 * h
     h6 = h * (1.0 / 6.0)
     xk = x
     for _ in range(substeps):
-        k1 = rigid_rhs_sx(f, c, xk, i)
-        k2 = rigid_rhs_sx(f, c, xk + hh * k1, i)
-        k3 = rigid_rhs_sx(f, c, xk + hh * k2, i)
-        k4 = rigid_rhs_sx(f, c, xk + h * k3, i)
+        k1 = rhs(f, xk, i)
+        k2 = rhs(f, xk + hh * k1, i)
+        k3 = rhs(f, xk + hh * k2, i)
+        k4 = rhs(f, xk + h * k3, i)
         xk = xk + h6 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     return ca.Function("sample_step", [x, i, f], [xk], ["x", "i", "f"], ["x_next"])
 
@@ -158,42 +224,57 @@ def simulate_experiment_twin(log, f, *, substeps: int = 48) -> np.ndarray:
 
     The same loop as :func:`plant.simulate_experiment` (encoder read,
     ``i = P e``, held over the sample, ``substeps`` RK4 steps), evaluated as
-    one casadi ``mapaccum`` over the run.
+    one casadi ``mapaccum`` over the run; for a robot model's log
+    (:class:`~plant.logs.arm_log.ArmLog`) the loop of
+    :func:`plant.simulation.arm.simulate_arm` on its rigid arm.
 
     Parameters
     ----------
-    log : plant.ExperimentLog
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
         The experiment (rig, trajectory, start state).
-    f : array_like, shape (9,)
-        Base parameters.
+    f : array_like, shape (r,)
+        Base parameters (f1..f9 of a PUMA 560 links 2--3 log).
     substeps : int
         RK4 steps per sample.
 
     Returns
     -------
-    ndarray, shape (n_samples, 2), int64
+    ndarray, shape (n_samples, n), int64
         Simulated tracking errors at the log's samples (pulses).
 
     Raises
     ------
     ValueError
-        If ``f`` is not 9 finite numbers or ``substeps < 1``.
+        If ``f`` is not r finite numbers or ``substeps < 1``.
     """
+    arm = getattr(log, "model", None) is not None and not hasattr(log, "n_total")
+    plant = None
+    if arm:
+        from plant.simulation.arm import arm_plant
+
+        plant = arm_plant(log.model)
+    n_j, r = (plant.n_joints, plant.base.rank) if arm else (2, 9)
     f = np.asarray(f, dtype=float)
-    if f.shape != (9,) or not np.all(np.isfinite(f)):
-        raise ValueError(f"f must be 9 finite numbers, got shape {f.shape}")
+    if f.shape != (r,) or not np.all(np.isfinite(f)):
+        raise ValueError(f"f must be {r} finite numbers, got shape {f.shape}")
     c = rig_constants(log.rig)
-    step = sample_step_function(c, substeps)
-    x = ca.SX.sym("x", 4)
-    refc = ca.SX.sym("ref", 2)
-    e = ca.vertcat(*[trunc_sx(refc[j]) - trunc_sx(x[j] * c.pulses_per_rad[j]) for j in range(2)])
+    step = sample_step_function(c, substeps, plant=plant)
+    x = ca.SX.sym("x", 2 * n_j)
+    refc = ca.SX.sym("ref", n_j)
+    e = ca.vertcat(*[trunc_sx(refc[j]) - trunc_sx(x[j] * c.pulses_per_rad[j])
+                     for j in range(n_j)])
     lim = c.current_limit  # the drive's full scale, as the compiled core
     cur = ca.vertcat(*[c.p_gain[j] * e[j] if not np.isfinite(lim)
-                       else ca.fmin(ca.fmax(c.p_gain[j] * e[j], -lim), lim) for j in range(2)])
+                       else ca.fmin(ca.fmax(c.p_gain[j] * e[j], -lim), lim)
+                       for j in range(n_j)])
     loop = ca.Function("p_loop", [x, refc], [step(x, cur, ca.DM(f)), e])
-    n = log.n_total
-    t = np.arange(n) * c.sample_time_s
-    ref = log.trajectory.position(t) * log.rig.pulses_per_rad
+    if arm:
+        n, start = log.n_samples, 0
+        ref = log.reference_counts()
+    else:
+        n, start = log.n_total, log.start_index
+        t = np.arange(n) * c.sample_time_s
+        ref = log.trajectory.position(t) * log.rig.pulses_per_rad
     _, E = loop.mapaccum("p_run", n)(np.r_[c.q0, c.qd0], ref.T)
     e_all = np.rint(np.asarray(E).T).astype(np.int64)
-    return e_all[log.start_index:]
+    return e_all[start:]
