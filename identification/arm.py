@@ -58,7 +58,7 @@ from plant.robot.model import friction_torque
 from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, RESTART_FRACTION
-from .friction import FRICTION_COMPONENTS, friction_layout
+from .friction import FRICTION_COMPONENTS, friction_layout, joint_friction_columns
 from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
 from .refinement import DEFAULT_GAIN, refine, refine_through_gains
@@ -232,8 +232,8 @@ def _plant_of(log, plant):
 
 
 def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
-                reversal_guard=REVERSAL_GUARD) -> dict:
-    """Base parameters of an arm by IDIM-LS (inverse dynamic model, least squares).
+                reversal_guard=REVERSAL_GUARD, iv_iterations=0) -> dict:
+    """Base parameters of an arm by IDIM-LS (inverse dynamic model, least squares), or IDIM-IV.
 
     Parameters
     ----------
@@ -251,6 +251,15 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
     reversal_guard : float or None
         Equations within ``reversal_guard / cutoff_hz`` s of a rate reversal
         are dropped (None keeps all).
+    iv_iterations : int
+        IDIM-IV (:mod:`identification.idim`'s, for any arm): instruments
+        the regressor of the rig's P loop simulated at the current estimate
+        (:func:`plant.simulate_closed_loop` on the arm, the same reference,
+        the unknown friction at its estimate clipped at 0; noise-free
+        positions through the same filter and differences), ``x = (Z^T
+        W)^-1 Z^T tau``, started from the weighted least squares and
+        iterated this many times (0: IDIM-LS; a failed simulation keeps the
+        previous estimate).  Standard errors: the IV sandwich.
 
     Returns
     -------
@@ -258,7 +267,7 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
         ``x`` (r + u,): beta, then the u unknown friction components
         (joint side, :func:`identification.friction.friction_layout`); ``x_std``, ``cov`` (r + u,
         r + u), ``cutoff_hz``, ``n_equations``, ``residual_rms_Nm`` (n,),
-        ``condition_number``.
+        ``condition_number``, ``iv_iterations`` (the IV steps done).
 
     Raises
     ------
@@ -306,12 +315,8 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
     Y = pl.model.stacked_regressor(qf[sl], qd[sl], qdd[sl])[:, pl.base.independent]
     unknown = friction_layout(rig)[1]
     if unknown:  # the unknown friction's columns, joint by joint, filtered like the torque
-        r_ = np.clip(qd / np.asarray(c.ramp_speed), -1.0, 1.0)
-        cols = np.zeros((ns, n, len(unknown)))
-        for k, (j, what) in enumerate(unknown):
-            cols[:, j, k] = (qd[:, j] if what == 0 else
-                             r_[:, j] * (qd[:, j] > 0) if what == 1 else r_[:, j] * (qd[:, j] <= 0))
-        cols = signal.sosfiltfilt(sos, cols, axis=0)[sl].reshape(-1, len(unknown))
+        cols = signal.sosfiltfilt(sos, joint_friction_columns(qd, c.ramp_speed, unknown),
+                                  axis=0)[sl].reshape(-1, len(unknown))
         empty = [k for k in range(len(unknown)) if not np.any(cols[weight > 0, k] != 0)]
         if empty:
             j, what = unknown[empty[0]]
@@ -333,14 +338,69 @@ def arm_idim_ls(log, *, plant=None, cutoff_hz=None, trim_s=0.1, decimate=1,
     rw = np.tile(1.0 / sigma, W.shape[0] // n)
     Ww, yw = W * rw[:, None], y * rw
     x = np.linalg.lstsq(Ww / scale, yw, rcond=None)[0] / scale
+    done = 0
+    for _ in range(int(iv_iterations)):
+        Z = _arm_instruments(log, pl, x, sos, sl, unknown)
+        if Z is None:
+            break
+        Z = Z * (weight * rw)[:, None]
+        x = np.linalg.solve(Z.T @ Ww, Z.T @ yw)
+        done += 1
     r = Ww @ x - yw
-    cov, _ = sandwich_covariance(Ww, r, n_channels=n)
+    if done:
+        # the IV sandwich (Z^T W)^-1 S (W^T Z)^-1 with S of the scores Z_t r_t;
+        # sandwich_covariance(Z, r) returns (Z^T Z)^-1 S (Z^T Z)^-1
+        A = np.linalg.inv(Z.T @ Ww)
+        cz, _ = sandwich_covariance(Z, r, n_channels=n)
+        ZZ = Z.T @ Z
+        cov = A @ ZZ @ cz @ ZZ @ A.T
+    else:
+        cov, _ = sandwich_covariance(Ww, r, n_channels=n)
     sv = np.linalg.svd(Ww / np.linalg.norm(Ww, axis=0).clip(1e-300), compute_uv=False)
     res = (W @ x - y).reshape(-1, n)
     return dict(x=x, x_std=np.sqrt(np.maximum(np.diag(cov), 0.0)), cov=cov, cutoff_hz=fc,
                 n_equations=int(np.count_nonzero(weight)),
                 residual_rms_Nm=np.sqrt(np.mean(res[kept.reshape(-1, n).any(axis=1)] ** 2, axis=0)),
-                condition_number=float(sv[0] / sv[-1]))
+                condition_number=float(sv[0] / sv[-1]), iv_iterations=done)
+
+
+def _arm_instruments(log, pl, x, sos, sl, unknown):
+    """IDIM-IV instruments of an arm: the regressor of its P loop simulated at x, or None.
+
+    The rig's P law on the arm with beta = x[:r] and the unknown friction at
+    x[r:] (joint side, clipped at 0), the log's reference; the simulated
+    positions through the same filter and differences as the measured
+    ones, the same equations (``sl``), unweighted: shape (n_eq n, r + u).
+    """
+    from plant.simulation.closed_loop import simulate_closed_loop
+    from plant.simulation.synthetic import CardPLaw
+
+    rig, r = log.rig, pl.base.rank
+    ts = rig.sample_time_s
+    if unknown:  # the simulated robot has the current friction estimate (motor side in the rig)
+        xf = np.concatenate([x[:r], np.maximum(x[r:], 0.0)])
+        fr = motor_side_friction(rig, xf, r)
+        rig = dataclasses.replace(
+            rig, viscous_friction_Nms_per_rad=tuple(fr["viscous_friction_Nms_per_rad"]),
+            coulomb_friction_Nm=tuple(tuple(v) for v in fr["coulomb_friction_Nm"]))
+    try:
+        resp = simulate_closed_loop(rig, x[:r], CardPLaw(log.rig.p_gain_A_per_pulse),
+                                    trajectory=log.trajectory, n_samples=log.n_samples,
+                                    plant=pl, label="IDIM-IV instruments")
+    except ValueError:
+        return None
+    if not resp.success or resp.q.shape[0] < log.n_samples:
+        return None
+    qs = signal.sosfiltfilt(sos, resp.q, axis=0)
+    qds = np.gradient(qs, ts, axis=0)
+    qdds = np.gradient(qds, ts, axis=0)
+    Z = pl.model.stacked_regressor(qs[sl], qds[sl], qdds[sl])[:, pl.base.independent]
+    if unknown:
+        c = rig_constants(log.rig)
+        cols = signal.sosfiltfilt(sos, joint_friction_columns(qds, c.ramp_speed, unknown),
+                                  axis=0)[sl]
+        Z = np.hstack([Z, cols.reshape(-1, len(unknown))])
+    return Z
 
 
 def _lane_friction(rig, X, r):

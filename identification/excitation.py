@@ -85,7 +85,7 @@ import plant
 from plant.robot.model import friction_torques, regressor
 from plant.logs.rig import F_NAMES, rig_constants
 
-from .friction import friction_layout
+from .friction import friction_layout, joint_friction_columns
 
 __all__ = ["design_excitation", "predicted_f_std", "trajectory_limits", "regressor_rse",
            "DEFAULT_HARMONICS", "CURRENT_MARGIN"]
@@ -156,17 +156,11 @@ class _Robot:
     def friction_columns(self, qd):
         """The unknown friction components' regressor columns along the states, (m n, u).
 
-        ``tau_f = v qd + Tc+ r [qd > 0] + Tc- r [qd <= 0]``, ``r = clip(qd / v_ramp, -1,
-        1)``: the identification estimates them with the base parameters
-        (:func:`identification.friction.friction_layout`), nuisance parameters here.
+        :func:`identification.friction.joint_friction_columns`: the identification
+        estimates them with the base parameters, nuisance parameters here.
         """
-        m = qd.shape[0]
-        r_ = np.clip(qd / np.asarray(self.c.ramp_speed), -1.0, 1.0)
-        cols = np.zeros((m, self.n, len(self.unknown)))
-        for k, (j, w) in enumerate(self.unknown):
-            cols[:, j, k] = (qd[:, j] if w == 0 else
-                             r_[:, j] * (qd[:, j] > 0) if w == 1 else r_[:, j] * (qd[:, j] <= 0))
-        return cols.reshape(m * self.n, -1)
+        cols = joint_friction_columns(qd, self.c.ramp_speed, self.unknown)
+        return cols.reshape(qd.shape[0] * self.n, -1)
 
     def _model(self, rig, model):
         from plant.simulation.arm import ArmPlant, arm_plant

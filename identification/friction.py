@@ -30,7 +30,8 @@ from plant.simulation.friction import FRICTION_NAMES, RIGID_FRICTION, friction_f
 from .parameters import BaseParameters, HeldModelChange, Parameterisation, check_bounds
 
 __all__ = ["FrictionParameters", "FrictionChangeParameters", "unknown_friction_indices", "default_friction_bounds",
-           "friction_entries", "full_friction", "FRICTION_COMPONENTS", "friction_layout"]
+           "friction_entries", "full_friction", "FRICTION_COMPONENTS", "friction_layout",
+           "joint_friction_columns"]
 
 
 def unknown_friction_indices(rig) -> list:
@@ -401,6 +402,41 @@ class FrictionChangeParameters(HeldModelChange):
 #: Joint-side friction components of a joint, in the lane order of
 #: :func:`plant.simulation.arm.arm_plant` (``lane_friction``).
 FRICTION_COMPONENTS = ("viscous", "coulomb_pos", "coulomb_neg")
+
+
+def joint_friction_columns(qd, ramp_speed, unknown) -> np.ndarray:
+    """Regressor columns of the unknown joint-side friction components along the states.
+
+    The drive friction is linear in its constants: ``v qd`` (viscous),
+    ``Tc+ r [qd > 0]`` and ``Tc- r [qd <= 0]`` (Coulomb) with the rig's
+    ramp ``r = clip(qd / v_ramp, -1, 1)`` (:func:`plant.robot.model.friction_torque`
+    up to its sign); an identification that does not know them estimates
+    them with the base parameters (the paper: "if unknown, have to be
+    included as unknown parameters").
+
+    Parameters
+    ----------
+    qd : ndarray, shape (m, n)
+        Joint rates (rad/s), time-first.
+    ramp_speed : array_like, shape (n,)
+        The Coulomb ramp's speed per joint (rad/s, joint side).
+    unknown : sequence of (int, int)
+        ``(joint, component)`` pairs of :func:`friction_layout` (0 viscous,
+        1 Coulomb +, 2 Coulomb -).
+
+    Returns
+    -------
+    ndarray, shape (m, n, len(unknown))
+        Column k is nonzero on its joint's row only.
+    """
+    qd = np.asarray(qd, dtype=float)
+    n = qd.shape[1]
+    r_ = np.clip(qd / np.asarray(ramp_speed, dtype=float), -1.0, 1.0)
+    cols = np.zeros((qd.shape[0], n, len(unknown)))
+    for k, (j, what) in enumerate(unknown):
+        cols[:, j, k] = (qd[:, j] if what == 0 else
+                         r_[:, j] * (qd[:, j] > 0) if what == 1 else r_[:, j] * (qd[:, j] <= 0))
+    return cols
 
 
 def friction_layout(rig):

@@ -493,6 +493,39 @@ def test_unknown_friction_is_identified_with_the_base_parameters(arm):
     assert r.within(1, after_s=0.1)
 
 
+def test_arm_idim_iv_with_unknown_friction(arm, monkeypatch):
+    """IDIM-IV of an arm (instruments: the regressor of the rig's P loop simulated at the
+    current estimate, the unknown friction at its estimate): the iterations are done, the
+    well-determined base parameters and the friction stay at least as close to the truth as
+    IDIM-LS's (library plant; plumbing), the IV sandwich is finite; a simulation that fails
+    keeps the least-squares estimate."""
+    import dataclasses
+
+    import identification.arm as ida
+
+    rig = planar_rig(limit=40.0)
+    log = emulate_arm_log(arm, arm.beta(), rig, TRAJ, 3000)
+    blind = dataclasses.replace(log, rig=dataclasses.replace(
+        rig, viscous_friction_Nms_per_rad=None, coulomb_friction_Nm=None))
+    ls = ida.arm_idim_ls(blind)
+    iv = ida.arm_idim_ls(blind, iv_iterations=2)
+    assert ls["iv_iterations"] == 0 and iv["iv_iterations"] == 2
+    assert iv["x"].shape == ls["x"].shape == (arm.base.rank + 6,)
+    assert np.all(np.isfinite(iv["x_std"])) and np.all(iv["x_std"] > 0)
+    r = arm.base.rank
+    truth = np.concatenate([arm.beta(), ida.friction_layout(rig)[0].reshape(-1)])
+    with np.errstate(divide="ignore"):  # a true value of 0 is not well determined relatively
+        well = ls["x_std"] / np.abs(truth) < 0.01
+    assert well[:r].sum() >= 3
+    err_ls = np.abs(ls["x"][well] / truth[well] - 1)
+    err_iv = np.abs(iv["x"][well] / truth[well] - 1)
+    assert np.max(err_iv) <= np.max(err_ls) + 0.002 and np.max(err_iv) < 0.03
+    monkeypatch.setattr(ida, "_arm_instruments", lambda *a, **k: None)
+    failed = ida.arm_idim_ls(blind, iv_iterations=2)
+    assert failed["iv_iterations"] == 0
+    np.testing.assert_array_equal(failed["x"], ls["x"])
+
+
 def test_identify_many_takes_robot_model_logs(arm, tmp_path):
     """A study over robot-model logs (identification.distributed): results come back by path."""
     from concurrent.futures import ThreadPoolExecutor
