@@ -25,6 +25,11 @@ identification chooses the model itself (``model_choice``), and the
 controller built from the result is the motor-side flexible-joint CTC
 (:class:`ctc.arm.ArmFlexibleComputedTorque`).
 
+With ``--excite`` the log's reference is designed for the robot model
+first (:func:`identification.design_excitation`: the worst base
+parameter's predicted error minimised within a quarter turn of the start
+and the drive's current) instead of the hand-written multisine.
+
 With ``--pick-up KG`` a tool of KG kg is picked up at half the log, and the
 static CTC of the unloaded identification runs against the adaptive one
 (:class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque`: the payload
@@ -37,6 +42,7 @@ Run from the repository root::
     python examples/any_arm.py --robot puma6          # about half a minute (compiling included)
     python examples/any_arm.py --quick                # a 2 s log of the planar arm
     python examples/any_arm.py --pick-up 2            # and a 2 kg tool picked up mid-run
+    python examples/any_arm.py --excite               # the log's reference designed first
 
 Writes ``out/any_arm/<robot>.{csv,json}``, ``<robot>_result.json`` and
 ``<robot>_tracking.png``.  A bad option ends with one line ``error: ...``
@@ -69,6 +75,9 @@ def parse(argv):
     p.add_argument("--pick-up", type=float, default=None, metavar="KG",
                    help="also pick up a tool of KG kg at half the log and compare the static "
                         "and the adaptive CTC (rigid arms)")
+    p.add_argument("--excite", action="store_true",
+                   help="design the log's reference (identification.design_excitation for the "
+                        "robot model, within a quarter turn of the start) instead of the multisine")
     p.add_argument("--out", type=Path, default=Path("out") / "any_arm",
                    help="output directory (default out/any_arm)")
     a = p.parse_args(argv)
@@ -176,6 +185,18 @@ def main(argv=None):
     n = int(round(args.duration / rig.sample_time_s))
     truth = arm.beta()
     print(f"{model!r}: {len(truth)} base parameters")
+    if args.excite:  # the reference designed for this robot model (its own inertials the prior)
+        from identification import design_excitation
+        from identification.excitation import predicted_f_std
+
+        t0 = time.perf_counter()
+        traj, info = design_excitation(rig, args.duration, model=model, rng=0, full_output=True)
+        scale = info["predicted_f_std"] / info["predicted_f_rse"]  # the design's own scales
+        before = predicted_f_std(rig, reference(model.n_joints), args.duration,
+                                 info["f_prior"], model=model) / scale
+        print(f"designed reference in {time.perf_counter() - t0:.0f} s: predicted largest "
+              f"relative standard error {100 * np.max(info['predicted_f_rse']):.3f} % "
+              f"(the multisine's {100 * np.max(before):.3f} %)")
     robot_row = truth
     if args.flexible:  # two-mass joints: link modes 12-20 Hz, backlash 2 mrad on the last joint
         arm = arm_plant(model, flexible=True)

@@ -294,9 +294,10 @@ class ArmPlant(Plant):
     def inverse_dynamics(self, q, qd, qdd, beta) -> np.ndarray:
         """The rigid arm's joint torques ``D(q) qdd + n(q, qd)`` at many states (N m), shape (m, n).
 
-        Evaluated by :attr:`dynamics_kernel` (the plant's own expressions,
-        compiled; the same numbers as ``base_regressor(q, qd, qdd) @ beta``
-        to rounding), state by state.
+        Evaluated by the generated module's ``dynamics_batch``:
+        :attr:`dynamics_kernel` (the plant's own expressions, compiled; the
+        same numbers as ``base_regressor(q, qd, qdd) @ beta`` to rounding)
+        state by state in one compiled loop.
 
         Parameters
         ----------
@@ -317,14 +318,10 @@ class ArmPlant(Plant):
                 or beta.shape != (r,):
             raise ValueError(f"q, qd, qdd must be (m, {n}) and beta ({r},), got "
                              f"{q.shape}, {qd.shape}, {qdd.shape}, {beta.shape}")
-        kernel = self.dynamics_kernel
-        sc = sin_cos(q)
-        m = q.shape[0]
-        lower = np.empty((m, n * (n + 1) // 2))
-        tau = np.empty((m, n))
-        qdc = np.ascontiguousarray(qd)
-        for k in range(m):
-            lower[k], tau[k] = kernel(sc[k], qdc[k], beta)
+        if q.shape[0] == 0:
+            return np.zeros((0, n))
+        lower, tau = self.kernels.dynamics_batch(np.ascontiguousarray(sin_cos(q)),
+                                                 np.ascontiguousarray(qd), beta)
         return tau + np.einsum("mjk,mk->mj", symmetric_from_lower(lower, n), qdd)
 
     def beta(self, p=None) -> np.ndarray:
@@ -529,8 +526,25 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
               "@_inline", rhs_source,
               f"register_plant(ArmKind, rhs, {n_states}, {n_parameters}, n_inputs={n}, "
               f"n_angles={n})", "", "",
-              "@_kernel", _dynamics_source(code)],
+              "@_kernel", _dynamics_source(code), "",
+              "@_kernel", _DYNAMICS_BATCH_SOURCE],
         copies=[(arm_run, "_kernel"), (hold_and_advance, "_kernel")])
+
+
+#: Source of ``dynamics_batch(sc, qd, beta) -> (lower, nvec)``: :func:`dynamics` state by
+#: state in one compiled loop (:meth:`ArmPlant.inverse_dynamics`), ``sc`` (m, 2 n), ``qd``
+#: (m, n), m >= 1.
+_DYNAMICS_BATCH_SOURCE = """def dynamics_batch(sc, qd, beta):
+    m = sc.shape[0]
+    first, nfirst = dynamics(sc[0], qd[0], beta)
+    lower = np.empty((m, first.shape[0]))
+    nvec = np.empty((m, nfirst.shape[0]))
+    for k in range(m):
+        a, b = dynamics(sc[k], qd[k], beta)
+        lower[k, :] = a
+        nvec[k, :] = b
+    return lower, nvec
+"""
 
 
 _PLANTS: dict = {}
