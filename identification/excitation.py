@@ -44,7 +44,8 @@ tau_friction(qd)) / (k Kt)``, at ``f_prior`` (default the centre of the
 rig's search box; a robot model without one: its own base parameters, from
 its DH table or URDF) kept below ``CURRENT_MARGIN`` times the drive's full
 scale (the P loop's tracking transients come on top of the feed-forward
-current; unknown friction, ``null`` in the sidecar, is left out).
+current; friction the sidecar leaves unknown, ``null``, counts at the
+``friction_prior`` given, else as zero).
 
 Criterion and why
 -----------------
@@ -66,6 +67,16 @@ trajectories (``docs/optimisers.rst``).  Relative errors are taken relative to
 ``max(|f_prior|, 5 % of the search range)`` (a parameter near zero in the
 prior still gets a finite scale); without a search range (a robot model
 whose sidecar gives none) ``max(|f_prior|, 5 % of the rms of |f_prior|)``.
+
+Unknown friction: the identification estimates the components a sidecar
+leaves ``null`` with the base parameters (the paper: "if unknown, have to be
+included as unknown parameters"), so both criteria count them as nuisance
+parameters -- their regressor columns
+(:func:`identification.friction.joint_friction_columns`) join the
+information matrix, and, for a robot model, the prediction-error Jacobian
+(the arm emulated at ``friction_prior``); the minimax is over the base
+parameters alone.  The PUMA 560 links 2--3's prediction-error criterion
+holds the friction at the rig's values.
 
 The search is the project's GA (:func:`identification.ga.run_ga`, Gray-coded,
 4 x 20 individuals).  A candidate outside the limits is repaired, not
