@@ -799,6 +799,16 @@ def _parser():
     return ap
 
 
+def _per_joint_rows(values, n, k, flag, what):
+    """A flag's numbers as (n, k) rows, k per joint (None when not given); a wrong count: one line."""
+    if values is None:
+        return None
+    if len(values) != k * n:
+        raise ValueError(f"{flag} takes {what} per joint: {k * n} numbers for {n} joints, "
+                         f"got {len(values)}")
+    return np.reshape(values, (n, k))
+
+
 def _finite_or_none(v):
     v = float(v)
     return v if math.isfinite(v) else None
@@ -837,18 +847,8 @@ def main(argv=None):
         else:
             rig = rig_from_sidecar(sidecar, source=path)
         n = len(rig.gear_ratio)
-        lim = None
-        if args.joint_limits is not None:
-            if len(args.joint_limits) != 2 * n:
-                raise ValueError(f"--joint-limits takes a min and a max per joint: {2 * n} "
-                                 f"numbers for {n} joints, got {len(args.joint_limits)}")
-            lim = np.reshape(args.joint_limits, (n, 2))
-        friction = None
-        if args.friction_prior is not None:
-            if len(args.friction_prior) != 3 * n:
-                raise ValueError(f"--friction-prior takes 3 numbers per joint (viscous, Coulomb + "
-                                 f"and -): {3 * n} for {n} joints, got {len(args.friction_prior)}")
-            friction = np.reshape(args.friction_prior, (n, 3))
+        lim = _per_joint_rows(args.joint_limits, n, 2, "--joint-limits", "a min and a max")
+        friction = _per_joint_rows(args.friction_prior, n, 3, "--friction-prior", "3 numbers")
         with warnings.catch_warnings():  # a failed prediction: its message is printed below
             warnings.simplefilter("ignore", RuntimeWarning)
             traj, info = design_excitation(
