@@ -60,7 +60,8 @@ from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, RESTART_FRACTION
 from .friction import FRICTION_COMPONENTS, friction_layout, joint_friction_columns
 from .objective import IDENTIFICATION_SUBSTEPS
-from .idim import IDIM_FILTER_ORDER, REVERSAL_GUARD, cutoff_from_counts, reversal_mask
+from .idim import (IDIM_FILTER_ORDER, IV_ITERATIONS, REVERSAL_GUARD, cutoff_from_counts,
+                   reversal_mask)
 from .refinement import DEFAULT_GAIN, refine, refine_through_gains
 from .result_schema import jsonable
 from .uncertainty import RSE_WARN, sandwich_covariance
@@ -73,7 +74,7 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
 
 #: Methods of :func:`identify_arm`; the default.
-ARM_METHODS = ("idim+pem", "ga+pem", "paper")
+ARM_METHODS = ("idim+pem", "ga+pem", "paper", "idim-ls", "idim-iv")
 ARM_DEFAULT_METHOD = "idim+pem"
 
 #: Seed of the GA that replaces an IDIM-LS start that does not simulate (``"idim+pem"``
@@ -741,7 +742,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     ----------
     log : plant.logs.arm_log.ArmLog
         The logged experiment of a robot model (:func:`plant.logs.arm_log.load_arm_log`).
-    method : {"idim+pem", "ga+pem", "paper"}
+    method : {"idim+pem", "ga+pem", "paper", "idim-ls", "idim-iv"}
         ``"idim+pem"`` (default): IDIM-LS start, output-error refinement;
         when the IDIM-LS start does not simulate the log (an inertia matrix
         that is not positive definite, a diverging predictor: measured on a
@@ -749,6 +750,13 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         drive friction, 1054 N m s/rad at the joint, dwarfed its link
         torques), the ``"ga+pem"`` GA supplies the start (its seed ``rng``,
         or :data:`IDIM_FALLBACK_SEED`) and ``warnings`` says so.
+        ``"idim-ls"`` and ``"idim-iv"``: the classical inverse-model
+        estimate alone (:func:`arm_idim_ls`; IDIM-IV with
+        :data:`~identification.idim.IV_ITERATIONS` instrumental-variable
+        steps), its own standard errors, the rigid model (``model`` other
+        than ``"auto"`` or ``"rigid"`` is refused), ``fun`` the
+        prediction-error cost at it; as :func:`identification.identify`'s
+        methods of the same names.
         ``"paper"``: the paper's GA (:func:`identification.ga.run_ga` with
         its settings: 4 x 20 individuals, 40 generations) on the output
         error of eq. 4 -- the simulated P loop's integer errors against the
@@ -867,6 +875,10 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(ARM_METHODS)}")
     if model not in ARM_MODELS:
         raise ValueError(f"unknown model {model!r}; choose one of {', '.join(ARM_MODELS)}")
+    idim_only = method in ("idim-ls", "idim-iv")
+    if idim_only and model not in ("auto", "rigid"):
+        raise ValueError(f"method {method!r} identifies the rigid model; model {model!r} needs "
+                         "the output-error methods")
     pl = _plant_of(log, plant)
     rig = log.rig
     nb = pl.base.rank
@@ -878,7 +890,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         X = np.atleast_2d(X)
         return _lane_friction(rig, X, nb) if unknown else X
 
-    idim = arm_idim_ls(log, plant=pl, cutoff_hz=cutoff_hz)
+    idim = arm_idim_ls(log, plant=pl, cutoff_hz=cutoff_hz,
+                       iv_iterations=IV_ITERATIONS if method == "idim-iv" else 0)
     x0 = idim["x"]
     r = x0.size
     if bounds is None and ranges is not None:
@@ -940,8 +953,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
 
     if method in ("ga+pem", "paper"):
         ga_info, starts = ga_start(method == "paper", np.random.default_rng(rng))
-    elif not np.all(problem.residuals(np.clip(x0, bounds[:, 0], bounds[:, 1]))
-                    < problem.bound):
+    elif not idim_only and not np.all(problem.residuals(np.clip(x0, bounds[:, 0], bounds[:, 1]))
+                                      < problem.bound):
         # the IDIM start does not simulate (an inertia matrix that is not positive definite,
         # a predictor that diverges: a drive whose friction dominates the link torques leaves
         # IDIM-LS's inertial parameters loose): the GA's start over the box, then the refinement
@@ -951,7 +964,13 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
                      "refinement started from the GA's best individual over the box "
                      "(method 'ga+pem')")
     ga_only = method == "paper" or (ga_info is not None and ga_info["interrupted"])
-    if ga_only:
+    if idim_only:  # the inverse-model estimate as it is, with the predictor's cost at it
+        ref = OptimizeResult(x=x0, fun=float(np.sum(problem.residuals(x0) ** 2)), nfev=1,
+                             nit=int(idim["iv_iterations"]), interrupted=False, jac=None,
+                             residuals=None,
+                             message="IDIM-LS" if method == "idim-ls" else
+                             f"IDIM-IV ({idim['iv_iterations']} instrumental-variable steps)")
+    elif ga_only:
         # the paper's GA, or a GA stopped early: its best individual, not refined
         ref = OptimizeResult(x=ga_info["x"], fun=float(np.sum(problem.residuals(ga_info["x"]) ** 2)),
                              nfev=ga_info["nfev"], nit=ga_info["generations"],
@@ -985,6 +1004,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
     if ref.jac is not None and ok:
         cov, _ = sandwich_covariance(ref.jac, ref.residuals, n_channels=n)
         x_std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    elif idim_only:  # the inverse model's own (sandwich) standard errors
+        cov, x_std = idim["cov"], np.asarray(idim["x_std"], dtype=float)
     else:
         cov, x_std = None, np.full(r, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -1015,7 +1036,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         flexible_plant=None, plant_row=None, flexible_substeps=None,
         output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
         **_NO_JOINTS)
-    if ok and model != "rigid" and not res.interrupted:
+    if ok and model != "rigid" and not res.interrupted and not idim_only:
         t1 = time.perf_counter()
         try:
             res = _apply_arm_model(res, log, model, problem, bounds, workers=workers,

@@ -459,10 +459,16 @@ def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
     assert data["names"] == list(arm.parameter_names) and data["success"] is True
     assert np.allclose(data["x"], arm.beta(), rtol=5e-3, atol=1e-3)
     for args, needle in ((["--payload", "--prior", str(out)], "--payload"),
-                         (["--method", "idim-ls"], "idim-ls")):
+                         (["--lowpass", "20"], "--lowpass")):
         assert main([str(path), *args, "--quiet"]) == 1
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
+    # the classical inverse model on the same log, as on the PUMA path
+    iv_out = tmp_path / "iv.json"
+    assert main([str(path), "--method", "idim-iv", "-o", str(iv_out), "--quiet"]) == 0
+    assert "method: idim-iv" in capsys.readouterr().out
+    iv = json.loads(iv_out.read_text())
+    assert iv["method"] == "idim-iv" and iv["model"] == "rigid" and iv["success"] is True
     # the result builds the controller
     from identification.arm import identify_arm
 
@@ -491,6 +497,29 @@ def test_unknown_friction_is_identified_with_the_base_parameters(arm):
     ctc = ArmComputedTorque.from_result(res, blind)
     r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000, plant=arm)
     assert r.within(1, after_s=0.1)
+
+
+def test_identify_arm_idim_methods(arm):
+    """identify_arm(method="idim-ls" | "idim-iv"): the inverse-model estimate itself (arm_idim_ls,
+    IV_ITERATIONS steps for IV) with its own standard errors, the rigid model, the predictor's
+    cost at it -- above the refined default's; a flexible model is refused in one line."""
+    from identification.api import METHODS
+    from identification.arm import ARM_METHODS, arm_idim_ls, identify_arm
+    from identification.idim import IV_ITERATIONS
+
+    assert set(METHODS) <= set(ARM_METHODS)  # every CLI --method runs on a robot-model log
+
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 3000)
+    for method, steps in (("idim-ls", 0), ("idim-iv", IV_ITERATIONS)):
+        res = identify_arm(log, method=method)
+        ref = arm_idim_ls(log, iv_iterations=steps)
+        assert res.success and res.method == method and res.model == "rigid" and res.nit == steps
+        np.testing.assert_array_equal(res.x, ref["x"])
+        np.testing.assert_array_equal(res.x_std, ref["x_std"])
+        assert res.model_choice is None and np.isfinite(res.fun) and res.fun > 0
+    assert identify_arm(log).fun < res.fun  # the output-error refinement improves on it
+    with pytest.raises(ValueError, match="identifies the rigid model"):
+        identify_arm(log, method="idim-ls", model="flexible")
 
 
 def test_arm_idim_iv_with_unknown_friction(arm, monkeypatch):
