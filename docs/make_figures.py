@@ -141,7 +141,8 @@ it in ``optimisers``):
     excitation design for any arm (``design_excitation(..., model=)``) against each
     draw's own multisine, within its envelope, on the independent simulator
     (``figures/bench_arm_excitation_20262611.txt``); then one six-joint draw
-    (``--n 0 0 1``, ``figures/bench_arm_excitation_puma6_20262611.txt``).
+    (``--n 0 0 1``, ``figures/bench_arm_excitation_puma6_20262611.txt``); and a
+    second draw, ``--seed 20262621`` (``figures/bench_arm_excitation_20262621.txt``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -544,11 +545,14 @@ def arm_excitation(ctx):
     # a seed chosen before looking (20262601 served development); then one six-joint draw
     out = {}
     runs = ((["--n", "4", "4", "0", "--jobs", "2"], "bench_arm_excitation_20262611"),
-            (["--n", "0", "0", "1"], "bench_arm_excitation_puma6_20262611"))
+            (["--n", "0", "0", "1"], "bench_arm_excitation_puma6_20262611"),
+            (["--n", "4", "4", "0", "--jobs", "2", "--seed", "20262621"],
+             "bench_arm_excitation_20262621"))
     if ctx["quick"]:
         runs = ((["--n", "1", "0", "0", "--generations", "4"], "bench_arm_excitation_20262611"),)
     for args, name in runs:
-        text, wall = _run(["benchmarks/bench_arm_excitation.py", *args, "--seed", "20262611"],
+        seed = [] if "--seed" in args else ["--seed", "20262611"]
+        text, wall = _run(["benchmarks/bench_arm_excitation.py", *args, *seed],
                           ctx["raw"], name, timeout=2 * 3600)
         out[name] = {"printed": text.splitlines()[-12:], "wall_s": wall}
     return out
