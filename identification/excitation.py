@@ -588,8 +588,8 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         links 2--3 (14 searched numbers), ``max(30, 2 g)`` for a robot
         model searching g numbers (``n (1 + 2 n_harmonics)`` from rest at
         q = 0): the regressor criterion of a three-joint arm with 6
-        harmonics still improves markedly from 30 to 100 generations
-        (``benchmarks/bench_arm_excitation.py``).
+        harmonics still improves markedly from 30 to 100 generations (0.80,
+        0.67, 0.56 on a development draw of ``benchmarks/independent_arm.py``).
     rerank : int
         Best distinct GA candidates re-ranked by the prediction-error
         criterion (0: keep the GA's best, no simulation).
