@@ -108,7 +108,7 @@ def run_case(job) -> dict:
                                    n_harmonics=n_harmonics, generations=generations,
                                    full_output=True)
     t_design = time.perf_counter() - t0
-    scale = info["predicted_f_std"] / info["predicted_f_rse"]
+    scale = info["f_scale"]
     base_rse = predicted_f_std(rig, base_traj, s.duration_s, prior, model=model,
                                friction_prior=friction_prior) / scale
     row = dict(family=family, seed=seed, n_base=len(beta), friction_known=s.friction_known,

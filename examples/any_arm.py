@@ -191,7 +191,7 @@ def main(argv=None):
 
         t0 = time.perf_counter()
         traj, info = design_excitation(rig, args.duration, model=model, rng=0, full_output=True)
-        scale = info["predicted_f_std"] / info["predicted_f_rse"]  # the design's own scales
+        scale = info["f_scale"]  # the design's own scales
         before = predicted_f_std(rig, reference(model.n_joints), args.duration,
                                  info["f_prior"], model=model) / scale
         print(f"designed reference in {time.perf_counter() - t0:.0f} s: predicted largest "

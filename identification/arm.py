@@ -380,10 +380,7 @@ def _arm_instruments(log, pl, x, sos, sl, unknown):
     ts = rig.sample_time_s
     if unknown:  # the simulated robot has the current friction estimate (motor side in the rig)
         xf = np.concatenate([x[:r], np.maximum(x[r:], 0.0)])
-        fr = motor_side_friction(rig, xf, r)
-        rig = dataclasses.replace(
-            rig, viscous_friction_Nms_per_rad=tuple(fr["viscous_friction_Nms_per_rad"]),
-            coulomb_friction_Nm=tuple(tuple(v) for v in fr["coulomb_friction_Nm"]))
+        rig = _rig_with_friction(rig, motor_side_friction(rig, xf, r))
     try:
         resp = simulate_closed_loop(rig, x[:r], CardPLaw(log.rig.p_gain_A_per_pulse),
                                     trajectory=log.trajectory, n_samples=log.n_samples,
@@ -434,6 +431,13 @@ def motor_side_friction(rig, X, r) -> dict:
     k = np.abs(np.asarray(rig.gear_ratio, dtype=float))
     return dict(viscous_friction_Nms_per_rad=(F[:, 0] / k ** 2).tolist(),
                 coulomb_friction_Nm=np.column_stack([F[:, 1] / k, F[:, 2] / k]).tolist())
+
+
+def _rig_with_friction(rig, friction):
+    """The rig with the sidecar's friction keys of :func:`motor_side_friction` (motor side)."""
+    return dataclasses.replace(
+        rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
+        coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"]))
 
 
 class ArmPredictionErrorProblem:
@@ -1029,9 +1033,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
         friction=friction, friction_identified=bool(unknown), robot=pl.model.name,
         joint_names=tuple(pl.model.joint_names),
-        rig=rig if not unknown else dataclasses.replace(
-            rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
-            coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"])),
+        rig=rig if not unknown else _rig_with_friction(rig, friction),
         log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=notes,
         flexible_plant=None, plant_row=None, flexible_substeps=None,
         output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
@@ -1303,9 +1305,7 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers):
     friction = motor_side_friction(log.rig, fr_x, nb)
     unknown = bool(space.unknown)
     names = tuple(space.names())
-    rig = log.rig if not unknown else dataclasses.replace(
-        log.rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
-        coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"]))
+    rig = log.rig if not unknown else _rig_with_friction(log.rig, friction)
     joint_what = (("log10 stiffness (N m/rad)", "damping (N m s/rad)",
                    "reflected motor inertia Jm k^2 (kg m^2)")
                   + (("backlash width (rad)",) if space.backlash else ()))

@@ -174,6 +174,7 @@ class _Robot:
         return cols.reshape(qd.shape[0] * self.n, -1)
 
     def _model(self, rig, model):
+        from plant.robot.robot_model import RobotModel
         from plant.simulation.arm import ArmPlant, arm_plant
 
         from .arm import rig_search_box
@@ -181,7 +182,7 @@ class _Robot:
         if isinstance(model, ArmPlant):
             pl = model if not (model.flexible or model.lane_friction) else \
                 arm_plant(model.model, model.base)
-        elif hasattr(model, "active") and hasattr(model, "joint_names"):
+        elif isinstance(model, RobotModel):
             pl = arm_plant(model)
         else:
             raise ValueError(f"model must be a plant.RobotModel (or its arm plant), got "
@@ -619,7 +620,8 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         The design (``to_parameters()`` is the sidecar's
         ``trajectory.parameters``).
     info : dict
-        Only with ``full_output``: ``names`` (the r parameters),
+        Only with ``full_output``: ``names`` (the r parameters), ``f_scale``
+        (r,) (each parameter's scale of the relative errors),
         ``predicted_f_std`` (r,) (prediction-error criterion at ``f_prior``;
         None with ``rerank=0``; inf when no candidate's emulated P
         experiment ran), ``predicted_f_rse``, ``regressor_rse``
@@ -754,7 +756,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
     traj = fam.trajectory(best, repair(best))
     q, qd, qdd = traj.evaluate(t)
     info = dict(
-        names=robot.names,
+        names=robot.names, f_scale=scale,
         predicted_f_std=best_std,
         predicted_f_rse=None if best_std is None else best_std / scale,
         regressor_rse=_rse_from_states(robot, q, qd, qdd, scale),

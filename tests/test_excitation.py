@@ -162,7 +162,7 @@ def test_arm_design_within_limits_starts_at_rest_and_beats_a_multisine(planar, p
     if rig.current_full_scale_A is not None:
         assert np.all(lim["i_max"] <= rig.current_full_scale_A)
     assert np.all(np.isfinite(info["predicted_f_std"])) and "prediction-error" in info["message"]
-    scale = info["predicted_f_std"] / info["predicted_f_rse"]
+    scale = info["f_scale"]
     mine = np.max(ex.regressor_rse(traj, 2.0, scale, model=model, rig=rig))
     np.testing.assert_allclose(mine, np.max(info["regressor_rse"]), rtol=1e-12)
     # a two-tone multisine per joint, scaled down until it fits the same limits
@@ -185,7 +185,7 @@ def test_unknown_friction_is_a_nuisance_of_the_criteria(planar, planar_design):
 
     model, rig = planar
     traj, info = planar_design
-    scale = info["predicted_f_std"] / info["predicted_f_rse"]
+    scale = info["f_scale"]
     unknown = dataclasses.replace(rig, viscous_friction_Nms_per_rad=None, coulomb_friction_Nm=None)
     known_rse = ex.regressor_rse(traj, 2.0, scale, model=model, rig=rig)
     null_rse = ex.regressor_rse(traj, 2.0, scale, model=model, rig=unknown)

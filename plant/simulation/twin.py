@@ -247,7 +247,9 @@ def simulate_experiment_twin(log, f, *, substeps: int = 48) -> np.ndarray:
     ValueError
         If ``f`` is not r finite numbers or ``substeps < 1``.
     """
-    arm = getattr(log, "model", None) is not None and not hasattr(log, "n_total")
+    from plant.logs.arm_log import ArmLog
+
+    arm = isinstance(log, ArmLog)
     plant = None
     if arm:
         from plant.simulation.arm import arm_plant
