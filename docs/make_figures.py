@@ -141,8 +141,12 @@ it in ``optimisers``):
     excitation design for any arm (``design_excitation(..., model=)``) against each
     draw's own multisine, within its envelope, on the independent simulator
     (``figures/bench_arm_excitation_20262611.txt``); then one six-joint draw
-    (``--n 0 0 1``, ``figures/bench_arm_excitation_puma6_20262611.txt``); and a
-    second draw, ``--seed 20262621`` (``figures/bench_arm_excitation_20262621.txt``).
+    (``--n 0 0 1``, ``figures/bench_arm_excitation_puma6_20262611.txt``); a
+    second draw, ``--seed 20262621`` (``figures/bench_arm_excitation_20262621.txt``);
+    and a third, ``--seed 20262631`` (``figures/bench_arm_excitation_20262631.txt``).
+    The ``*_stop59.txt`` files are the same runs of the design before its repair
+    pulled offsets towards the start state and before the SLSQP polish (commit
+    ``93c40ba``).
 
 Run from the repository root (kernels compiled once before; numba threads as
 for the quoted figures)::
@@ -547,7 +551,9 @@ def arm_excitation(ctx):
     runs = ((["--n", "4", "4", "0", "--jobs", "2"], "bench_arm_excitation_20262611"),
             (["--n", "0", "0", "1"], "bench_arm_excitation_puma6_20262611"),
             (["--n", "4", "4", "0", "--jobs", "2", "--seed", "20262621"],
-             "bench_arm_excitation_20262621"))
+             "bench_arm_excitation_20262621"),
+            (["--n", "4", "4", "0", "--jobs", "2", "--seed", "20262631"],
+             "bench_arm_excitation_20262631"))
     if ctx["quick"]:
         runs = ((["--n", "1", "0", "0", "--generations", "4"], "bench_arm_excitation_20262611"),)
     for args, name in runs:

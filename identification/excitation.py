@@ -80,9 +80,26 @@ holds the friction at the rig's values.
 
 The search is the project's GA (:func:`identification.ga.run_ga`, Gray-coded,
 4 x 20 individuals).  A candidate outside the limits is repaired, not
-penalised: its amplitudes are scaled by the largest factor in (0, 1] that
-keeps it within them (bisection; at factor 0 the reference is the start
-state held, or the ramp to the offsets), so every individual is feasible.
+penalised: its amplitudes are scaled by the largest factor in [0, 1] that
+keeps it within them (bisection), and when the start ramp to its offsets
+alone breaks them (from q = 0, a move across the range in ``t_ramp_s``),
+its offsets first by the largest such factor towards the start state; at
+factors 0 the reference holds the start state.  (Scaling the amplitudes
+alone left most random individuals of a three-joint arm from rest
+infeasible, and the GA searched among a few.)
+
+The GA's best is then *polished*: SLSQP (scipy) from it on the regressor
+criterion, the limits as smooth inequality constraints on the grid (angles,
+rates, feed-forward current) instead of the repair -- whose bisection makes
+the repaired criterion piecewise flat, so that a derivative-free polish of
+it stalls -- and the minimax smoothed to the ``POLISH_P``-norm of the
+relative standard errors; kept when the repaired criterion improves.  What
+the two changes did on the independent simulator's draws is in
+:doc:`tutorial_your_robot` (section 13, ``benchmarks/bench_arm_excitation.py``).
+Weighting each joint's torque rows by the inverse of its drive's
+newton-metres per pulse (``|k| Kt P``, the P loop's conversion of a torque
+error into a pulse error) was tried on two development draws and did not
+do better, so the rows are not weighted.
 """
 from __future__ import annotations
 
@@ -99,7 +116,7 @@ from plant.logs.rig import F_NAMES, rig_constants
 from .friction import friction_layout, joint_friction_columns
 
 __all__ = ["design_excitation", "predicted_f_std", "trajectory_limits", "regressor_rse",
-           "DEFAULT_HARMONICS", "CURRENT_MARGIN"]
+           "DEFAULT_HARMONICS", "CURRENT_MARGIN", "POLISH_P", "POLISH_ITER"]
 
 #: Harmonics per joint of a designed trajectory.
 DEFAULT_HARMONICS = 3
@@ -253,11 +270,17 @@ class _Family:
         self.bounds = np.array(rows)
 
     def trajectory(self, x, s=1.0):
+        """The reference of ``x``; ``s`` scales its amplitudes, or ``(s_offset, s_amplitude)``.
+
+        ``s_offset`` (ramp family only) scales the offsets towards the start
+        state 0: at ``(0, 0)`` the reference holds the start state.
+        """
         x = np.asarray(x, dtype=float)
+        so, s = (1.0, s) if np.ndim(s) == 0 else s
         c, terms, k = [], [], 0
         for j in range(self.n):
             if self.ramp:
-                cj = x[k]
+                cj = so * x[k]
                 amp = s * x[k + 1:k + 1 + self.L]
                 ph = x[k + 1 + self.L:k + 1 + 2 * self.L]
                 k += 1 + 2 * self.L
@@ -547,11 +570,110 @@ def _predicted_arm_std(robot, trajectory, duration_s, f, *, substeps=None, worke
     return _gauss_newton_std(prob, x, FD_STEP * 1e2 * width)[:robot.r]
 
 
+#: Exponent of the smooth maximum (a p-norm) of the relative standard errors in the polish.
+POLISH_P = 16
+#: SLSQP iterations of the polish.
+POLISH_ITER = 60
+
+
+def _polish(robot, fam, t, x, s, scale, f_prior, lim, vmax, imax):
+    """SLSQP from the GA's best on the regressor criterion, the limits as constraints.
+
+    The repaired criterion is piecewise flat in x (the repair's bisection);
+    here the limits are smooth inequality constraints on the grid instead
+    (angles within ``lim``, rates within ``vmax``, the feed-forward current
+    within ``CURRENT_MARGIN imax``) and the minimax is smoothed to the
+    ``POLISH_P``-norm of the relative standard errors.  Returns the polished
+    x (None when SLSQP fails) and the criterion evaluations it took.
+    """
+    from scipy.optimize import minimize
+
+    x0 = _unrepaired(fam, x, s)
+    c, fr = robot.c, robot.friction
+    span = lim[:, 1] - lim[:, 0]
+    tpa = np.asarray(c.torque_per_amp, float)
+
+    def states(z):
+        return fam.trajectory(z, 1.0).evaluate(t)
+
+    def obj(z):
+        q, qd, qdd = states(z)
+        rse = _rse_from_states(robot, q, qd, qdd, scale)
+        if not np.all(np.isfinite(rse)):
+            return 1e6
+        m = np.max(rse)
+        return float(np.log(m) + np.log(np.sum((rse / m) ** POLISH_P)) / POLISH_P)
+
+    def cons(z):
+        q, qd, qdd = states(z)
+        out = [((q - lim[:, 0]) / span).ravel(), ((lim[:, 1] - q) / span).ravel()]
+        if vmax is not None:
+            out += [(1.0 - np.abs(qd) / vmax).ravel()]
+        if imax is not None:
+            tau = robot.torque(q, qd, qdd, f_prior) - friction_torques(
+                qd, fr[:, 0], fr[:, 1], fr[:, 2], c.ramp_speed)
+            out += [(1.0 - np.abs(tau / tpa) / (CURRENT_MARGIN * imax)).ravel()]
+        return np.concatenate(out)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            res = minimize(obj, x0, method="SLSQP", bounds=fam.bounds,
+                           constraints=[dict(type="ineq", fun=cons)],
+                           options=dict(maxiter=POLISH_ITER))
+        except (ValueError, np.linalg.LinAlgError):
+            return None, 0
+    z = np.clip(res.x, fam.bounds[:, 0], fam.bounds[:, 1])
+    return (z if np.all(np.isfinite(z)) else None), int(res.nfev)
+
+
+def _bisect(ok):
+    """The largest factor in [0, 1] with ``ok(factor)`` (``ok(0)`` assumed; bisection)."""
+    if ok(1.0):
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(REPAIR_STEPS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+def _repair(fam, feasible, x):
+    """The factors ``(s_offset, s_amplitude)`` that bring ``x`` within the limits.
+
+    The largest amplitude factor in [0, 1] within them; when the start ramp
+    to the offsets alone breaks them (a move across the range in a fraction
+    of a second), the largest offset factor first (towards the start state
+    0; at ``(0, 0)`` the reference holds it).  ``feasible(x, s)`` checks
+    the limits.
+    """
+    if not fam.ramp or feasible(x, (1.0, 0.0)):
+        return 1.0, _bisect(lambda a: feasible(x, (1.0, a)))
+    so = _bisect(lambda o: feasible(x, (o, 0.0)))
+    return so, _bisect(lambda a: feasible(x, (so, a)))
+
+
+def _unrepaired(fam, x, s):
+    """The point whose factor-1 reference is ``fam.trajectory(x, s)``."""
+    so, sa = s
+    z = np.array(x, dtype=float)
+    k = 0
+    for _ in range(fam.n):
+        if fam.ramp:
+            z[k] *= so
+            z[k + 1:k + 1 + fam.L] *= sa
+            k += 1 + 2 * fam.L
+        else:
+            z[k:k + fam.L] *= sa
+            k += fam.L
+    return z
+
+
 def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_rad_s=None,
                       max_current_A=None, n_harmonics=DEFAULT_HARMONICS, rng=None,
                       f_prior=None, t_ramp_s=None, generations=None, rerank=RERANK,
                       workers=None, full_output=False, model=None, grid_s=None,
-                      friction_prior=None):
+                      friction_prior=None, polish=True):
     """Design an excitation trajectory that identifies a robot's base parameters.
 
     Parameters
@@ -594,6 +716,9 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
     rerank : int
         Best distinct GA candidates re-ranked by the prediction-error
         criterion (0: keep the GA's best, no simulation).
+    polish : bool
+        Polish the GA's best on the regressor criterion by SLSQP with the
+        limits as constraints (module docstring) before the re-ranking.
     workers : int, optional
         Threads of the simulations.
     full_output : bool
@@ -626,8 +751,9 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         None with ``rerank=0``; inf when no candidate's emulated P
         experiment ran), ``predicted_f_rse``, ``regressor_rse``
         (relative, up to one factor), ``limits``
-        (:func:`trajectory_limits`), ``f_prior``, ``nfev``, ``generations``,
-        ``message``.
+        (:func:`trajectory_limits`), ``f_prior``, ``nfev`` (regressor
+        criterion evaluations: the GA's and the polish's), ``generations``,
+        ``polished`` (the polish improved the GA's best), ``message``.
 
     Warns
     -----
@@ -692,21 +818,13 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         return _limits(robot, q, qd, qdd, f_prior, lim, vmax, imax)["violation"] == 0.0
 
     def repair(x):
-        # the largest amplitude factor s in (0, 1] within the limits (bisection;
-        # s -> 0 is the start state held, or the ramp to the offsets)
-        if feasible(x, 1.0):
-            return 1.0
-        lo, hi = 0.0, 1.0
-        for _ in range(REPAIR_STEPS):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if feasible(x, mid) else (lo, mid)
-        return lo
+        return _repair(fam, feasible, x)
 
     def evaluate(X):
         out = np.empty(X.shape[0])
         for m, x in enumerate(X):
             s = repair(x)
-            if s <= 0.0 or not feasible(x, s):
+            if s[1] <= 0.0 or not feasible(x, s):
                 out[m] = np.inf
                 continue
             q, qd, qdd = states(x, s)
@@ -716,8 +834,15 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
 
     ga = run_ga(evaluate, fam.bounds, n_gen=int(generations), rng=rng, gray=True,
                 bits=16)
+    x_best, polished = ga.x, False
+    if polish and np.isfinite(ga.fun):
+        xp, nfev_polish = _polish(robot, fam, t, ga.x, repair(ga.x), scale, f_prior, lim,
+                                  vmax, imax)
+        nfev[0] += nfev_polish
+        if xp is not None and evaluate(xp[None, :])[0] < ga.fun:
+            x_best, polished = xp, True
     order = np.argsort(ga.population_energies) if ga.population is not None else None
-    cands = [ga.x]
+    cands = [x_best]
     if order is not None:
         for i in order:
             x = ga.population[i]
@@ -762,7 +887,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         regressor_rse=_rse_from_states(robot, q, qd, qdd, scale),
         limits=_limits(robot, q, qd, qdd, f_prior, lim, vmax, imax),
         f_prior=f_prior, nfev=nfev[0], generations=int(generations), candidates=len(cands),
-        message=message)
+        polished=polished, message=message)
     return (traj, info) if full_output else traj
 
 

@@ -254,3 +254,41 @@ def test_a_prediction_that_fails_on_every_candidate_is_said(planar, monkeypatch)
                                        full_output=True)
     assert traj.to_parameters() == ref.to_parameters()
     assert np.all(np.isinf(info["predicted_f_std"])) and "regressor criterion" in info["message"]
+
+
+def test_the_repair_pulls_offsets_the_start_ramp_cannot_reach_towards_the_start():
+    """From rest at q = 0 a candidate whose 0.3 s start ramp to its offsets alone breaks a rate
+    limit is not lost to the search: the repair scales its offsets towards the start state
+    before its amplitudes, the repaired reference keeps the limit, and ``_unrepaired`` gives
+    the point whose unscaled reference is the repaired one (the polish starts there)."""
+    fam = ex._Family(np.zeros(2), 2.0, 2, np.array([[-1.5, 1.5], [-1.5, 1.5]]), 0.3)
+    t = np.linspace(0.0, 2.0, 401)
+
+    def feasible(x, s):
+        _, qd, _ = fam.trajectory(x, s).evaluate(t)
+        return bool(np.all(np.abs(qd) <= 1.0))
+
+    x = fam.bounds[:, 1].copy()  # offsets at the top of the range, the largest amplitudes
+    assert not feasible(x, (1.0, 0.0))  # the ramp alone: 1.5 rad in 0.3 s
+    so, sa = ex._repair(fam, feasible, x)
+    assert 0.0 < so < 1.0 and sa > 0.0 and feasible(x, (so, sa))
+    assert not feasible(x, (so, min(1.0, 1.1 * sa)))  # the largest such factor (bisection)
+    z = ex._unrepaired(fam, x, (so, sa))
+    for a, b in zip(fam.trajectory(z, 1.0).evaluate(t), fam.trajectory(x, (so, sa)).evaluate(t)):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_the_polish_keeps_the_limits_and_never_worsens_the_search_criterion(planar):
+    """The SLSQP polish of the GA's best (the regressor criterion, the limits as constraints):
+    the design with it is within the same limits and its regressor criterion is no worse
+    than the GA's best at the same seed (it is kept only when it improves)."""
+    model, rig = planar
+    plain, pinfo = design_excitation(rig, 2.0, model=model, rng=1, generations=6, rerank=0,
+                                     polish=False, full_output=True)
+    pol, info = design_excitation(rig, 2.0, model=model, rng=1, generations=6, rerank=0,
+                                  full_output=True)
+    assert pinfo["polished"] is False and isinstance(info["polished"], bool)
+    assert np.max(info["regressor_rse"]) <= np.max(pinfo["regressor_rse"]) * (1 + 1e-12)
+    if info["polished"]:
+        assert np.max(info["regressor_rse"]) < np.max(pinfo["regressor_rse"])
+    assert info["limits"]["violation"] == 0.0
