@@ -84,7 +84,11 @@ rigid or a two-mass flexible prior (the last paragraph):
    ``benchmarks/bench_arm_adaptive.py``, seed 20261201, planar draw 20261206: a refinement of a 4.97 kg tool
    judged by the window spanning its put-down was rolled back, and the
    caution that follows a rollback delayed the put-down's update by one
-   window, 17 / 5 pulses against the static CTC's 1 / 1).
+   window, 17 / 5 pulses against the static CTC's 1 / 1).  With the empty
+   gripper in use there is nothing to refine: an estimate within
+   :data:`REFINEMENT_KG` of it is the model in use (decision ``'not
+   material'``, no event; the compliant benchmark's PUMA 560 joints 1--3
+   draw 20262001, unchanged, had installed a 0.0002 kg "refinement").
 5. **Repeatable.**  A model takes effect ``latency_s`` after its window's
    last sample: a fixed value (default :data:`DEFAULT_ARM_LATENCY_S`, the
    simulation's: two runs are identical bit for bit) or ``"measured"``
@@ -263,7 +267,9 @@ class ArmAdaptiveComputedTorque:
         ``'unexplained'``, ``'unsafe'``) and ``message``.
     identifications : list of dict
         Per identified window: ``window_s``, ``decision`` (``'no change'``,
-        ``'update'``, ``'refinement'``, ``'held'``, ``'implausible'``,
+        ``'update'``, ``'refinement'``, ``'not material'`` (a significant
+        estimate within :data:`REFINEMENT_KG` of the empty gripper in use),
+        ``'held'``, ``'implausible'``,
         ``'unexplained'``, ``'friction'``, ``'unsafe'``, ``'failed'``; a
         flexible prior's switch check adds ``switch_check_pulses`` and
         ``switch_check_bound``; a fitted friction
@@ -610,6 +616,14 @@ class ArmAdaptiveComputedTorque:
         self._agree = []
         self._cautious = False
         kind = "refinement" if _refines(m, self.payload_mass_kg) else "update"
+        if kind == "refinement" and self.payload is None:
+            # the empty gripper has no payload to refine: a mass within REFINEMENT_KG of it
+            # is the model in use (a refinement installed 0.0002 kg on an unchanged arm)
+            rec.update(decision="not material",
+                       reason=f"{m:.3g} kg is the empty gripper's (within {REFINEMENT_KG} kg): "
+                              "the model in use")
+            self._agree = []
+            return
         # a refinement installs every estimate of the payload in use since its update, an
         # update the estimates it rests on, pooled by their information (inverse variances
         # of the mass; equal weights without them): single windows of a small payload

@@ -133,7 +133,9 @@ it in ``optimisers``):
     prior the default identification, flexible priors adapted through their
     two-mass arm (``figures/bench_arm_adaptive_compliant_20262001.txt``); its first
     planar draw rerun after the start-window fix (``--only planar2:20262001``,
-    ``figures/bench_arm_adaptive_compliant_20262001_rerun.txt``); and a draw of
+    ``figures/bench_arm_adaptive_compliant_20262001_rerun.txt``); its PUMA 1-3 draw
+    rerun after the empty gripper stopped being "refined" (``--only puma123:20262001``,
+    ``figures/bench_arm_adaptive_compliant_20262001_rerun_puma123.txt``); and a draw of
     payload changes only (``--kinds pick-up,put-down --n 3 0 --seed 20262101 --jobs 1``,
     ``figures/bench_arm_adaptive_compliant_payload_20262101.txt``).
 ``arm_excitation``
@@ -536,6 +538,8 @@ def arm_adaptive_compliant(ctx):
     runs = (("20262001", q, "bench_arm_adaptive_compliant_20262001"),
             ("20262001", ["--n", "6", "2", "--only", "planar2:20262001"],
              "bench_arm_adaptive_compliant_20262001_rerun"),
+            ("20262001", ["--n", "6", "2", "--only", "puma123:20262001"],
+             "bench_arm_adaptive_compliant_20262001_rerun_puma123"),
             ("20262101", ["--kinds", "pick-up,put-down", "--n", "3", "0", "--jobs", "1"],
              "bench_arm_adaptive_compliant_payload_20262101"))
     for seed, args, name in runs[:1] if ctx["quick"] else runs:

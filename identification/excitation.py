@@ -73,10 +73,10 @@ leaves ``null`` with the base parameters (the paper: "if unknown, have to be
 included as unknown parameters"), so both criteria count them as nuisance
 parameters -- their regressor columns
 (:func:`identification.friction.joint_friction_columns`) join the
-information matrix, and, for a robot model, the prediction-error Jacobian
-(the arm emulated at ``friction_prior``); the minimax is over the base
-parameters alone.  The PUMA 560 links 2--3's prediction-error criterion
-holds the friction at the rig's values.
+information matrix, and the prediction-error Jacobian (the arm emulated at
+``friction_prior``; on the PUMA 560 links 2--3, through its instance
+``RobotModel.puma560_links23``); the minimax is over the base parameters
+alone.
 
 The search is the project's GA (:func:`identification.ga.run_ga`, Gray-coded,
 4 x 20 individuals).  A candidate outside the limits is repaired, not
@@ -485,12 +485,15 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
     model : plant.RobotModel, optional
         The robot (default the PUMA 560 links 2--3 of :mod:`plant.robot.model`).
     friction_prior : array_like, shape (n, 3), optional
-        With ``model``: joint-side friction (viscous N m s/rad, Coulomb + and
-        - N m) of the components the rig leaves unknown (``null``), at which
-        the P experiment is emulated (default 0); those components are then
+        Joint-side friction (viscous N m s/rad, Coulomb + and - N m) of the
+        components the rig leaves unknown (``null``), at which the P
+        experiment is emulated (default 0); those components are then
         estimated with the base parameters (nuisance parameters), as the
-        identification does.  The PUMA 560 links 2--3 path holds the
-        friction at the rig's values.
+        identification does.  On the PUMA 560 links 2--3 (no ``model``)
+        the prediction then runs through the instance's robot model
+        (``RobotModel.puma560_links23``, the same prediction to 1e-3 at the
+        same substeps); with ``flexible`` or ``base`` the unknown components
+        are held at 0 and ``friction_prior`` is not used.
 
     Returns
     -------
@@ -507,6 +510,16 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
             raise ValueError("flexible= and base= are for the PUMA 560 links 2-3 path; with a "
                              "robot model the design's emulation is its rigid arm")
         return _predicted_arm_std(_Robot(rig, model, friction_prior=friction_prior), trajectory,
+                                  duration_s, f, substeps=substeps, workers=workers)
+    if rig.unknown_friction and flexible is None and base is None:
+        # the identification estimates the unknown friction with f: through the PUMA 560
+        # links 2-3 instance's arm plant, whose prediction is this path's (to 1e-3 at the
+        # same substeps, tests/test_excitation.py), its components are nuisance parameters
+        from plant.robot.robot_model import RobotModel
+
+        inst = RobotModel.puma560_links23(gear_ratios=rig.gear_ratio,
+                                          gravity_m_s2=rig.gravity_m_s2)
+        return _predicted_arm_std(_Robot(rig, inst, friction_prior=friction_prior), trajectory,
                                   duration_s, f, substeps=substeps, workers=workers)
     from .objective import IDENTIFICATION_SUBSTEPS
     from .refinement import FD_STEP, PredictionErrorProblem
@@ -861,8 +874,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         for x in cands:
             try:
                 sd = predicted_f_std(rig, fam.trajectory(x, repair(x)), duration_s, f_prior,
-                                     workers=workers, model=model,
-                                     friction_prior=None if model is None else robot.friction)
+                                     workers=workers, model=model, friction_prior=robot.friction)
             except ValueError:
                 sd = np.full(r, np.inf)
             scores.append((float(np.max(sd / scale)), sd))

@@ -209,3 +209,27 @@ def test_the_papers_puma_links_2_3_through_the_arm_path():
         out[name] = np.abs(r.e_pulses[k:]).max(axis=0)
     assert np.all(out["adaptive"] <= 1) and np.any(out["static"] > 1)
     assert ctrl.payload_mass_kg == pytest.approx(2.0, rel=0.02)
+
+
+def test_an_estimate_within_the_refinement_band_of_the_empty_gripper_is_no_update(setting):
+    """With no payload in use, a significant estimate within REFINEMENT_KG of the empty gripper
+    (forged here: 0.2 g that fits every window from 0.5 s on exactly) is the model in use: no
+    refinement is installed, no event, the decision says so."""
+    arm, rig, log, prior, _ = setting
+    c = ArmAdaptiveComputedTorque(prior, log)
+    real = c._identify_payload
+    tiny = prior.beta + arm.model.payload_delta(2e-4, (0.1, 0.0, 0.0), base=arm.base)
+
+    def forged(wlog, pr, *, window_s, bounds, **kw):
+        res = real(wlog, pr, window_s=window_s, bounds=bounds, **kw)
+        if window_s[0] >= 0.5 - 1e-9 and bounds[0, 1] - bounds[0, 0] > 1.0:
+            res.update(beta=tiny, mass_kg=2e-4, fun=0.0,
+                       residuals_pulses=np.zeros_like(res.residuals_pulses))
+        return res
+
+    c._identify_payload = forged
+    _run(setting, c, n=1600)
+    decisions = [rec["decision"] for rec in c.identifications]
+    assert "not material" in decisions
+    assert "refinement" not in decisions and "update" not in decisions
+    assert c.events == [] and c.payload is None and c.payload_history == [(0.0, 0.0)]

@@ -292,3 +292,26 @@ def test_the_polish_keeps_the_limits_and_never_worsens_the_search_criterion(plan
     if info["polished"]:
         assert np.max(info["regressor_rse"]) < np.max(pinfo["regressor_rse"])
     assert info["limits"]["violation"] == 0.0
+
+
+def test_the_puma_prediction_counts_unknown_friction_as_nuisance(design, drill_rig):
+    """A PUMA 560 links 2-3 sidecar that leaves friction null: the prediction-error criterion
+    (no robot model given) runs through the instance's robot model with the friction estimated
+    as nuisance parameters -- no f predicted better than with the friction known, some worse."""
+    import dataclasses
+
+    from plant.robot.robot_model import RobotModel
+
+    traj, info = design
+    f = info["f_prior"]
+    unknown = dataclasses.replace(drill_rig, viscous_friction_Nms_per_rad=None,
+                                  coulomb_friction_Nm=None)
+    k = np.abs(np.asarray(drill_rig.gear_ratio))
+    true = np.column_stack([k ** 2 * np.asarray(drill_rig.viscous_friction_Nms_per_rad),
+                            k[:, None] * np.asarray(drill_rig.coulomb_friction_Nm)])
+    inst = RobotModel.puma560_links23(gear_ratios=drill_rig.gear_ratio,
+                                      gravity_m_s2=drill_rig.gravity_m_s2)
+    known = ex.predicted_f_std(drill_rig, traj, DURATION, f, model=inst)
+    null = ex.predicted_f_std(unknown, traj, DURATION, f, friction_prior=true)
+    assert null.shape == (9,) and np.all(np.isfinite(null))
+    assert np.all(null >= known * (1 - 1e-6)) and np.any(null > 1.01 * known)
