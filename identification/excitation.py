@@ -358,11 +358,16 @@ def _per_joint(v, n):
     return None if v is None else np.broadcast_to(np.asarray(v, dtype=float), (n,))
 
 
-def _limits(robot, q, qd, qdd, f, lim, vmax, imax):
+def _current(robot, q, qd, qdd, f):
+    """Feed-forward current of the rigid model along the states, (m, n) A (signed)."""
     c, fr = robot.c, robot.friction
     tau = robot.torque(q, qd, qdd, f) - friction_torques(
         qd, fr[:, 0], fr[:, 1], fr[:, 2], c.ramp_speed)
-    i = np.abs(tau / np.asarray(c.torque_per_amp))
+    return tau / np.asarray(c.torque_per_amp, dtype=float)
+
+
+def _limits(robot, q, qd, qdd, f, lim, vmax, imax):
+    i = np.abs(_current(robot, q, qd, qdd, f))
     out = dict(q_min=q.min(0), q_max=q.max(0), qd_max=np.abs(qd).max(0), i_max=i.max(0))
     span = lim[:, 1] - lim[:, 0]
     v = np.sum(np.maximum(lim[:, 0] - out["q_min"], 0) / span)
@@ -602,9 +607,7 @@ def _polish(robot, fam, t, x, s, scale, f_prior, lim, vmax, imax):
     from scipy.optimize import minimize
 
     x0 = _unrepaired(fam, x, s)
-    c, fr = robot.c, robot.friction
     span = lim[:, 1] - lim[:, 0]
-    tpa = np.asarray(c.torque_per_amp, float)
 
     def states(z):
         return fam.trajectory(z, 1.0).evaluate(t)
@@ -623,9 +626,8 @@ def _polish(robot, fam, t, x, s, scale, f_prior, lim, vmax, imax):
         if vmax is not None:
             out += [(1.0 - np.abs(qd) / vmax).ravel()]
         if imax is not None:
-            tau = robot.torque(q, qd, qdd, f_prior) - friction_torques(
-                qd, fr[:, 0], fr[:, 1], fr[:, 2], c.ramp_speed)
-            out += [(1.0 - np.abs(tau / tpa) / (CURRENT_MARGIN * imax)).ravel()]
+            i = np.abs(_current(robot, q, qd, qdd, f_prior))
+            out += [(1.0 - i / (CURRENT_MARGIN * imax)).ravel()]
         return np.concatenate(out)
 
     with warnings.catch_warnings():
