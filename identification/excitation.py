@@ -269,23 +269,40 @@ class _Family:
                 rows += [[-a, a] for a in amax]
         self.bounds = np.array(rows)
 
+    def scaled(self, x, s):
+        """``x`` with its offsets and amplitudes scaled by ``s`` (see :meth:`trajectory`).
+
+        The point whose unscaled reference is ``trajectory(x, s)``.
+        """
+        so, sa = (1.0, s) if np.ndim(s) == 0 else s
+        z = np.array(x, dtype=float)
+        k = 0
+        for _ in range(self.n):
+            if self.ramp:
+                z[k] *= so
+                z[k + 1:k + 1 + self.L] *= sa
+                k += 1 + 2 * self.L
+            else:
+                z[k:k + self.L] *= sa
+                k += self.L
+        return z
+
     def trajectory(self, x, s=1.0):
         """The reference of ``x``; ``s`` scales its amplitudes, or ``(s_offset, s_amplitude)``.
 
         ``s_offset`` (ramp family only) scales the offsets towards the start
         state 0: at ``(0, 0)`` the reference holds the start state.
         """
-        x = np.asarray(x, dtype=float)
-        so, s = (1.0, s) if np.ndim(s) == 0 else s
+        z = self.scaled(x, s)
         c, terms, k = [], [], 0
         for j in range(self.n):
             if self.ramp:
-                cj = so * x[k]
-                amp = s * x[k + 1:k + 1 + self.L]
-                ph = x[k + 1 + self.L:k + 1 + 2 * self.L]
+                cj = z[k]
+                amp = z[k + 1:k + 1 + self.L]
+                ph = z[k + 1 + self.L:k + 1 + 2 * self.L]
                 k += 1 + 2 * self.L
             else:
-                amp = s * x[k:k + self.L]
+                amp = z[k:k + self.L]
                 ph = np.zeros(self.L)
                 cj = self.q0[j] - amp.sum()
                 k += self.L
@@ -520,12 +537,10 @@ def predicted_f_std(rig, trajectory, duration_s, f, *, flexible=None, base=None,
         # the identification estimates the unknown friction with f: through the PUMA 560
         # links 2-3 instance's arm plant, whose prediction is this path's (to 1e-3 at the
         # same substeps, tests/test_excitation.py), its components are nuisance parameters
-        from plant.robot.robot_model import RobotModel
+        from plant.logs.arm_log import links23_model
 
-        inst = RobotModel.puma560_links23(gear_ratios=rig.gear_ratio,
-                                          gravity_m_s2=rig.gravity_m_s2)
-        return _predicted_arm_std(_Robot(rig, inst, friction_prior=friction_prior), trajectory,
-                                  duration_s, f, substeps=substeps, workers=workers)
+        return _predicted_arm_std(_Robot(rig, links23_model(rig), friction_prior=friction_prior),
+                                  trajectory, duration_s, f, substeps=substeps, workers=workers)
     from .objective import IDENTIFICATION_SUBSTEPS
     from .refinement import FD_STEP, PredictionErrorProblem
 
@@ -606,7 +621,7 @@ def _polish(robot, fam, t, x, s, scale, f_prior, lim, vmax, imax):
     """
     from scipy.optimize import minimize
 
-    x0 = _unrepaired(fam, x, s)
+    x0 = fam.scaled(x, s)
     span = lim[:, 1] - lim[:, 0]
 
     def states(z):
@@ -643,9 +658,7 @@ def _polish(robot, fam, t, x, s, scale, f_prior, lim, vmax, imax):
 
 
 def _bisect(ok):
-    """The largest factor in [0, 1] with ``ok(factor)`` (``ok(0)`` assumed; bisection)."""
-    if ok(1.0):
-        return 1.0
+    """The largest factor in [0, 1) with ``ok(factor)``, given ``ok(0)`` and not ``ok(1)`` (bisection)."""
     lo, hi = 0.0, 1.0
     for _ in range(REPAIR_STEPS):
         mid = 0.5 * (lo + hi)
@@ -660,28 +673,17 @@ def _repair(fam, feasible, x):
     to the offsets alone breaks them (a move across the range in a fraction
     of a second), the largest offset factor first (towards the start state
     0; at ``(0, 0)`` the reference holds it).  ``feasible(x, s)`` checks
-    the limits.
+    the limits, at most once per factor tried; ``x`` is within them at the
+    factors returned unless the amplitude factor is 0.
     """
+    if feasible(x, (1.0, 1.0)):
+        return 1.0, 1.0
     if not fam.ramp or feasible(x, (1.0, 0.0)):
         return 1.0, _bisect(lambda a: feasible(x, (1.0, a)))
     so = _bisect(lambda o: feasible(x, (o, 0.0)))
+    if feasible(x, (so, 1.0)):
+        return so, 1.0
     return so, _bisect(lambda a: feasible(x, (so, a)))
-
-
-def _unrepaired(fam, x, s):
-    """The point whose factor-1 reference is ``fam.trajectory(x, s)``."""
-    so, sa = s
-    z = np.array(x, dtype=float)
-    k = 0
-    for _ in range(fam.n):
-        if fam.ramp:
-            z[k] *= so
-            z[k + 1:k + 1 + fam.L] *= sa
-            k += 1 + 2 * fam.L
-        else:
-            z[k:k + fam.L] *= sa
-            k += fam.L
-    return z
 
 
 def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_rad_s=None,
@@ -839,7 +841,7 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
         out = np.empty(X.shape[0])
         for m, x in enumerate(X):
             s = repair(x)
-            if s[1] <= 0.0 or not feasible(x, s):
+            if s[1] <= 0.0:  # else within the limits at s (_repair)
                 out[m] = np.inf
                 continue
             q, qd, qdd = states(x, s)

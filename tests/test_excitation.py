@@ -259,7 +259,7 @@ def test_a_prediction_that_fails_on_every_candidate_is_said(planar, monkeypatch)
 def test_the_repair_pulls_offsets_the_start_ramp_cannot_reach_towards_the_start():
     """From rest at q = 0 a candidate whose 0.3 s start ramp to its offsets alone breaks a rate
     limit is not lost to the search: the repair scales its offsets towards the start state
-    before its amplitudes, the repaired reference keeps the limit, and ``_unrepaired`` gives
+    before its amplitudes, the repaired reference keeps the limit, and ``_Family.scaled`` gives
     the point whose unscaled reference is the repaired one (the polish starts there)."""
     fam = ex._Family(np.zeros(2), 2.0, 2, np.array([[-1.5, 1.5], [-1.5, 1.5]]), 0.3)
     t = np.linspace(0.0, 2.0, 401)
@@ -273,7 +273,7 @@ def test_the_repair_pulls_offsets_the_start_ramp_cannot_reach_towards_the_start(
     so, sa = ex._repair(fam, feasible, x)
     assert 0.0 < so < 1.0 and sa > 0.0 and feasible(x, (so, sa))
     assert not feasible(x, (so, min(1.0, 1.1 * sa)))  # the largest such factor (bisection)
-    z = ex._unrepaired(fam, x, (so, sa))
+    z = fam.scaled(x, (so, sa))
     for a, b in zip(fam.trajectory(z, 1.0).evaluate(t), fam.trajectory(x, (so, sa)).evaluate(t)):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
 

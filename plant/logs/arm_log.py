@@ -52,7 +52,7 @@ from plant.logs.sidecar import read_sidecar, read_text, rig_from_sidecar, sideca
 from plant.logs.trajectory import Trajectory
 
 __all__ = ["ArmLog", "load_arm_log", "robot_from_sidecar", "robot_section",
-           "column_names", "is_arm_sidecar", "arm_rig"]
+           "column_names", "is_arm_sidecar", "arm_rig", "links23_model"]
 
 
 def __getattr__(name):
@@ -395,17 +395,34 @@ def load_arm_log(path) -> ArmLog:
                   i_A=data[:, 1 + 2 * n:1 + 3 * n], sidecar=sidecar)
 
 
+def links23_model(rig):
+    """The robot model of a PUMA 560 links 2-3 rig (a sidecar without a ``robot`` object).
+
+    :meth:`~plant.robot.robot_model.RobotModel.puma560_links23` with the
+    rig's gear ratios and gravity: its base parameters are f1..f9.
+
+    Parameters
+    ----------
+    rig : plant.logs.rig.Rig
+        A two-joint rig of the PUMA 560 links 2-3.
+
+    Returns
+    -------
+    plant.robot.robot_model.RobotModel
+    """
+    from plant.robot.robot_model import RobotModel
+
+    return RobotModel.puma560_links23(gear_ratios=rig.gear_ratio, gravity_m_s2=rig.gravity_m_s2)
+
+
 def _links23_log(path: Path) -> ArmLog:
     """A PUMA 560 links 2-3 log (sidecar without a ``robot`` object) as an ArmLog."""
     from plant.logs.log import load_log
-    from plant.robot.robot_model import RobotModel
 
     log = load_log(path)
     if log.start_index != 0:
         raise LogError(f"{log.path}: a window of a PUMA 560 links 2-3 run (t starts at "
                        f"{float(log.t[0])!r} s); an ArmLog starts at t = 0: read it with plant.load_log")
-    model = RobotModel.puma560_links23(gear_ratios=log.rig.gear_ratio,
-                                       gravity_m_s2=log.rig.gravity_m_s2)
-    return ArmLog(path=log.path, name=log.name, model=model, rig=log.rig,
+    return ArmLog(path=log.path, name=log.name, model=links23_model(log.rig), rig=log.rig,
                   trajectory=log.trajectory, t=log.t, q_ref=log.q_ref, e_pulses=log.e_pulses,
                   i_A=log.i_A, sidecar=log.sidecar)
