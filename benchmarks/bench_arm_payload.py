@@ -3,7 +3,9 @@
 The paper's on-line proposal (identify a carried load from a 100-200 ms
 window and feed it to the computed-torque controller) for the arm path: for
 each family (``planar2``: random two-link arms in a vertical plane;
-``puma123``: PUMA 560 joints 1-3) and each draw of
+``puma123``: PUMA 560 joints 1-3; ``random``: chains of 2-4 joints from
+random DH tables; ``urdf``: random URDF chains, pinocchio's dynamics) and
+each draw of
 ``benchmarks/independent_arm.py`` (seeds ``seed + i``, chosen before
 looking; rigid; friction known or ``null`` at random), this benchmark
 
@@ -30,6 +32,7 @@ looking; rigid; friction known or ``null`` at random), this benchmark
 Usage::
 
     python benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2 [--json out.json]
+    python benchmarks/bench_arm_payload.py --n 0 0 6 6 --seed 20262751   # random DH and URDF chains
 
 Prints one line per draw, a summary and the worst cases with their
 settings.  Needs the ``bench`` extra (Robotics Toolbox).
@@ -51,7 +54,7 @@ import independent_arm as ia  # noqa: E402
 
 MASS_TOLERANCE = 0.05
 WINDOW_S = 0.2
-FAMILIES = ("planar2", "puma123")
+FAMILIES = ("planar2", "puma123", "random", "urdf")
 
 
 def draw_payload(seed: int) -> dict:
@@ -177,8 +180,9 @@ def _online(r) -> str:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, nargs=len(FAMILIES), default=[8, 6],
-                    help="draws per family (planar2 puma123)")
+    ap.add_argument("--n", type=int, nargs="+", default=[8, 6],
+                    help="draws per family, in the order " + " ".join(FAMILIES)
+                         + " (families left out: none)")
     ap.add_argument("--seed", type=int, default=20261125)
     ap.add_argument("--windows", type=int, default=3, help="0.2 s windows per draw")
     ap.add_argument("--ctc-s", type=float, default=3.0, help="seconds of the CTC runs")
@@ -187,6 +191,8 @@ def main(argv=None):
     ap.add_argument("--make-test-log", action="store_true",
                     help=f"write tests/data/independent_arm/{TEST_LOG_STEM}.* and stop")
     a = ap.parse_args(argv)
+    if len(a.n) > len(FAMILIES) or min(a.n) < 0:
+        ap.error(f"--n takes 1 to {len(FAMILIES)} counts >= 0 ({' '.join(FAMILIES)})")
     if a.make_test_log:
         make_test_log()
         return

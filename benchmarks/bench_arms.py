@@ -1,7 +1,9 @@
 """Any serial arm on logs from an independent simulator: identify, then CTC vs P (issue 23).
 
 For each family (``planar2``: random two-link arms in a vertical plane;
-``puma123``: PUMA 560 joints 1-3; ``puma6``: the six-joint PUMA 560) and each
+``puma123``: PUMA 560 joints 1-3; ``puma6``: the six-joint PUMA 560;
+``random``: chains of 2-4 joints from random DH tables, standard or
+modified, on a randomly tilted base) and each
 draw of ``benchmarks/independent_arm.py`` (robot, gears, encoders, torque
 constants, motor inertias, friction, P gains, multisine reference; seeds
 ``seed + i``, chosen before looking), this benchmark
@@ -25,6 +27,7 @@ constants, motor inertias, friction, P gains, multisine reference; seeds
 Usage::
 
     python benchmarks/bench_arms.py --n 10 8 6 --seed 20261122 [--json out.json] [--jobs 2]
+    python benchmarks/bench_arms.py --n 0 0 0 12 --seed 20262711   # random DH chains only
     python benchmarks/bench_arms.py --compliant --cases a.json b.json [--rst out.rst]
 
 ``--jobs`` runs the draws in parallel processes (the identification times
@@ -191,8 +194,9 @@ def _job(args):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--n", type=int, nargs=3, default=(6, 4, 3), metavar=("PLANAR2", "PUMA123", "PUMA6"),
-                    help="draws per family")
+    ap.add_argument("--n", type=int, nargs="+", default=(6, 4, 3), metavar="N",
+                    help="draws per family, in the order " + " ".join(ia.FAMILIES)
+                         + " (families left out: none)")
     ap.add_argument("--seed", type=int, default=20261122, help="first seed (draw i uses seed + i)")
     ap.add_argument("--json", type=Path, help="write the cases to this JSON file (after every draw)")
     ap.add_argument("--compliant", action="store_true",
@@ -204,6 +208,8 @@ def main(argv=None):
                     help="summarise the cases of earlier runs' --json files (same seed and "
                          "--compliant) instead of running draws")
     a = ap.parse_args(argv)
+    if len(a.n) > len(ia.FAMILIES) or min(a.n) < 0:
+        ap.error(f"--n takes 1 to {len(ia.FAMILIES)} counts >= 0 ({' '.join(ia.FAMILIES)})")
     if a.cases:
         cases = []
         for path in a.cases:

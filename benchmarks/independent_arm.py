@@ -8,7 +8,11 @@ derivation, code generator and RK4 core):
   recursive Newton--Euler ``rne``): the inertia matrix column by column and
   the bias torques from one multi-row ``rne`` call, joints outside the
   active set locked at their angles.  Friction and motor inertia are
-  removed from the RTB links (the drive below adds its own);
+  removed from the RTB links (the drive below adds its own).  The
+  ``urdf`` family's robots are URDF files written here; their link
+  dynamics are pinocchio's (its own URDF parser, ``rnea``; the ``bench``
+  extra's ``pin``), not Robotics Toolbox's reader that the library's
+  ``RobotModel.from_urdf`` uses;
 * **drive**, written here from the rig description: motor-shaft encoders
   ``count = trunc(q k N / 2 pi)``, integer error ``e = trunc(q_ref k N / 2
   pi) - count``, current from the sampled controller (``P e`` for the rig's
@@ -25,7 +29,8 @@ derivation, code generator and RK4 core):
   the encoders read the motor angle ``th``; springs relaxed at t = 0;
 * **payload** (``ArmSettings.payload``): a point mass fixed to the last
   link, merged into the Robotics Toolbox link's mass, centre of mass and
-  inertia by parallel axes written here (``benchmarks/bench_arm_payload.py``);
+  inertia by parallel axes written here (``benchmarks/bench_arm_payload.py``;
+  the ``urdf`` family: added to the last joint's pinocchio inertia);
 * **integration**: ``scipy.integrate.solve_ivp(method="DOP853", rtol=1e-9,
   atol=1e-12)`` restarted at every sample (zero-order hold), ``max_step =
   Ts``.
@@ -36,7 +41,9 @@ other half (the library identifies it).
 Robots (``family``): ``planar2`` -- a two-link arm in a vertical plane
 drawn at random (lengths, masses, centres of mass, inertias); ``puma123``
 -- the PUMA 560 joints 1-3 (Corke's parameters, RTB's ``Puma560``), wrist
-locked; ``puma6`` -- the six-joint PUMA 560.  Per draw, also at random: gear
+locked; ``puma6`` -- the six-joint PUMA 560; ``random`` -- a chain of 2-4
+revolute joints with a random DH table (standard or modified), random
+inertials and a random base tilt (:func:`_random_chain`).  Per draw, also at random: gear
 ratios, encoders, torque constants, motor inertias, friction, the P gains
 (for a loop natural frequency of 4-10 % of the sample rate, damped by the
 drawn viscous friction), and a multisine reference with a quintic ramp.
@@ -55,7 +62,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-FAMILIES = ("planar2", "puma123", "puma6")
+FAMILIES = ("planar2", "puma123", "puma6", "random", "urdf")
+
+#: Gravity of the planar family (the arm moves in the base's x-y plane, y up).
+PLANAR_GRAVITY = (0.0, -9.81, 0.0)
 
 
 @dataclass
@@ -64,7 +74,9 @@ class ArmSettings:
 
     family: str
     seed: int
-    links: list = field(default_factory=list)   # planar2: DH rows with inertials
+    links: list = field(default_factory=list)   # planar2, random: DH rows with inertials
+    convention: str = "standard"                # random: "standard" or "modified" DH
+    gravity: tuple = (0.0, 0.0, -9.81)          # in the base frame (m/s^2)
     active: tuple = ()
     gear_ratio: tuple = ()
     encoder_ppr: tuple = ()
@@ -83,6 +95,7 @@ class ArmSettings:
     damping: tuple | None = None       # D (N m s/rad)
     backlash: tuple | None = None      # b (rad), joint side
     payload: dict | None = None        # a point mass on the last link: mass_kg, com_m (its frame)
+    urdf: dict | None = None           # urdf: the chain's description (_random_urdf)
 
     @property
     def compliant(self) -> bool:
@@ -103,10 +116,11 @@ def _rtb_robot(s: ArmSettings):
     if s.family.startswith("puma"):
         robot = rtb.models.DH.Puma560().nofriction(coulomb=True, viscous=True)
     else:
-        links = [rtb.RevoluteDH(a=r["a"], alpha=r["alpha"], d=r["d"], offset=r["offset"], m=r["mass"],
-                                r=r["com"], I=np.asarray(r["inertia"]), G=1.0, Jm=0.0)
+        kind = rtb.RevoluteMDH if s.convention == "modified" else rtb.RevoluteDH
+        links = [kind(a=r["a"], alpha=r["alpha"], d=r["d"], offset=r["offset"], m=r["mass"],
+                      r=r["com"], I=np.asarray(r["inertia"]), G=1.0, Jm=0.0)
                  for r in s.links]
-        robot = rtb.DHRobot(links, name="planar2", gravity=[0.0, -9.81, 0.0])
+        robot = rtb.DHRobot(links, name=s.family, gravity=list(s.gravity))
     for link in robot.links:
         link.Jm = 0.0
         link.B = 0.0
@@ -137,6 +151,14 @@ def library_model(s: ArmSettings):
     """The library's RobotModel of the same robot (for the truth and as the user's model)."""
     from plant.robot.robot_model import PUMA560_DH, Link, RobotModel
 
+    if s.family == "urdf":
+        names = [f"j{i + 1}" for i in range(len(s.urdf["joints"]))]
+        act = [names[i] for i in s.active]
+        return RobotModel.from_urdf(
+            urdf_path(s), active=act,
+            locked={n: j["locked"] for n, j in zip(names, s.urdf["joints"]) if j["locked"] is not None},
+            gear_ratios=dict(zip(act, s.gear_ratio)), motor_inertias=dict(zip(act, s.motor_inertia)),
+            gravity=s.gravity, name=f"URDF chain {s.seed}")
     if s.family.startswith("puma"):
         rows = [dict(r) for r in PUMA560_DH]
         for k, j in enumerate(s.active):
@@ -149,7 +171,10 @@ def library_model(s: ArmSettings):
         rows.append(Link(a=r["a"], alpha=r["alpha"], d=r["d"], offset=r["offset"], mass=r["mass"],
                          com=tuple(r["com"]), inertia=tuple(map(tuple, r["inertia"])),
                          gear_ratio=s.gear_ratio[k], motor_inertia=s.motor_inertia[k]))
-    return RobotModel(rows, gravity=(0.0, -9.81, 0.0), name="planar 2-link")
+    if s.family == "random":
+        return RobotModel(rows, convention=s.convention, gravity=s.gravity,
+                          name=f"random {len(rows)}R ({s.convention} DH)")
+    return RobotModel(rows, gravity=s.gravity, name="planar 2-link")
 
 
 def truth_beta(s: ArmSettings, model=None):
@@ -164,7 +189,7 @@ class IndependentArm:
 
     def __init__(self, s: ArmSettings):
         self.s = s
-        self.robot = _rtb_robot(s)
+        self.robot = _PinocchioChain(s) if s.family == "urdf" else _rtb_robot(s)
         self.nall = self.robot.n
         self.act = np.asarray(s.active, dtype=int)
         self.n = self.act.size
@@ -182,8 +207,7 @@ class IndependentArm:
             self.K = np.asarray(s.stiffness, float)
             self.D = np.asarray(s.damping, float)
             self.b = np.zeros(self.n) if s.backlash is None else np.asarray(s.backlash, float)
-        g = [0.0, -9.81, 0.0] if s.family == "planar2" else [0.0, 0.0, -9.81]
-        self.g = np.asarray(g)
+        self.g = np.asarray(s.gravity, dtype=float)
         m = self.n + 2
         self._Q = np.zeros((m, self.nall))
         self._QD = np.zeros((m, self.nall))
@@ -282,6 +306,183 @@ class PCard:
         return self.p * e_pulses
 
 
+def _random_chain(rng):
+    """A random serial chain of 2-4 revolute joints (the ``random`` family).
+
+    DH convention standard or modified (half each); per joint ``alpha`` one of
+    0, +-pi/2 (80 %) or any angle, ``a`` 0.1-0.6 m (70 %) or 0, ``d`` +-0.3 m
+    (half) or 0, an offset (30 %); per link a mass of 0.5-8 kg, a centre of
+    mass within half the link's size of its frame, and a physically
+    consistent inertia (a rigid body's: principal second moments of mass
+    ``m (s L)^2``, s 0.05-0.35, turned by a random rotation).  The base is
+    upright on half of the draws, otherwise tilted by up to 90 degrees about
+    a random horizontal axis (gravity then loads the first joint too).
+    """
+    from scipy.spatial.transform import Rotation
+
+    n = int(rng.integers(2, 5))
+    convention = "modified" if rng.random() < 0.5 else "standard"
+    links = []
+    for _ in range(n):
+        alpha = float(rng.choice([0.0, math.pi / 2, -math.pi / 2]) if rng.random() < 0.8
+                      else rng.uniform(-math.pi, math.pi))
+        a = float(rng.uniform(0.1, 0.6)) if rng.random() < 0.7 else 0.0
+        d = float(rng.uniform(-0.3, 0.3)) if rng.random() < 0.5 else 0.0
+        offset = float(rng.uniform(-math.pi, math.pi)) if rng.random() < 0.3 else 0.0
+        m = float(rng.uniform(0.5, 8.0))
+        size = max(a, abs(d), 0.1)
+        com = rng.uniform(-0.5, 0.5, 3) * size
+        sm = m * (size * rng.uniform(0.05, 0.35, 3)) ** 2   # principal second moments of mass
+        R = Rotation.random(random_state=rng).as_matrix()
+        inertia = R @ np.diag([sm[1] + sm[2], sm[0] + sm[2], sm[0] + sm[1]]) @ R.T
+        links.append(dict(a=a, alpha=alpha, d=d, offset=offset, mass=m, com=com.tolist(),
+                          inertia=(0.5 * (inertia + inertia.T)).tolist()))
+    return links, convention, _random_gravity(rng)
+
+
+def _random_gravity(rng):
+    """Gravity in the base frame: upright on half of the draws, otherwise tilted by up to
+    90 degrees about a random horizontal axis."""
+    from scipy.spatial.transform import Rotation
+
+    g = np.array([0.0, 0.0, -9.81])
+    if rng.random() < 0.5:
+        phi = rng.uniform(0.0, 2 * math.pi)
+        axis = np.array([math.cos(phi), math.sin(phi), 0.0])
+        g = Rotation.from_rotvec(rng.uniform(0.0, math.pi / 2) * axis).apply(g)
+    return tuple(float(v) for v in g)
+
+
+def _random_body(rng, size):
+    """A rigid body's inertial as URDF gives it: mass 0.5-8 kg, the centre of mass within
+    half ``size`` of the frame, the inertia about it in a frame turned by a random ``rpy``
+    (principal second moments ``m (s size)^2``, s 0.05-0.35, and their sums)."""
+    m = float(rng.uniform(0.5, 8.0))
+    sm = m * (size * rng.uniform(0.05, 0.35, 3)) ** 2
+    return dict(mass=m, xyz=(rng.uniform(-0.5, 0.5, 3) * size).tolist(),
+                rpy=rng.uniform(-math.pi, math.pi, 3).tolist(),
+                diag=[float(sm[1] + sm[2]), float(sm[0] + sm[2]), float(sm[0] + sm[1])])
+
+
+def _random_urdf(rng):
+    """A random serial chain as a URDF would give it (the ``urdf`` family).
+
+    2-4 revolute joints named ``j1``, ``j2``, ...; each joint's origin a
+    random ``xyz`` (each coordinate 0 or +-0.4 m) and ``rpy`` (each angle 0,
+    +-pi/2 or any), its axis one of +-x, +-y, +-z; each child link's
+    inertial at a random origin and ``rpy`` (:func:`_random_body`).  On
+    half of the draws a raised, turned base (a fixed joint before the
+    first revolute one); on half a tool on a fixed flange after the last;
+    on a third of the chains of 3 or more joints one joint other than the
+    first locked at a random angle.
+    """
+    def angle():
+        u = rng.random()
+        return 0.0 if u < 0.4 else float(rng.choice([math.pi / 2, -math.pi / 2])) if u < 0.75 \
+            else float(rng.uniform(-math.pi, math.pi))
+
+    def offset():
+        return [float(rng.uniform(-0.4, 0.4)) if rng.random() < 0.6 else 0.0 for _ in range(3)]
+
+    n = int(rng.integers(2, 5))
+    joints = []
+    for _ in range(n):
+        xyz = offset()
+        ax = np.zeros(3)
+        ax[int(rng.integers(0, 3))] = float(rng.choice([-1.0, 1.0]))
+        joints.append(dict(xyz=xyz, rpy=[angle() for _ in range(3)], axis=ax.tolist(),
+                           body=_random_body(rng, max(0.1, float(np.linalg.norm(xyz)))),
+                           locked=None))
+    if n >= 3 and rng.random() < 1 / 3:
+        joints[int(rng.integers(1, n))]["locked"] = float(rng.uniform(-1.5, 1.5))
+    base = dict(xyz=offset(), rpy=[angle() for _ in range(3)]) if rng.random() < 0.5 else None
+    tool = None
+    if rng.random() < 0.5:
+        tool = dict(xyz=offset(), rpy=[angle() for _ in range(3)], body=_random_body(rng, 0.15))
+        tool["body"]["mass"] *= 0.25  # a tool lighter than a link
+    return dict(joints=joints, base=base, tool=tool)
+
+
+def urdf_text(desc: dict, name: str = "random_chain") -> str:
+    """The URDF file of a :func:`_random_urdf` description (written here)."""
+    def v(x):
+        return " ".join(repr(float(a)) for a in x)
+
+    def inertial(b):
+        d = b["diag"]
+        return (f'<inertial><origin xyz="{v(b["xyz"])}" rpy="{v(b["rpy"])}"/>'
+                f'<mass value="{b["mass"]!r}"/><inertia ixx="{d[0]!r}" ixy="0" ixz="0" '
+                f'iyy="{d[1]!r}" iyz="0" izz="{d[2]!r}"/></inertial>')
+
+    out = ['<?xml version="1.0"?>', f'<robot name="{name}">', '  <link name="world"/>']
+    parent = "world"
+    if desc["base"] is not None:
+        out.append('  <link name="base"/>')
+        out.append(f'  <joint name="base_mount" type="fixed"><parent link="world"/><child link="base"/>'
+                   f'<origin xyz="{v(desc["base"]["xyz"])}" rpy="{v(desc["base"]["rpy"])}"/></joint>')
+        parent = "base"
+    for i, j in enumerate(desc["joints"], start=1):
+        out.append(f'  <link name="l{i}">{inertial(j["body"])}</link>')
+        out.append(f'  <joint name="j{i}" type="revolute"><parent link="{parent}"/><child link="l{i}"/>'
+                   f'<origin xyz="{v(j["xyz"])}" rpy="{v(j["rpy"])}"/><axis xyz="{v(j["axis"])}"/>'
+                   f'<limit lower="-10" upper="10" effort="1000" velocity="100"/></joint>')
+        parent = f"l{i}"
+    if desc["tool"] is not None:
+        t = desc["tool"]
+        out.append(f'  <link name="tool">{inertial(t["body"])}</link>')
+        out.append(f'  <joint name="flange" type="fixed"><parent link="{parent}"/><child link="tool"/>'
+                   f'<origin xyz="{v(t["xyz"])}" rpy="{v(t["rpy"])}"/></joint>')
+    out.append("</robot>")
+    return "\n".join(out) + "\n"
+
+
+def urdf_path(s: ArmSettings):
+    """The draw's URDF written to a file of the temporary directory (its name the hash of the
+    text, so that processes share it); returns the path."""
+    import hashlib
+    import tempfile
+    from pathlib import Path
+
+    text = urdf_text(s.urdf, name=f"urdf_{s.seed}")
+    d = Path(tempfile.gettempdir()) / "independent_arm_urdf"
+    d.mkdir(parents=True, exist_ok=True)
+    path = d / f"urdf_{s.seed}_{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf"
+    if not path.is_file():
+        tmp = path.with_name(path.name + f".{id(text)}.tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return path
+
+
+class _PinocchioChain:
+    """The ``urdf`` family's rigid dynamics: pinocchio's model of the draw's URDF text (its
+    own parser, its RNEA), behind the ``rne(Q, QD, QDD, gravity)`` rows of an RTB robot."""
+
+    def __init__(self, s: ArmSettings):
+        import pinocchio as pin
+
+        self._pin = pin
+        self.model = pin.buildModelFromXML(urdf_text(s.urdf, name=f"urdf_{s.seed}"))
+        if s.payload:  # a point mass fixed to the last link, in its joint frame
+            last = self.model.njoints - 1
+            self.model.inertias[last] = self.model.inertias[last] + pin.Inertia(
+                float(s.payload["mass_kg"]), np.asarray(s.payload["com_m"], dtype=float), np.zeros((3, 3)))
+        self.data = self.model.createData()
+        self.n = self.model.nq
+        self._locked = np.array([0.0 if j["locked"] is None else j["locked"]
+                                 for j in s.urdf["joints"]])
+        self._act = np.asarray(s.active, dtype=int)
+
+    def rne(self, Q, QD, QDD, gravity):
+        self.model.gravity.linear = np.asarray(gravity, dtype=float)
+        out = np.empty((Q.shape[0], self.n))
+        q = self._locked.copy()
+        for r in range(Q.shape[0]):
+            q[self._act] = Q[r, self._act]
+            out[r] = self._pin.rnea(self.model, self.data, q, QD[r], QDD[r])
+        return out
+
+
 def draw(family: str, seed: int, compliant: bool = False) -> ArmSettings:
     """A random robot, rig and reference of a family (module docstring).
 
@@ -305,6 +506,14 @@ def draw(family: str, seed: int, compliant: bool = False) -> ArmSettings:
                               inertia=I.tolist()))
         s.links = links
         s.active = (0, 1)
+        s.gravity = PLANAR_GRAVITY
+    elif family == "random":
+        s.links, s.convention, s.gravity = _random_chain(rng)
+        s.active = tuple(range(len(s.links)))
+    elif family == "urdf":
+        s.urdf = _random_urdf(rng)
+        s.active = tuple(i for i, j in enumerate(s.urdf["joints"]) if j["locked"] is None)
+        s.gravity = _random_gravity(rng)
     elif family == "puma123":
         s.active = (0, 1, 2)
     elif family == "puma6":
@@ -359,7 +568,7 @@ def draw(family: str, seed: int, compliant: bool = False) -> ArmSettings:
 
 def make_log(s: ArmSettings, name=None):
     """The P-control log of a draw (independent simulator), as a library ``ArmLog``."""
-    from plant.logs.arm_log import ArmLog, column_names, robot_section
+    from plant.logs.arm_log import ArmLog, column_names
     from plant.logs.trajectory import Trajectory
 
     model = library_model(s)
@@ -369,7 +578,7 @@ def make_log(s: ArmSettings, name=None):
     if not sim["ok"]:
         raise RuntimeError(f"independent run of draw {s.family}/{s.seed} failed")
     t = np.arange(s.n_samples) * s.sample_time_s
-    sidecar = dict(dataset=name or f"{s.family}_{s.seed}", robot=robot_section(model),
+    sidecar = dict(dataset=name or f"{s.family}_{s.seed}", robot=_robot_entry(s, model),
                    n_samples=s.n_samples, sample_time_s=s.sample_time_s,
                    gear_ratio=list(s.gear_ratio), encoder_ppr=list(s.encoder_ppr),
                    p_gain_A_per_pulse=list(s.p_gain), torque_constant_Nm_per_A=list(s.torque_constant),
@@ -385,6 +594,21 @@ def make_log(s: ArmSettings, name=None):
                   q_ref=traj.position(t), e_pulses=sim["e"], i_A=sim["i"], sidecar=sidecar)
 
 
+def _robot_entry(s: ArmSettings, model, urdf=None):
+    """The sidecar's ``robot`` object: the DH table inline, or for the ``urdf`` family the
+    file (``urdf``: its path, default the temporary one of :func:`urdf_path`) and joints."""
+    from plant.logs.arm_log import robot_section
+
+    if s.family != "urdf":
+        return robot_section(model)
+    names = [f"j{i + 1}" for i in range(len(s.urdf["joints"]))]
+    return dict(urdf=str(urdf or urdf_path(s)), joints=list(model.joint_names),
+                locked={n: j["locked"] for n, j in zip(names, s.urdf["joints"])
+                        if j["locked"] is not None},
+                motor_inertias=dict(zip(model.joint_names, map(float, s.motor_inertia))),
+                gravity=list(s.gravity), name=model.name)
+
+
 def write_log(s: ArmSettings, directory, stem):
     """Write a draw's log (``STEM.csv`` and ``STEM.json``, :class:`plant.logs.arm_log.ArmLog`) and its
     truth (``STEM.truth.json``: the draw's settings, the true base parameters and joints)."""
@@ -395,6 +619,9 @@ def write_log(s: ArmSettings, directory, stem):
     directory.mkdir(parents=True, exist_ok=True)
     log = make_log(s, name=stem)
     names, beta = truth_beta(s, log.model)
+    if s.family == "urdf":  # the URDF beside the log, named relative to the sidecar
+        (directory / f"{stem}.urdf").write_text(urdf_text(s.urdf, name=f"urdf_{s.seed}"))
+        log.sidecar["robot"] = _robot_entry(s, log.model, urdf=f"{stem}.urdf")
     log.save(directory / f"{stem}.csv")
     k = np.asarray(s.gear_ratio, float)
     truth = dict(dataset=stem, simulator="benchmarks/independent_arm.py (RTB DHRobot rne, own "

@@ -116,11 +116,27 @@ it in ``optimisers``):
     PUMA 560 joints 1-3 with two-mass joints and backlash, two draws of a
     seed declared before looking (``figures/arms_compliant_puma123_20261801.txt``;
     about 36 min a draw, the two sharing 2 cores).
+``arms_random``
+    Robots no one wrote by hand, seeds chosen before looking:
+    ``benchmarks/bench_arms.py --n 0 0 0 12 --seed 20262711 --jobs 2`` (chains of
+    2-4 joints from random DH tables, standard or modified, on a randomly tilted
+    base; ``figures/bench_arms_random_20262711.txt``), ``--n 0 0 0 0 12 --seed
+    20262741`` (random URDF chains, pinocchio's dynamics;
+    ``figures/bench_arms_urdf_20262741.txt``), ``--compliant --n 0 0 0 8 --seed
+    20262731 --jobs 2`` (the random DH chains with two-mass joints;
+    ``figures/bench_arms_random_compliant_20262731.txt``) and
+    ``benchmarks/bench_arm_payload.py --n 0 0 6 6 --seed 20262751`` (a payload on
+    both kinds; ``figures/bench_arm_payload_random_20262751.txt``; the same before
+    the payload search's first-moment stage:
+    ``figures/bench_arm_payload_random_20262751_before_first_moments.txt``) and
+    ``--seed 20262771``, a fresh draw after it
+    (``figures/bench_arm_payload_random_20262771.txt``).
 ``arm_payload``
     ``benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2``: a
     payload on the last link of planar two-link arms and PUMA joints 1-3
     from 0.2 s windows of the independent simulator's logs, and the CTC
-    with it (``figures/bench_arm_payload.txt``).
+    with it (``figures/bench_arm_payload.txt``; ``figures/bench_arm_payload_stop60.txt``
+    is the same run before the payload search's first-moment stage).
 ``arm_adaptive``
     ``benchmarks/bench_arm_adaptive.py --n 12 8 --seed 20261501 --jobs 2``:
     pick-ups, put-downs, friction changes and no change on planar two-link
@@ -182,7 +198,8 @@ SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
             "changes_fourth", "current_cap",
-            "arms", "arms_compliant", "arms_compliant_puma123", "arm_payload", "arm_adaptive",
+            "arms", "arms_compliant", "arms_compliant_puma123", "arms_random", "arm_payload",
+            "arm_adaptive",
             "arm_adaptive_compliant", "arm_excitation")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
@@ -507,6 +524,27 @@ def arms_compliant_puma123(ctx):
     text, wall = _run(["benchmarks/bench_arms.py", "--compliant", *q, "--seed", "20261801"],
                       ctx["raw"], "arms_compliant_puma123_20261801", timeout=3 * 3600)
     return {"printed": text.splitlines()[-10:], "wall_s": wall}
+
+
+def arms_random(ctx):
+    runs = ((["benchmarks/bench_arms.py", "--n", "0", "0", "0", "12", "--seed", "20262711",
+              "--jobs", "2"], "bench_arms_random_20262711"),
+            (["benchmarks/bench_arms.py", "--n", "0", "0", "0", "0", "12", "--seed", "20262741"],
+             "bench_arms_urdf_20262741"),
+            (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "8", "--seed",
+              "20262731", "--jobs", "2"], "bench_arms_random_compliant_20262731"),
+            (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262751"],
+             "bench_arm_payload_random_20262751"),
+            (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262771"],
+             "bench_arm_payload_random_20262771"))
+    if ctx["quick"]:
+        runs = ((["benchmarks/bench_arms.py", "--n", "0", "0", "0", "1", "1", "--seed", "20262711"],
+                 "bench_arms_random_20262711"),)
+    out = {}
+    for args, name in runs:
+        text, wall = _run(args, ctx["raw"], name, timeout=4 * 3600)
+        out[name] = {"printed": text.splitlines()[-12:], "wall_s": wall}
+    return out
 
 
 def arm_payload(ctx):

@@ -57,6 +57,36 @@ def test_independent_robot_payload_from_a_window():
         assert res.window_s[0] == pytest.approx(t0, abs=log.rig.sample_time_s)
 
 
+def test_a_search_stopped_at_its_iteration_limit_goes_on_in_first_moments(arm, loaded_log,
+                                                                         monkeypatch):
+    """When the (m, c) search stops at its iteration limit, identify_arm_payload searches
+    again from its best in first moments (m, m c) and keeps the lower cost (never higher,
+    every simulation counted); a search that converges within the limit is untouched."""
+    import identification.arm_payload as ap
+
+    log, _ = loaded_log
+    prior = arm.beta()
+    window = (0.8, 1.0)
+    short = identify_arm_payload(log, prior, window_s=window, max_iter=3)
+    ample = identify_arm_payload(log, prior, window_s=window)
+    monkeypatch.setattr(ap, "_first_moment_stage", lambda problem, ref, box, max_iter: ref)
+    short_off = identify_arm_payload(log, prior, window_s=window, max_iter=3)
+    ample_off = identify_arm_payload(log, prior, window_s=window)
+    assert short.fun < short_off.fun and short.nfev > short_off.nfev
+    assert abs(short.mass_kg - TOOL["mass_kg"]) < abs(short_off.mass_kg - TOOL["mass_kg"])
+    assert ample.nit < 40  # converged within the limit: the stage does not run
+    np.testing.assert_array_equal(ample.x, ample_off.x)
+    assert ample.nfev == ample_off.nfev
+    # the first-moment box holds every (m, c) of the (m, c) box, and the maps invert
+    box = np.array(ap.DEFAULT_ARM_PAYLOAD_BOUNDS)
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(*box[0], 50)] + [rng.uniform(*b, 50) for b in box[1:]])
+    H = ap._FirstMoments.to_moments(X)
+    mbox = ap._FirstMoments.box(box)
+    assert np.all((H >= mbox[:, 0]) & (H <= mbox[:, 1]))
+    np.testing.assert_allclose(ap._FirstMoments.to_com(H), X, rtol=1e-12)
+
+
 def test_the_payload_makes_the_arm_ctc_track(arm, loaded_log):
     """The CTC built from the prior plus a window's payload tracks the loaded arm within +-1
     pulse after 0.1 s; the prior alone does not."""
