@@ -3,7 +3,8 @@
 For each family (``planar2``: random two-link arms in a vertical plane;
 ``puma123``: PUMA 560 joints 1-3; ``puma6``: the six-joint PUMA 560;
 ``random``: chains of 2-4 joints from random DH tables, standard or
-modified, on a randomly tilted base) and each
+modified, on a randomly tilted base; ``urdf``: random URDF chains, their
+dynamics pinocchio's) and each
 draw of ``benchmarks/independent_arm.py`` (robot, gears, encoders, torque
 constants, motor inertias, friction, P gains, multisine reference; seeds
 ``seed + i``, chosen before looking), this benchmark
@@ -28,6 +29,7 @@ Usage::
 
     python benchmarks/bench_arms.py --n 10 8 6 --seed 20261122 [--json out.json] [--jobs 2]
     python benchmarks/bench_arms.py --n 0 0 0 12 --seed 20262711   # random DH chains only
+    python benchmarks/bench_arms.py --n 0 0 0 0 12 --seed 20262741 # random URDF chains only
     python benchmarks/bench_arms.py --compliant --cases a.json b.json [--rst out.rst]
 
 ``--jobs`` runs the draws in parallel processes (the identification times

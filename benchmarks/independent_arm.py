@@ -624,7 +624,8 @@ def write_log(s: ArmSettings, directory, stem):
         log.sidecar["robot"] = _robot_entry(s, log.model, urdf=f"{stem}.urdf")
     log.save(directory / f"{stem}.csv")
     k = np.asarray(s.gear_ratio, float)
-    truth = dict(dataset=stem, simulator="benchmarks/independent_arm.py (RTB DHRobot rne, own "
+    links = "pinocchio rnea of the URDF" if s.family == "urdf" else "RTB DHRobot rne"
+    truth = dict(dataset=stem, simulator=f"benchmarks/independent_arm.py ({links}, own "
                  "drive and two-mass joints, solve_ivp DOP853 rtol 1e-9)",
                  base_parameter_names=list(names), beta=[float(v) for v in beta],
                  motor_inertia_reflected_kgm2=(np.asarray(s.motor_inertia) * k ** 2).tolist(),
