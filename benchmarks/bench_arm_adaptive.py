@@ -242,13 +242,10 @@ def main(argv=None):
         ap.error(f"--kinds must name some of {', '.join(KINDS)}, got {a.kinds!r}")
     if a.run_s < MIN_RUN_S:
         ap.error(f"--run-s must be at least {MIN_RUN_S} s (a change at 2 s, scored from 0.5 s after)")
-    if len(a.n) > len(FAMILIES) or min(a.n) < 0:
-        ap.error(f"--n takes 1 to {len(FAMILIES)} counts >= 0 ({' '.join(FAMILIES)})")
+    ia.check_counts(ap, a.n, FAMILIES)
     # the call's first draw is run twice (bit for bit)
-    jobs = [(fam, a.seed + i, a.run_s, False, a.compliant, kinds)
-            for fam, n in zip(FAMILIES, a.n) for i in range(n)]
-    if jobs:
-        jobs[0] = jobs[0][:3] + (True,) + jobs[0][4:]
+    draws = [(fam, a.seed + i) for fam, n in zip(FAMILIES, a.n) for i in range(n)]
+    jobs = [(fam, seed, a.run_s, k == 0, a.compliant, kinds) for k, (fam, seed) in enumerate(draws)]
     if a.only:
         wanted = {w.strip() for w in a.only.split(",") if w.strip()}
         jobs = [j for j in jobs if f"{j[0]}:{j[1]}" in wanted]

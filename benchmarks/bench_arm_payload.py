@@ -191,8 +191,7 @@ def main(argv=None):
     ap.add_argument("--make-test-log", action="store_true",
                     help=f"write tests/data/independent_arm/{TEST_LOG_STEM}.* and stop")
     a = ap.parse_args(argv)
-    if len(a.n) > len(FAMILIES) or min(a.n) < 0:
-        ap.error(f"--n takes 1 to {len(FAMILIES)} counts >= 0 ({' '.join(FAMILIES)})")
+    ia.check_counts(ap, a.n, FAMILIES)
     if a.make_test_log:
         make_test_log()
         return

@@ -210,8 +210,7 @@ def main(argv=None):
                     help="summarise the cases of earlier runs' --json files (same seed and "
                          "--compliant) instead of running draws")
     a = ap.parse_args(argv)
-    if len(a.n) > len(ia.FAMILIES) or min(a.n) < 0:
-        ap.error(f"--n takes 1 to {len(ia.FAMILIES)} counts >= 0 ({' '.join(ia.FAMILIES)})")
+    ia.check_counts(ap, a.n, ia.FAMILIES)
     if a.cases:
         cases = []
         for path in a.cases:

@@ -649,6 +649,13 @@ def rig_of(s: ArmSettings):
                current_full_scale_A=s.current_full_scale)
 
 
+def check_counts(parser, counts, families):
+    """``--n``'s draws per family: 1 to ``len(families)`` counts >= 0, else the parser's
+    one-line usage error (``argparse.ArgumentParser.error``)."""
+    if len(counts) > len(families) or min(counts) < 0:
+        parser.error(f"--n takes 1 to {len(families)} counts >= 0 ({' '.join(families)})")
+
+
 def run_jobs(job, jobs, n_jobs, line):
     """Run ``job`` over ``jobs`` (in ``n_jobs`` spawned processes when > 1), printing
     ``line(row)`` for each row as it comes; returns the rows in order."""
