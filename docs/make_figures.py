@@ -130,7 +130,10 @@ it in ``optimisers``):
     the payload search's first-moment stage:
     ``figures/bench_arm_payload_random_20262751_before_first_moments.txt``) and
     ``--seed 20262771``, a fresh draw after it
-    (``figures/bench_arm_payload_random_20262771.txt``).
+    (``figures/bench_arm_payload_random_20262771.txt``); and
+    ``benchmarks/bench_arm_adaptive.py --n 0 0 3 3 --seed 20262781 --jobs 2`` (the
+    adaptive CTC through a change on both kinds;
+    ``figures/bench_arm_adaptive_random_20262781.txt``).
 ``arm_payload``
     ``benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2``: a
     payload on the last link of planar two-link arms and PUMA joints 1-3
@@ -536,7 +539,9 @@ def arms_random(ctx):
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262751"],
              "bench_arm_payload_random_20262751"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262771"],
-             "bench_arm_payload_random_20262771"))
+             "bench_arm_payload_random_20262771"),
+            (["benchmarks/bench_arm_adaptive.py", "--n", "0", "0", "3", "3", "--seed", "20262781",
+              "--jobs", "2"], "bench_arm_adaptive_random_20262781"))
     if ctx["quick"]:
         runs = ((["benchmarks/bench_arms.py", "--n", "0", "0", "0", "1", "1", "--seed", "20262711"],
                  "bench_arms_random_20262711"),)
