@@ -122,7 +122,9 @@ it in ``optimisers``):
     2-4 joints from random DH tables, standard or modified, on a randomly tilted
     base; ``figures/bench_arms_random_20262711.txt``), ``--n 0 0 0 0 12 --seed
     20262741`` (random URDF chains, pinocchio's dynamics;
-    ``figures/bench_arms_urdf_20262741.txt``), ``--compliant --n 0 0 0 8 --seed
+    ``figures/bench_arms_urdf_20262741.txt``), ``--n 0 0 0 12 12 --seed 20262791
+    --jobs 2`` (a second seed of both; ``figures/bench_arms_random_urdf_20262791.txt``),
+    ``--compliant --n 0 0 0 8 --seed
     20262731 --jobs 2`` (the random DH chains with two-mass joints;
     ``figures/bench_arms_random_compliant_20262731.txt``) and
     ``benchmarks/bench_arm_payload.py --n 0 0 6 6 --seed 20262751`` (a payload on
@@ -534,6 +536,8 @@ def arms_random(ctx):
               "--jobs", "2"], "bench_arms_random_20262711"),
             (["benchmarks/bench_arms.py", "--n", "0", "0", "0", "0", "12", "--seed", "20262741"],
              "bench_arms_urdf_20262741"),
+            (["benchmarks/bench_arms.py", "--n", "0", "0", "0", "12", "12", "--seed", "20262791",
+              "--jobs", "2"], "bench_arms_random_urdf_20262791"),
             (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "8", "--seed",
               "20262731", "--jobs", "2"], "bench_arms_random_compliant_20262731"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262751"],
