@@ -152,11 +152,10 @@ def library_model(s: ArmSettings):
     from plant.robot.robot_model import PUMA560_DH, Link, RobotModel
 
     if s.family == "urdf":
-        names = [f"j{i + 1}" for i in range(len(s.urdf["joints"]))]
+        _, names, locked = _urdf_of(s)
         act = [names[i] for i in s.active]
         return RobotModel.from_urdf(
-            urdf_path(s), active=act,
-            locked={n: j["locked"] for n, j in zip(names, s.urdf["joints"]) if j["locked"] is not None},
+            urdf_path(s), active=act, locked=locked,
             gear_ratios=dict(zip(act, s.gear_ratio)), motor_inertias=dict(zip(act, s.motor_inertia)),
             gravity=s.gravity, name=f"URDF chain {s.seed}")
     if s.family.startswith("puma"):
@@ -436,6 +435,14 @@ def urdf_text(desc: dict, name: str = "random_chain") -> str:
     return "\n".join(out) + "\n"
 
 
+def _urdf_of(s: ArmSettings):
+    """A ``urdf`` draw's file text, its joint names (``j1``, ...) and ``{name: angle}`` of
+    its locked joints."""
+    names = [f"j{i + 1}" for i in range(len(s.urdf["joints"]))]
+    locked = {n: j["locked"] for n, j in zip(names, s.urdf["joints"]) if j["locked"] is not None}
+    return urdf_text(s.urdf, name=f"urdf_{s.seed}"), names, locked
+
+
 def urdf_path(s: ArmSettings):
     """The draw's URDF written to a file of the temporary directory (its name the hash of the
     text, so that processes share it); returns the path."""
@@ -443,7 +450,7 @@ def urdf_path(s: ArmSettings):
     import tempfile
     from pathlib import Path
 
-    text = urdf_text(s.urdf, name=f"urdf_{s.seed}")
+    text = _urdf_of(s)[0]
     d = Path(tempfile.gettempdir()) / "independent_arm_urdf"
     d.mkdir(parents=True, exist_ok=True)
     path = d / f"urdf_{s.seed}_{hashlib.sha1(text.encode()).hexdigest()[:12]}.urdf"
@@ -462,7 +469,7 @@ class _PinocchioChain:
         import pinocchio as pin
 
         self._pin = pin
-        self.model = pin.buildModelFromXML(urdf_text(s.urdf, name=f"urdf_{s.seed}"))
+        self.model = pin.buildModelFromXML(_urdf_of(s)[0])
         if s.payload:  # a point mass fixed to the last link, in its joint frame
             last = self.model.njoints - 1
             self.model.inertias[last] = self.model.inertias[last] + pin.Inertia(
@@ -601,10 +608,8 @@ def _robot_entry(s: ArmSettings, model, urdf=None):
 
     if s.family != "urdf":
         return robot_section(model)
-    names = [f"j{i + 1}" for i in range(len(s.urdf["joints"]))]
     return dict(urdf=str(urdf or urdf_path(s)), joints=list(model.joint_names),
-                locked={n: j["locked"] for n, j in zip(names, s.urdf["joints"])
-                        if j["locked"] is not None},
+                locked=_urdf_of(s)[2],
                 motor_inertias=dict(zip(model.joint_names, map(float, s.motor_inertia))),
                 gravity=list(s.gravity), name=model.name)
 
@@ -620,7 +625,7 @@ def write_log(s: ArmSettings, directory, stem):
     log = make_log(s, name=stem)
     names, beta = truth_beta(s, log.model)
     if s.family == "urdf":  # the URDF beside the log, named relative to the sidecar
-        (directory / f"{stem}.urdf").write_text(urdf_text(s.urdf, name=f"urdf_{s.seed}"))
+        (directory / f"{stem}.urdf").write_text(_urdf_of(s)[0])
         log.sidecar["robot"] = _robot_entry(s, log.model, urdf=f"{stem}.urdf")
     log.save(directory / f"{stem}.csv")
     k = np.asarray(s.gear_ratio, float)
