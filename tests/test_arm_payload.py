@@ -67,6 +67,7 @@ def test_a_search_stopped_at_its_iteration_limit_goes_on_in_first_moments(arm, l
     log, _ = loaded_log
     prior = arm.beta()
     window = (0.8, 1.0)
+    monkeypatch.setattr(ap, "WIDE_SEARCH_Z", np.inf)  # this stage alone (the wide one below)
     short = identify_arm_payload(log, prior, window_s=window, max_iter=3)
     ample = identify_arm_payload(log, prior, window_s=window)
     monkeypatch.setattr(ap, "_first_moment_stage", lambda problem, ref, box, max_iter: ref)
@@ -85,6 +86,42 @@ def test_a_search_stopped_at_its_iteration_limit_goes_on_in_first_moments(arm, l
     mbox = ap._FirstMoments.box(box)
     assert np.all((H >= mbox[:, 0]) & (H <= mbox[:, 1]))
     np.testing.assert_allclose(ap._FirstMoments.to_com(H), X, rtol=1e-12)
+
+
+def test_quantisation_z_is_standard_under_pure_quantisation_noise():
+    """quantisation_z of n uniform unit-cell errors has mean 0 and standard deviation 1
+    (the statistic's definition: mean n/12, variance n/180), whatever n."""
+    from identification.arm_payload import quantisation_z
+
+    rng = np.random.default_rng(20261127)
+    for n in (40, 400, 4000):
+        z = np.array([quantisation_z(np.sum(rng.uniform(-0.5, 0.5, n) ** 2), n)
+                      for _ in range(4000)])
+        assert abs(z.mean()) < 0.06 and abs(z.std() - 1.0) < 0.06
+    assert quantisation_z(12.0, 0) == 0.0
+
+
+def test_the_wide_search_runs_only_above_quantisation_and_never_costs_more(arm, loaded_log,
+                                                                          monkeypatch):
+    """A window the loaded model explains sits near the quantisation floor: no wide search,
+    quantisation_z small.  Forced to run (threshold -inf), the wide search from the centre-
+    of-mass box's corners keeps the lower cost -- never a higher one -- and counts its
+    simulations."""
+    import identification.arm_payload as ap
+
+    log, _ = loaded_log
+    prior = arm.beta()
+    window = (0.8, 1.0)
+    base = identify_arm_payload(log, prior, window_s=window)
+    assert not base.wide_search and base.quantisation_z < ap.WIDE_SEARCH_Z
+    monkeypatch.setattr(ap, "WIDE_SEARCH_Z", -np.inf)
+    wide = identify_arm_payload(log, prior, window_s=window)
+    assert wide.wide_search and wide.fun <= base.fun and wide.nfev > base.nfev
+    assert wide.mass_kg == pytest.approx(TOOL["mass_kg"], rel=0.02)
+    assert wide.to_dict()["wide_search"] is True
+    starts = ap._wide_starts(np.array(ap.DEFAULT_ARM_PAYLOAD_BOUNDS), np.arange(8.0))
+    assert starts.shape == (24, 8) and np.all(np.abs(starts[:, 1:4]) == 0.2)
+    np.testing.assert_array_equal(starts[:, 4:], np.tile(np.arange(4.0, 8.0), (24, 1)))
 
 
 def test_the_payload_makes_the_arm_ctc_track(arm, loaded_log):
