@@ -132,7 +132,10 @@ it in ``optimisers``):
     the payload search's first-moment stage:
     ``figures/bench_arm_payload_random_20262751_before_first_moments.txt``) and
     ``--seed 20262771``, a fresh draw after it
-    (``figures/bench_arm_payload_random_20262771.txt``); and
+    (``figures/bench_arm_payload_random_20262771.txt``; the same before the
+    wide search: ``..._20262771_before_wide_search.txt``) and ``--seed 20262811
+    --jobs 2``, a fresh draw after the wide search
+    (``figures/bench_arm_payload_random_20262811.txt``); and
     ``benchmarks/bench_arm_adaptive.py --n 0 0 3 3 --seed 20262781 --jobs 2`` (the
     adaptive CTC through a change on both kinds;
     ``figures/bench_arm_adaptive_random_20262781.txt``).
@@ -544,6 +547,8 @@ def arms_random(ctx):
              "bench_arm_payload_random_20262751"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262771"],
              "bench_arm_payload_random_20262771"),
+            (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262811",
+              "--jobs", "2"], "bench_arm_payload_random_20262811"),
             (["benchmarks/bench_arm_adaptive.py", "--n", "0", "0", "3", "3", "--seed", "20262781",
               "--jobs", "2"], "bench_arm_adaptive_random_20262781"))
     if ctx["quick"]:
