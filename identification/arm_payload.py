@@ -700,6 +700,11 @@ class ArmPayloadResult(OptimizeResult):
         for name, v, s, u in zip(PAYLOAD_NAMES, self.x, self.x_std, units):
             note = "" if np.isfinite(s) else "  (not identifiable on this arm)"
             rows.append(f"{name:>4} {v:10.4f} {s:9.4f} {u}{note}")
+        z = self.get("quantisation_z", float("nan"))
+        if np.isfinite(z):
+            wide = ", after the wide search" if self.get("wide_search") else ""
+            rows.append(f"cost {self.fun:.4g} pulses^2: {z:+.1f} standard deviations from "
+                        f"quantisation noise{wide}")
         return "\n".join(rows)
 
     def to_dict(self) -> dict:

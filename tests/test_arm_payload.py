@@ -189,6 +189,7 @@ def test_result_speaks_scipy_and_json(arm, loaded_log, tmp_path):
     text = json.dumps(d)
     assert json.loads(text)["x_std"][3] is None  # NaN -> null
     assert "not identifiable" in res.table()
+    assert f"{res.quantisation_z:+.1f} standard deviations from quantisation noise" in res.table()
     ax = res.plot()
     assert len(ax.lines) == 2
     assert res.residuals_pulses.shape == (int(round(0.2 / log.rig.sample_time_s)) + 1, 2)
