@@ -104,8 +104,8 @@ from .result_schema import jsonable
 from .uncertainty import sandwich_covariance
 
 __all__ = ["identify_arm_payload", "ArmPayloadResult", "ArmPayloadProblem",
-           "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "quantisation_z", "WIDE_SEARCH_Z", "identify_arm_friction_change",
-           "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX"]
+           "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "quantisation_z", "WIDE_SEARCH_Z",
+           "identify_arm_friction_change", "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX"]
 
 #: Names of the searched payload parameters (kg, m).
 PAYLOAD_NAMES = ("m", "cx", "cy", "cz")
