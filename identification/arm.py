@@ -70,7 +70,7 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "ArmPredictionErrorProblem", "ARM_REFINE_SUBSTEPS", "ARM_OUTPUT_ERROR_SUBSTEPS", "ARM_FTOL",
            "ARM_METHODS", "ARM_DEFAULT_METHOD", "IDIM_FALLBACK_SEED", "friction_layout",
            "output_error_substeps",
-           "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction",
+           "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction", "rig_with_friction",
            "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T"]
 
 #: Methods of :func:`identify_arm`; the default.
@@ -380,7 +380,7 @@ def _arm_instruments(log, pl, x, sos, sl, unknown):
     ts = rig.sample_time_s
     if unknown:  # the simulated robot has the current friction estimate (motor side in the rig)
         xf = np.concatenate([x[:r], np.maximum(x[r:], 0.0)])
-        rig = _rig_with_friction(rig, motor_side_friction(rig, xf, r))
+        rig = rig_with_friction(rig, motor_side_friction(rig, xf, r))
     try:
         resp = simulate_closed_loop(rig, x[:r], CardPLaw(log.rig.p_gain_A_per_pulse),
                                     trajectory=log.trajectory, n_samples=log.n_samples,
@@ -433,8 +433,26 @@ def motor_side_friction(rig, X, r) -> dict:
                 coulomb_friction_Nm=np.column_stack([F[:, 1] / k, F[:, 2] / k]).tolist())
 
 
-def _rig_with_friction(rig, friction):
-    """The rig with the sidecar's friction keys of :func:`motor_side_friction` (motor side)."""
+def rig_with_friction(rig, friction):
+    """The rig with the sidecar's friction keys of :func:`motor_side_friction` (motor side).
+
+    Parameters
+    ----------
+    rig : plant.Rig
+    friction : dict
+        ``viscous_friction_Nms_per_rad`` (n,) and ``coulomb_friction_Nm``
+        (n, 2), motor side (a result's ``friction``).
+
+    Returns
+    -------
+    plant.Rig
+        A copy with those values (the sidecar's ``null`` friction filled in).
+
+    Raises
+    ------
+    KeyError, TypeError, ValueError
+        A dict without those keys or with values that are not numbers.
+    """
     return dataclasses.replace(
         rig, viscous_friction_Nms_per_rad=tuple(friction["viscous_friction_Nms_per_rad"]),
         coulomb_friction_Nm=tuple(tuple(v) for v in friction["coulomb_friction_Nm"]))
@@ -636,9 +654,11 @@ class ArmIdentificationResult(OptimizeResult):
             ``interrupted``, ``output_error_substeps``, ``method``, ``robot``, ``joint_names``, ``log_name``,
             ``cutoff_hz``, ``elapsed_s``, ``bounds``, ``beta``, ``friction``,
             ``friction_identified``, ``model``, ``model_choice``, ``warnings``,
-            ``stage_times_s`` and the joints (``joint_stiffness_Nm_per_rad``,
-            ``joint_damping_Nms_per_rad``, ``motor_inertia_reflected_kgm2``,
-            ``joint_backlash_rad``; None for a rigid result).
+            ``stage_times_s``, ``flexible_substeps`` and the joints
+            (``joint_stiffness_Nm_per_rad``, ``joint_damping_Nms_per_rad``,
+            ``motor_inertia_reflected_kgm2``, ``joint_backlash_rad``; None for a
+            rigid result) -- what :func:`identification.arm_payload.prior_from_file`
+            reads back as a payload's prior.
         """
         def floats(v):
             return [None if not np.isfinite(a) else float(a) for a in np.asarray(v, dtype=float)]
@@ -658,6 +678,7 @@ class ArmIdentificationResult(OptimizeResult):
                     model=self.get("model", "rigid"), model_choice=jsonable(self.get("model_choice")),
                     warnings=list(self.get("warnings") or []),
                     stage_times_s=jsonable(self.get("stage_times_s")),
+                    flexible_substeps=self.get("flexible_substeps"),
                     **{k: self.get(k) for k in _NO_JOINTS})
 
     def save_json(self, path, *, create_dirs=False):
@@ -1033,7 +1054,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         well_excited=rse < RSE_WARN, x_idim=x0, cutoff_hz=idim["cutoff_hz"], plant=pl,
         friction=friction, friction_identified=bool(unknown), robot=pl.model.name,
         joint_names=tuple(pl.model.joint_names),
-        rig=rig if not unknown else _rig_with_friction(rig, friction),
+        rig=rig if not unknown else rig_with_friction(rig, friction),
         log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=notes,
         flexible_plant=None, plant_row=None, flexible_substeps=None,
         output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
@@ -1305,7 +1326,7 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers):
     friction = motor_side_friction(log.rig, fr_x, nb)
     unknown = bool(space.unknown)
     names = tuple(space.names())
-    rig = log.rig if not unknown else _rig_with_friction(log.rig, friction)
+    rig = log.rig if not unknown else rig_with_friction(log.rig, friction)
     joint_what = (("log10 stiffness (N m/rad)", "damping (N m s/rad)",
                    "reflected motor inertia Jm k^2 (kg m^2)")
                   + (("backlash width (rad)",) if space.backlash else ()))

@@ -96,7 +96,7 @@ from plant.logs.rig import p_law_current, rig_constants
 from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, symmetric_from_lower
 from plant.simulation.core import cell_centre
 
-from .arm import ARM_REFINE_SUBSTEPS
+from .arm import ARM_REFINE_SUBSTEPS, rig_with_friction
 from .flexible import quantisation_floor
 from .friction import friction_layout
 from .refinement import DEFAULT_GAIN, refine
@@ -105,7 +105,8 @@ from .uncertainty import sandwich_covariance
 
 __all__ = ["identify_arm_payload", "ArmPayloadResult", "ArmPayloadProblem",
            "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "quantisation_z", "WIDE_SEARCH_Z",
-           "identify_arm_friction_change", "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX"]
+           "identify_arm_friction_change", "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX",
+           "prior_from_file"]
 
 #: Names of the searched payload parameters (kg, m).
 PAYLOAD_NAMES = ("m", "cx", "cy", "cz")
@@ -740,6 +741,89 @@ class ArmPayloadResult(OptimizeResult):
         ax.set_title(f"payload {self.mass_kg:.3g} kg on the last link")
         ax.legend()
         return ax
+
+
+def prior_from_file(path, log) -> dict:
+    """The unloaded arm of an :func:`identification.arm.identify_arm` result file, as a prior.
+
+    Reads the JSON that :meth:`identification.arm.ArmIdentificationResult.save_json`
+    (the CLI's ``--output``) wrote for the unloaded arm and rebuilds what
+    :func:`identify_arm_payload` takes from a result: the base parameters,
+    the arm plant of ``log``'s robot, the rig with the identified friction
+    (when the file's identification identified it) and, for a flexible
+    result, its joints and RK4 substeps.
+
+    Parameters
+    ----------
+    path : path-like
+        The result file (JSON).
+    log : plant.logs.arm_log.ArmLog
+        The loaded arm's log: its robot must be the file's (the same base
+        parameters by name).
+
+    Returns
+    -------
+    dict
+        ``beta`` (r,), ``plant`` (:class:`plant.simulation.arm.ArmPlant`),
+        ``rig``, ``model``, ``plant_row`` (a flexible result's ``[beta, K,
+        D, Ia, b]``, else None), ``flexible_substeps`` -- a prior for
+        :func:`identify_arm_payload`.
+
+    Raises
+    ------
+    ValueError
+        An unreadable or malformed file (one line), base parameters other
+        than the log's robot's, a non-finite value, a flexible result without
+        its joints or substeps.
+    """
+    import json
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read the prior {p}: {str(exc).splitlines()[0]}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("beta"), list) \
+            or not isinstance(data.get("names"), list):
+        raise ValueError(f"{p} is not a result file of identify_arm (no 'beta' and 'names' lists)")
+    plant = arm_plant(log.model)
+    names, r = tuple(plant.base.names), plant.base.rank
+    if tuple(data["names"][:r]) != names or len(data["beta"]) != r:
+        raise ValueError(f"the prior {p} holds the base parameters of another robot "
+                         f"({', '.join(map(str, data['names'][:r]))}), not {log.model.name}'s "
+                         f"({', '.join(names)})")
+    try:
+        beta = np.array(data["beta"], dtype=float)
+    except (TypeError, ValueError):
+        beta = np.full(r, np.nan)
+    if not np.all(np.isfinite(beta)):
+        raise ValueError(f"the prior {p} has non-finite base parameters")
+    rig = log.rig
+    if friction_layout(rig)[1] and data.get("friction_identified"):
+        try:
+            rig = rig_with_friction(rig, data["friction"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"the prior {p} has no usable identified friction ({exc})") from None
+    model = str(data.get("model") or "rigid")
+    row, substeps = None, None
+    if model != "rigid":
+        n = log.n_joints
+        keys = ("joint_stiffness_Nm_per_rad", "joint_damping_Nms_per_rad",
+                "motor_inertia_reflected_kgm2")
+        try:
+            parts = [np.array(data[k], dtype=float).reshape(n) for k in keys]
+            b = data.get("joint_backlash_rad")
+            parts.append(np.zeros(n) if b is None else np.array(b, dtype=float).reshape(n))
+            substeps = int(data["flexible_substeps"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"the prior {p} is a {model} result without its joints or "
+                             "flexible_substeps (write it again with this version)") from None
+        row = np.concatenate([beta, *parts])
+        if not np.all(np.isfinite(row)) or substeps < 1:
+            raise ValueError(f"the prior {p} has non-finite joints or substeps")
+    return dict(beta=beta, plant=plant, rig=rig, model=model, plant_row=row,
+                flexible_substeps=substeps)
 
 
 def _substeps_of(prior, joints, substeps) -> int:

@@ -178,10 +178,13 @@ def build_parser():
                         "robots)")
     p.add_argument("--payload", action="store_true",
                    help="identify a payload at the flange on top of the robot's f from "
-                        "--prior (on-line payload identification); needs --prior")
+                        "--prior (on-line payload identification); needs --prior.  On a "
+                        "robot-model log: a point mass on the last link over the whole log "
+                        "(identification.arm_payload.identify_arm_payload)")
     p.add_argument("--prior", metavar="PRIOR.json",
                    help="result file of an earlier identification of the unloaded "
-                        "robot (its \"f\" list); used with --payload")
+                        "robot (its \"f\" list; for a robot-model log, the unloaded arm's "
+                        "--output file, rigid or flexible); used with --payload")
     p.add_argument("--quiet", "-q", action="store_true",
                    help="no progress bar or status lines (the progress bar is only shown "
                         "when stderr is a terminal)")
@@ -577,11 +580,13 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
     from . import api
     from .arm import ARM_DEFAULT_METHOD, identify_arm
 
-    unsupported = [opt for opt, on in (("--payload", args.payload), ("--consistent", args.consistent),
+    unsupported = [opt for opt, on in (("--consistent", args.consistent),
                                        ("--lowpass", args.lowpass is not None)) if on]
     if unsupported:
         raise CLIError(f"{', '.join(unsupported)} is for PUMA 560 links 2-3 logs; {log_path} "
                        "names a robot model")
+    if args.payload:
+        return _run_arm_payload(args, log_path, out, plot_dir, stdout, stderr)
     method = args.method or ARM_DEFAULT_METHOD  # every --method choice is identify_arm's too
     ctrl_c = _GracefulInterrupt(stderr, quiet=args.quiet)
     n_gen = args.generations or getattr(api, "PAPER_GA", {}).get("n_gen")
@@ -626,6 +631,53 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
         _wrote(status, info)
         args.written.append(str(path))
     return EXIT_INTERRUPTED if result.get("interrupted") else 0
+
+
+def _run_arm_payload(args, log_path, out, plot_dir, stdout, stderr) -> int:
+    """``--payload --prior`` on a robot model's log: a payload on the last link over the whole
+    log (:func:`identification.arm_payload.identify_arm_payload`) on top of the unloaded arm
+    of the prior's result file (:func:`identification.arm_payload.prior_from_file`)."""
+    import json
+
+    from plant.logs.arm_log import load_arm_log
+    from plant.logs.fileio import atomic_output, check_output_path, write_text_atomic
+    from plant.simulation.arm import kernels_cached
+    from plant.simulation.generated import kernel_directory
+
+    from .arm_payload import identify_arm_payload, prior_from_file
+
+    given = [opt for opt, on in (("--method", args.method is not None),
+                                 ("--generations", args.generations is not None),
+                                 ("--model", args.model != "auto")) if on]
+    if given:
+        raise CLIError(f"{', '.join(given)} does not apply to --payload on a robot model's log "
+                       "(the arm is the prior's; only the payload is searched)")
+    status = _Status(stderr, args.quiet, None, n_gen=None)
+    log = load_arm_log(log_path)
+    prior = prior_from_file(args.prior, log)
+    status.say(f"identifying a payload on {log.model.name}'s last link from {log.name} "
+               f"({log.n_samples} samples), prior {args.prior} ({prior['model']})")
+    if not kernels_cached(log.model, lane_friction=False):
+        status.say(f"generating and compiling {log.model.name}'s kernels once (a minute or more "
+                   f"for a new robot; cached in {kernel_directory()})")
+    result = identify_arm_payload(log, prior, workers=args.workers)
+    print(f"log: {log.name} ({log.n_samples} samples)   robot: {log.model.name}   payload on "
+          f"the last link, prior: {args.prior}", file=stdout)
+    print(result.table(), file=stdout, flush=True)
+    if not result.success:
+        raise CLIError(f"no valid result: {result.message}")
+    if out is not None:
+        _wrote(status, write_text_atomic(out, json.dumps(result.to_dict(), indent=1) + "\n",
+                                         create_dirs=True))
+        args.written.append(str(out))
+    if plot_dir is not None:
+        path = plot_dir / "payload_residuals.png"
+        info = check_output_path(path, create_dirs=True)
+        with atomic_output(path, create_dirs=True) as tmp:
+            result.plot().get_figure().savefig(tmp, dpi=120, format="png")
+        _wrote(status, info)
+        args.written.append(str(path))
+    return 0
 
 
 def _interrupted(stderr) -> int:

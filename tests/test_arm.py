@@ -528,7 +528,7 @@ def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
     assert data["model"] == "rigid" and data["joint_stiffness_Nm_per_rad"] is None
     assert data["names"] == list(arm.parameter_names) and data["success"] is True
     assert np.allclose(data["x"], arm.beta(), rtol=5e-3, atol=1e-3)
-    for args, needle in ((["--payload", "--prior", str(out)], "--payload"),
+    for args, needle in ((["--consistent"], "--consistent"),
                          (["--lowpass", "20"], "--lowpass")):
         assert main([str(path), *args, "--quiet"]) == 1
         err = capsys.readouterr().err.strip().splitlines()

@@ -514,6 +514,30 @@ def test_payload_of_a_two_mass_arm_from_a_window(compliant):
         identify_arm_payload(llog, res, window_s=(0.5, 0.6), plant=res.plant)
 
 
+def test_a_flexible_result_file_is_a_payload_prior(compliant, tmp_path):
+    """A flexible result written as JSON (save_json, the CLI's --output) reads back as the
+    payload's prior (prior_from_file): the same base parameters, joints, substeps and
+    identified friction, and the same payload from a window as the result itself gives."""
+    from identification.arm_payload import identify_arm_payload, prior_from_file
+    from plant.simulation.synthetic import emulate_arm_log
+
+    log, _, res = compliant
+    path = tmp_path / "prior.json"
+    res.save_json(path)
+    prior = prior_from_file(path, log)
+    r, n = res.plant.base.rank, log.n_joints
+    assert prior["model"] == "flexible" and prior["flexible_substeps"] == res.flexible_substeps
+    np.testing.assert_array_equal(prior["beta"], res.beta)
+    np.testing.assert_allclose(prior["plant_row"], np.asarray(res.plant_row)[:r + 4 * n],
+                               rtol=1e-12)
+    assert prior["rig"].viscous_friction_Nms_per_rad == res.rig.viscous_friction_Nms_per_rad
+    llog = emulate_arm_log(res.flexible_plant, _loaded_row(res, 1.5, TOOL_COM), res.rig,
+                           log.trajectory, 1200)
+    a = identify_arm_payload(llog, res, window_s=(0.3, 0.5), workers=1)
+    b = identify_arm_payload(llog, prior, window_s=(0.3, 0.5), workers=1)
+    np.testing.assert_allclose(b.x, a.x, rtol=1e-9, atol=1e-12)
+
+
 def test_flexible_ctc_switches_its_link_model_with_beta(compliant):
     """set_beta of the flexible-joint CTC: the link model is the new beta minus the motor
     inertias and the link observer is placed for it; a beta whose link model is not positive

@@ -124,6 +124,41 @@ def test_the_wide_search_runs_only_above_quantisation_and_never_costs_more(arm, 
     np.testing.assert_array_equal(starts[:, 4:], np.tile(np.arange(4.0, 8.0), (24, 1)))
 
 
+def test_cli_payload_on_a_robot_model_log(arm, loaded_log, tmp_path, capsys):
+    """``python -m identification LOADED.csv --payload --prior UNLOADED.json`` on a robot
+    model's log: the unloaded arm's result file (the CLI's own --output) is the prior, the
+    payload is identified over the whole log, printed and written as JSON; a prior of another
+    robot, a malformed one and identification options are one-line errors with no output."""
+    from identification.cli import main
+
+    log, _ = loaded_log
+    unloaded = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 2000, name="unloaded")
+    prior = tmp_path / "prior.json"
+    assert main([str(unloaded.save(tmp_path / "unloaded.csv")), "-o", str(prior), "--quiet"]) == 0
+    loaded = log.save(tmp_path / "loaded.csv")
+    capsys.readouterr()
+    out, plots = tmp_path / "payload.json", tmp_path / "plots"
+    assert main([str(loaded), "--payload", "--prior", str(prior), "-o", str(out),
+                 "--plot", str(plots), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "payload on the last link" in printed and "quantisation noise" in printed
+    data = json.loads(out.read_text())
+    assert data["success"] is True and data["mass_kg"] == pytest.approx(TOOL["mass_kg"], rel=0.02)
+    assert (plots / "payload_residuals.png").stat().st_size > 0
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(dict(json.loads(prior.read_text()), names=["a", "b", "c"])))
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    for args, needle in ((["--prior", str(other)], "another robot"),
+                         (["--prior", str(bad)], "cannot read the prior"),
+                         (["--prior", str(prior), "--method", "idim-ls"], "does not apply")):
+        target = tmp_path / "never.json"
+        assert main([str(loaded), "--payload", *args, "-o", str(target), "--quiet"]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
+        assert not target.exists()
+
+
 def test_the_payload_makes_the_arm_ctc_track(arm, loaded_log):
     """The CTC built from the prior plus a window's payload tracks the loaded arm within +-1
     pulse after 0.1 s; the prior alone does not."""
