@@ -125,6 +125,10 @@ _RATE_SAMPLES = 5
 #: Smallest mass (kg) by which the first-moment stage divides ``m c`` back into ``c``.
 _FIRST_MOMENT_MASS_FLOOR = 1e-3
 
+#: The searches' start masses, as fractions of the mass box (the default search: one start
+#: each, the centre of mass at the box's centre; the wide search: each with every corner).
+_START_MASS_FRACTIONS = (0.1, 0.35, 0.65)
+
 #: The wide search runs when the window's cost lies more than this many standard
 #: deviations above the cost of pure quantisation noise (:func:`quantisation_z`).
 WIDE_SEARCH_Z = 3.0
@@ -448,7 +452,7 @@ def _wide_starts(box, x_best) -> np.ndarray:
     mid, half = 0.5 * (box[1:4, 0] + box[1:4, 1]), 0.5 * (box[1:4, 1] - box[1:4, 0])
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
     coms = mid + _WIDE_CORNER_FRACTION * signs * half
-    masses = box[0, 0] + np.array([0.1, 0.35, 0.65]) * (box[0, 1] - box[0, 0])
+    masses = box[0, 0] + np.array(_START_MASS_FRACTIONS) * (box[0, 1] - box[0, 0])
     rest = np.asarray(x_best, dtype=float)[4:]
     return np.array([[m, *c, *rest] for m in masses for c in coms])
 
@@ -949,7 +953,7 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
     full_box = np.vstack([box, nuisance_box])
     mid_com = 0.5 * (box[1:, 0] + box[1:, 1])
     starts = np.array([[box[0, 0] + f * (box[0, 1] - box[0, 0]), *mid_com, *guess]
-                       for f in (0.1, 0.35, 0.65)])
+                       for f in _START_MASS_FRACTIONS])
     if box[0, 1] - box[0, 0] < 1e-6:  # a pinned mass (a model's own fit): one start
         starts = starts[:1]
     ref = refine(problem, starts, full_box, max_iter=max_iter, ftol=1e-8)
