@@ -96,6 +96,7 @@ from plant.logs.rig import p_law_current, rig_constants
 from plant.simulation.arm import ArmPlant, arm_plant, replay_arm, symmetric_from_lower
 from plant.simulation.core import cell_centre
 
+from .api import at_bounds
 from .arm import ARM_REFINE_SUBSTEPS, rig_with_friction
 from .flexible import quantisation_floor
 from .friction import friction_layout
@@ -695,6 +696,11 @@ class ArmPayloadResult(OptimizeResult):
         leave, a poor prior).
     wide_search : bool
         Whether the wide search ran (module docstring).
+    at_bounds : tuple of str
+        The payload parameters that ended on a bound of their box
+        (:func:`identification.api.at_bounds`, e.g. ``'m (upper)'``): a mass at
+        the box's top is a window that does not determine it (its standard
+        error says how little) or a box too small for the tool.
     elapsed_s : float
     """
 
@@ -710,6 +716,9 @@ class ArmPayloadResult(OptimizeResult):
             wide = ", after the wide search" if self.get("wide_search") else ""
             rows.append(f"cost {self.fun:.4g} pulses^2: {z:+.1f} standard deviations from "
                         f"quantisation noise{wide}")
+        if self.get("at_bounds"):
+            rows.append(f"at the box's bound: {', '.join(self.at_bounds)} (the window may not "
+                        "determine it, or the box is too small: bounds=)")
         return "\n".join(rows)
 
     def to_dict(self) -> dict:
@@ -717,7 +726,7 @@ class ArmPayloadResult(OptimizeResult):
         keys = ("x", "fun", "nfev", "nit", "success", "message", "mass_kg", "com_m", "x_std",
                 "com_identifiable", "beta", "beta_prior", "names", "window_s",
                 "start_rates_rad_s", "start_offsets_pulses", "joint_names", "quantisation_z",
-                "wide_search", "elapsed_s")
+                "wide_search", "at_bounds", "elapsed_s")
         return {k: jsonable(self[k]) for k in keys}
 
     def plot(self, ax=None):
@@ -828,6 +837,14 @@ def prior_from_file(path, log) -> dict:
             raise ValueError(f"the prior {p} has non-finite joints or substeps")
     return dict(beta=beta, plant=plant, rig=rig, model=model, plant_row=row,
                 flexible_substeps=substeps)
+
+
+def _at_bounds(x, box, identifiable) -> tuple:
+    """:func:`identification.api.at_bounds` of the payload, its identifiable components only
+    (a component the arm does not depend on goes where the search leaves it)."""
+    keep = np.concatenate([[True], identifiable])
+    names = [n for n, k in zip(PAYLOAD_NAMES, keep) if k]
+    return tuple(at_bounds(dict(x=x[keep], bounds=box[keep], x_names=names)))
 
 
 def _substeps_of(prior, joints, substeps) -> int:
@@ -987,4 +1004,6 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         start_offsets_pulses=x_all[4 + n:4 + 2 * n].copy(),
         residuals_pulses=residuals, joint_names=tuple(log.joint_names),
         quantisation_z=quantisation_z(ref.fun, n_residuals) if ok else float("nan"),
-        wide_search=wide, elapsed_s=time.perf_counter() - t_start)
+        wide_search=wide,
+        at_bounds=_at_bounds(x, box, identifiable) if ok else (),
+        elapsed_s=time.perf_counter() - t_start)

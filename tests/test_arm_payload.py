@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import plant
-from identification.arm_payload import ArmPayloadResult, identify_arm_payload
+from identification.arm_payload import (DEFAULT_ARM_PAYLOAD_BOUNDS, ArmPayloadResult,
+                                         identify_arm_payload)
 from plant.logs.arm_log import load_arm_log
 from plant.simulation.arm import arm_plant
 from plant.simulation.synthetic import emulate_arm_log
@@ -157,6 +158,19 @@ def test_cli_payload_on_a_robot_model_log(arm, loaded_log, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("error: ") and needle in err[0]
         assert not target.exists()
+
+
+def test_a_mass_at_the_box_bound_is_reported(arm, loaded_log):
+    """A box too small for the tool (1 kg at most for 2 kg): the mass ends on the box's top,
+    and the result says so (at_bounds, the table, the JSON); the right box flags nothing."""
+    log, _ = loaded_log
+    box = np.array(DEFAULT_ARM_PAYLOAD_BOUNDS, dtype=float)
+    box[0] = (0.0, 1.0)
+    small = identify_arm_payload(log, arm.beta(), window_s=(0.8, 1.0), bounds=box)
+    assert small.mass_kg == pytest.approx(1.0) and small.at_bounds == ("m (upper)",)
+    assert "at the box's bound: m (upper)" in small.table()
+    assert small.to_dict()["at_bounds"] == ["m (upper)"]
+    assert identify_arm_payload(log, arm.beta(), window_s=(0.8, 1.0)).at_bounds == ()
 
 
 def test_the_payload_makes_the_arm_ctc_track(arm, loaded_log):
