@@ -65,7 +65,8 @@ with the stage: ``benchmarks/bench_arm_payload.py``,
 A window can also hold a true local minimum in the centre of mass, which
 every start from the box's centre reaches.  Its cost says so: ``n``
 residuals that only quantisation disturbs cost ``n / 12`` pulses^2 with a
-standard deviation of ``sqrt(n / 180)`` (:func:`quantisation_z`).  When the
+standard deviation of ``sqrt(n / 180)``
+(:func:`identification.flexible.quantisation_z`).  When the
 best of the default starts lies more than :data:`WIDE_SEARCH_Z` (3)
 standard deviations above that, the search runs again from 24 starts --
 the three masses times the corners of the centre-of-mass box at 40 % of its
@@ -98,14 +99,14 @@ from plant.simulation.core import cell_centre
 
 from .api import at_bounds
 from .arm import ARM_REFINE_SUBSTEPS, rig_with_friction
-from .flexible import quantisation_floor
+from .flexible import quantisation_z
 from .friction import friction_layout
 from .refinement import DEFAULT_GAIN, refine
 from .result_schema import jsonable
 from .uncertainty import sandwich_covariance
 
 __all__ = ["identify_arm_payload", "ArmPayloadResult", "ArmPayloadProblem",
-           "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "quantisation_z", "WIDE_SEARCH_Z",
+           "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "WIDE_SEARCH_Z",
            "identify_arm_friction_change", "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX",
            "prior_from_file"]
 
@@ -131,7 +132,8 @@ _FIRST_MOMENT_MASS_FLOOR = 1e-3
 _START_MASS_FRACTIONS = (0.1, 0.35, 0.65)
 
 #: The wide search runs when the window's cost lies more than this many standard
-#: deviations above the cost of pure quantisation noise (:func:`quantisation_z`).
+#: deviations above the cost of pure quantisation noise
+#: (:func:`identification.flexible.quantisation_z`).
 WIDE_SEARCH_Z = 3.0
 
 #: Centre-of-mass starts of the wide search: the corners of the box at this
@@ -419,54 +421,34 @@ class _FirstMoments:
         return self.problem.residuals(self.to_com(X))
 
 
-def quantisation_z(cost, n_residuals) -> float:
-    """How far a prediction-error cost lies above pure quantisation noise, in standard deviations.
-
-    A count known only to its unit cell carries a uniform error ``u`` on
-    (-1/2, 1/2): ``E u^2 = 1/12`` and ``var u^2 = 1/80 - 1/144 = 1/180``
-    pulse^4 (B. Widrow and I. Kollar, *Quantization Noise*, 2008, ch. 4), so
-    ``n`` independent such errors cost ``n / 12`` pulses^2
-    (:func:`identification.flexible.quantisation_floor`) with standard
-    deviation ``sqrt(n / 180)``.
-
-    Parameters
-    ----------
-    cost : float
-        Sum of squared prediction errors (pulses^2).
-    n_residuals : int
-        Number of residuals (samples times joints).
-
-    Returns
-    -------
-    float
-        ``(cost - n / 12) / sqrt(n / 180)``; 0 for ``n = 0``.
-    """
-    n = int(n_residuals)
-    if n <= 0:
-        return 0.0
-    return float((cost - quantisation_floor(n)) / math.sqrt(n / 180.0))
-
-
-def _wide_starts(box, x_best) -> np.ndarray:
-    """Starts of the wide search: three masses times the corners of the centre-of-mass box
-    (at :data:`_WIDE_CORNER_FRACTION` of its half-widths), the best point's start state."""
+def _starts(box, rest, corner_fraction=None) -> np.ndarray:
+    """Starts of the payload search: each start mass (:data:`_START_MASS_FRACTIONS` of the
+    mass box) with the centre of the centre-of-mass box (the default search) or with each
+    corner of that box at ``corner_fraction`` of its half-widths (the wide search); ``rest``
+    (the start state) appended to every row."""
     mid, half = 0.5 * (box[1:4, 0] + box[1:4, 1]), 0.5 * (box[1:4, 1] - box[1:4, 0])
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-    coms = mid + _WIDE_CORNER_FRACTION * signs * half
-    masses = box[0, 0] + np.array(_START_MASS_FRACTIONS) * (box[0, 1] - box[0, 0])
-    rest = np.asarray(x_best, dtype=float)[4:]
-    return np.array([[m, *c, *rest] for m in masses for c in coms])
+    if corner_fraction is None:
+        coms = mid[None]
+    else:
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                         float)
+        coms = mid + corner_fraction * signs * half
+    rest = np.asarray(rest, dtype=float).reshape(-1)
+    return np.array([[box[0, 0] + f * (box[0, 1] - box[0, 0]), *c, *rest]
+                     for f in _START_MASS_FRACTIONS for c in coms])
 
 
 def _wide_stage(problem, ref, box, max_iter, n_residuals):
     """When the best of the default starts leaves the window's cost more than
     :data:`WIDE_SEARCH_Z` standard deviations above quantisation noise
-    (:func:`quantisation_z`): refine again from :func:`_wide_starts` (with the
+    (:func:`~identification.flexible.quantisation_z`): refine again from :func:`_starts` at the
+    corners (with the
     first-moment stage); the lower cost wins.  Returns the result and whether
     the wide search ran."""
     if not (np.isfinite(ref.fun) and quantisation_z(ref.fun, n_residuals) > WIDE_SEARCH_Z):
         return ref, False
-    wide = refine(problem, _wide_starts(box, ref.x), box, max_iter=max_iter, ftol=1e-8)
+    wide = refine(problem, _starts(box, np.asarray(ref.x)[4:], _WIDE_CORNER_FRACTION), box,
+                  max_iter=max_iter, ftol=1e-8)
     wide = _first_moment_stage(problem, wide, box, max_iter)
     out = wide if wide.fun < ref.fun else ref
     return dataclasses.replace(out, nfev=ref.nfev + wide.nfev, nit=ref.nit + wide.nit), True
@@ -689,7 +671,7 @@ class ArmPayloadResult(OptimizeResult):
     joint_names : tuple of str
     quantisation_z : float
         How many standard deviations the window's cost lies above pure
-        quantisation noise (:func:`quantisation_z`; NaN when
+        quantisation noise (:func:`identification.flexible.quantisation_z`; NaN when
         ``success`` is False).  Near 0 when the loaded model explains the
         window to the encoders' resolution; well above 3 when it does not (a
         change no payload describes, a local minimum the wide search did not
@@ -789,16 +771,13 @@ def prior_from_file(path, log) -> dict:
         than the log's robot's, a non-finite value, a flexible result without
         its joints or substeps.
     """
-    import json
     from pathlib import Path
 
+    from plant.logs.fileio import read_json_object
+
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read the prior {p}: {str(exc).splitlines()[0]}") from None
-    if not isinstance(data, dict) or not isinstance(data.get("beta"), list) \
-            or not isinstance(data.get("names"), list):
+    data = read_json_object(p, "prior result file")
+    if not isinstance(data.get("beta"), list) or not isinstance(data.get("names"), list):
         raise ValueError(f"{p} is not a result file of identify_arm (no 'beta' and 'names' lists)")
     plant = arm_plant(log.model)
     names, r = tuple(plant.base.names), plant.base.rank
@@ -968,9 +947,7 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
     # the start rates: the reference's minus the logged error's slope, refined as nuisances
     guess, nuisance_box = problem.start_box(k0)
     full_box = np.vstack([box, nuisance_box])
-    mid_com = 0.5 * (box[1:, 0] + box[1:, 1])
-    starts = np.array([[box[0, 0] + f * (box[0, 1] - box[0, 0]), *mid_com, *guess]
-                       for f in _START_MASS_FRACTIONS])
+    starts = _starts(box, guess)
     if box[0, 1] - box[0, 0] < 1e-6:  # a pinned mass (a model's own fit): one start
         starts = starts[:1]
     ref = refine(problem, starts, full_box, max_iter=max_iter, ftol=1e-8)

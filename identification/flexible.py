@@ -103,7 +103,8 @@ from .refinement import DEFAULT_GAIN, MaskedProblem, PredictionErrorProblem, hel
 
 __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "BACKLASH_SIGNIFICANCE", "identify_flexible", "choose_model",
-           "apply_model", "held_back_cost", "quantisation_floor", "INADEQUATE_FACTOR",
+           "apply_model", "held_back_cost", "quantisation_floor", "quantisation_z",
+           "INADEQUATE_FACTOR",
            "DEFAULT_JOINT_BOUNDS", "STIFFNESS_GRID", "CONTINUATION_GAINS", "CONTINUATION_FTOL",
            "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS",
            "FlexiblePayloadParameters", "DriveChangeParameters", "DRIVE_CHANGE_BOUNDS",
@@ -821,6 +822,34 @@ def quantisation_floor(n_residuals) -> float:
         ``n_residuals / 12``.
     """
     return float(n_residuals) / 12.0
+
+
+def quantisation_z(cost, n_residuals) -> float:
+    """How far a prediction-error cost lies above pure quantisation noise, in standard deviations.
+
+    A count known only to its unit cell carries a uniform error ``u`` on
+    (-1/2, 1/2): ``E u^2 = 1/12`` and ``var u^2 = 1/80 - 1/144 = 1/180``
+    pulse^4 (B. Widrow and I. Kollar, *Quantization Noise*, 2008, ch. 4), so
+    ``n`` independent such errors cost ``n / 12`` pulses^2
+    (:func:`quantisation_floor`) with standard
+    deviation ``sqrt(n / 180)``.
+
+    Parameters
+    ----------
+    cost : float
+        Sum of squared prediction errors (pulses^2).
+    n_residuals : int
+        Number of residuals (samples times joints).
+
+    Returns
+    -------
+    float
+        ``(cost - n / 12) / sqrt(n / 180)``; 0 for ``n = 0``.
+    """
+    n = int(n_residuals)
+    if n <= 0:
+        return 0.0
+    return float((cost - quantisation_floor(n)) / math.sqrt(n / 180.0))
 
 
 def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):

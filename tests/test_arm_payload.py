@@ -92,7 +92,7 @@ def test_a_search_stopped_at_its_iteration_limit_goes_on_in_first_moments(arm, l
 def test_quantisation_z_is_standard_under_pure_quantisation_noise():
     """quantisation_z of n uniform unit-cell errors has mean 0 and standard deviation 1
     (the statistic's definition: mean n/12, variance n/180), whatever n."""
-    from identification.arm_payload import quantisation_z
+    from identification.flexible import quantisation_z
 
     rng = np.random.default_rng(20261127)
     for n in (40, 400, 4000):
@@ -120,9 +120,13 @@ def test_the_wide_search_runs_only_above_quantisation_and_never_costs_more(arm, 
     assert wide.wide_search and wide.fun <= base.fun and wide.nfev > base.nfev
     assert wide.mass_kg == pytest.approx(TOOL["mass_kg"], rel=0.02)
     assert wide.to_dict()["wide_search"] is True
-    starts = ap._wide_starts(np.array(ap.DEFAULT_ARM_PAYLOAD_BOUNDS), np.arange(8.0))
+    box = np.array(ap.DEFAULT_ARM_PAYLOAD_BOUNDS)
+    starts = ap._starts(box, np.arange(4.0, 8.0), ap._WIDE_CORNER_FRACTION)
     assert starts.shape == (24, 8) and np.all(np.abs(starts[:, 1:4]) == 0.2)
     np.testing.assert_array_equal(starts[:, 4:], np.tile(np.arange(4.0, 8.0), (24, 1)))
+    centre = ap._starts(box, np.arange(4.0, 8.0))  # the default search: the box's centre
+    assert centre.shape == (3, 8) and np.all(centre[:, 1:4] == 0.0)
+    np.testing.assert_array_equal(np.unique(starts[:, 0]), centre[:, 0])
 
 
 def test_cli_payload_on_a_robot_model_log(arm, loaded_log, tmp_path, capsys):
@@ -151,7 +155,7 @@ def test_cli_payload_on_a_robot_model_log(arm, loaded_log, tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     for args, needle in ((["--prior", str(other)], "another robot"),
-                         (["--prior", str(bad)], "cannot read the prior"),
+                         (["--prior", str(bad)], "invalid JSON"),
                          (["--prior", str(prior), "--method", "idim-ls"], "does not apply")):
         target = tmp_path / "never.json"
         assert main([str(loaded), "--payload", *args, "-o", str(target), "--quiet"]) == 1
