@@ -99,3 +99,39 @@ def test_a_poll_stops_within_an_iteration(lazy):
     ref = refine_through_gains(lambda g: _Decays(), STARTS, BOUNDS, (0.5, 0.1), poll=lambda: True,
                                lazy_jacobian=lazy)
     assert ref.interrupted and ref.nit == 1
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+def test_successive_halving_races_the_starts_to_the_same_answer_with_fewer_simulations(lazy):
+    """Successive halving (refine's ``halving``): the worse half of the starts still racing
+    leaves after 2, 4, 8 ... iterations (the callback hears of each once), at least one start
+    stays, the answer is the full refinement's, for fewer simulations; none of it without."""
+    full, raced = _Decays(), _Decays()
+    a = refine(full, STARTS, BOUNDS, max_iter=60, ftol=1e-12, lazy_jacobian=lazy)
+    heard = []
+    b = refine(raced, STARTS, BOUNDS, max_iter=60, ftol=1e-12, lazy_jacobian=lazy, halving=2,
+               callback=lambda s, n, x, c: heard.append(s) and False)
+    # the two exponentials in either order: the same minimum
+    pairs = sorted(map(tuple, b.x.reshape(2, 2)))
+    assert np.allclose(pairs, sorted(map(tuple, full.truth.reshape(2, 2))), atol=0.05)
+    assert b.fun == pytest.approx(a.fun, rel=1e-6)
+    assert b.nfev < a.nfev
+    assert sorted(heard) == sorted(set(heard)) == list(range(1, len(STARTS) + 1))
+    # at least one start raced to the end: the best point has its Jacobian
+    assert b.jac is not None and np.isfinite(b.costs).all()
+    # five starts: at most three race after iteration 2, two after 4, one after 8 (a batch of
+    # the eager refinement is each racing start with its 4 columns)
+    sizes = []
+
+    class Counted(_Decays):
+        def residuals(self, X):
+            sizes.append(np.atleast_2d(X).shape[0])
+            return super().residuals(X)
+
+    c = refine(Counted(), STARTS, BOUNDS, max_iter=60, ftol=1e-12, halving=2)
+    racing = np.array(sizes) // 5
+    assert racing[0] == 5 and racing[2] <= 3 and racing[4] <= 2 and np.all(racing[8:] <= 1)
+    assert c.fun == pytest.approx(a.fun, rel=1e-6)
+    one = refine(_Decays(), STARTS[3:4], BOUNDS, max_iter=60, ftol=1e-12, halving=1)
+    alone = refine(_Decays(), STARTS[3:4], BOUNDS, max_iter=60, ftol=1e-12)
+    np.testing.assert_array_equal(one.x, alone.x)  # one start is never dropped
