@@ -32,10 +32,10 @@ batch (in the backlash space, at each width of :data:`ARM_BACKLASH_GRID`);
 the best :data:`N_STARTS` refined by the batched Levenberg--Marquardt of
 :mod:`identification.refinement` through the predictor-gain continuation of
 :data:`identification.flexible.CONTINUATION_GAINS` (a strongly corrected
-replay first: few local minima), then at the default gain.  At the first
-gain the starts race by successive halving (:data:`HALVING`): most head for
-one basin and creep along it, and the race spends the iterations on the
-leaders instead of running every start to convergence.  The model choice
+replay first: few local minima), then at the default gain.  The first
+gain's refinement ends when its start of lowest cost has converged
+(``refine(..., leader_stop=True)``): the starts still iterating then mostly
+creep along one flat valley toward the same point.  The model choice
 (:func:`identification.arm.identify_arm`, ``model='auto'``) compares the
 rigid and the flexible fits on held-back blocks
 (:func:`identification.refinement.held_back_mask`) with the ratios of
@@ -61,7 +61,7 @@ from .friction import FRICTION_COMPONENTS, friction_layout
 from .refinement import DEFAULT_GAIN, MaskedProblem, refine_through_gains
 
 __all__ = ["ArmFlexibleSpace", "fit_flexible_arm", "MAX_MODE_HZ", "N_STARTS", "ARM_BACKLASH_GRID",
-           "IA_FRACTION_BOUNDS", "H_REAL", "HALVING",
+           "IA_FRACTION_BOUNDS", "H_REAL",
            "inertia_matrices", "diagonal_inertias"]
 
 #: Highest link mode ``sqrt(K / M_jj) / 2 pi`` (Hz) of the search box: industrial
@@ -93,10 +93,6 @@ H_REAL = 1.0
 ARM_BACKLASH_GRID = (0.5e-3, 1.5e-3, 3e-3)
 
 # the start pool: link modes (Hz) equal on all joints, then this many drawn per joint
-#: Iterations before the first successive halving of the starts at the first gain
-#: (then after twice, four times as many, ...; :func:`identification.refinement.refine`).
-HALVING = 4
-
 _POOL_MODES_HZ = (4.0, 8.0, 16.0, 32.0)
 _POOL_FRACTIONS = (0.2, 0.5, 0.85)
 _POOL_RANDOM = 32
@@ -462,7 +458,7 @@ def diagonal_inertias(plant, beta, q) -> np.ndarray:
 
 def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=None,
                      max_iter=40, ftol=1e-6, continuation=CONTINUATION_GAINS, n_starts=N_STARTS,
-                     callback=None, poll=None, halving=HALVING):
+                     callback=None, poll=None, leader_stop=True):
     """Fit a flexible arm: start pool, gain continuation, final refinement (module docstring).
 
     Parameters
@@ -491,10 +487,10 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
     poll : callable, optional
         ``poll() -> bool`` after every refinement iteration; True stops the
         fit the same way.
-    halving : int or None
-        The starts' successive halving at the first gain
-        (:func:`~identification.refinement.refine`'s ``halving``;
-        :data:`HALVING`); None runs every start until it converges.
+    leader_stop : bool
+        End the first gain's refinement when its start of lowest cost has
+        converged (:func:`~identification.refinement.refine`'s
+        ``leader_stop``); False runs every start until it converges.
 
     Returns
     -------
@@ -521,6 +517,6 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
     # the steps of these fits are rejected (many parameters, starts far from their optimum)
     ref = refine_through_gains(problem, S, box, gains, max_iter=max_iter, ftol=ftol,
                                stage_ftol=CONTINUATION_FTOL, callback=callback, lazy_jacobian=True,
-                               poll=poll, halving=halving)
+                               poll=poll, leader_stop=leader_stop)
     x = np.asarray(ref.x, dtype=float)
     return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev + int(ref.nfev))
