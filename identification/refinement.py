@@ -374,6 +374,7 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
         starts at fixed iterations -- was tried there first and dropped the
         start of the right basin on one arm: early costs rank the starts
         poorly.)  Default False: every start runs until it converges.
+
     Returns
     -------
     RefineResult
