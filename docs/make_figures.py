@@ -126,7 +126,11 @@ it in ``optimisers``):
     --jobs 2`` (a second seed of both; ``figures/bench_arms_random_urdf_20262791.txt``),
     ``--compliant --n 0 0 0 8 --seed
     20262731 --jobs 2`` (the random DH chains with two-mass joints;
-    ``figures/bench_arms_random_compliant_20262731.txt``) and
+    ``figures/bench_arms_random_compliant_20262731.txt``; the same before the
+    flexible fit's ``leader_stop``:
+    ``figures/bench_arms_random_compliant_20262731_before_leader_stop.txt``),
+    ``--compliant --n 0 0 0 6 --seed 20262831 --jobs 2`` (a fresh seed of them;
+    ``figures/bench_arms_random_compliant_20262831.txt``) and
     ``benchmarks/bench_arm_payload.py --n 0 0 6 6 --seed 20262751`` (a payload on
     both kinds; ``figures/bench_arm_payload_random_20262751.txt``; the same before
     the payload search's first-moment stage:
@@ -543,6 +547,8 @@ def arms_random(ctx):
               "--jobs", "2"], "bench_arms_random_urdf_20262791"),
             (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "8", "--seed",
               "20262731", "--jobs", "2"], "bench_arms_random_compliant_20262731"),
+            (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "6", "--seed",
+              "20262831", "--jobs", "2"], "bench_arms_random_compliant_20262831"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262751"],
              "bench_arm_payload_random_20262751"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262771"],
