@@ -115,7 +115,8 @@ it in ``optimisers``):
     ``benchmarks/bench_arms.py --compliant --n 0 2 0 --seed 20261801 --jobs 2``:
     PUMA 560 joints 1-3 with two-mass joints and backlash, two draws of a
     seed declared before looking (``figures/arms_compliant_puma123_20261801.txt``;
-    about 36 min a draw, the two sharing 2 cores).
+    about 7 min a draw, the two sharing 2 cores; before the flexible fit's
+    ``leader_stop``: ``figures/arms_compliant_puma123_20261801_before_leader_stop.txt``).
 ``arms_random``
     Robots no one wrote by hand, seeds chosen before looking:
     ``benchmarks/bench_arms.py --n 0 0 0 12 --seed 20262711 --jobs 2`` (chains of
