@@ -622,6 +622,54 @@ def test_a_change_no_payload_explains_is_reported_not_adapted(paper_log, prior):
                   <= np.abs(static.e_pulses[k:]).max(axis=0) + 1)
 
 
+@pytest.mark.parametrize("resume", [True, False])
+def test_agreeing_estimates_that_describe_the_robot_end_an_inconsistent_pause(
+        paper_log, prior, monkeypatch, resume):
+    """Supervisor step 5: after an episode declared inconsistent (here forced on the first
+    update of a 2 kg pick-up at 1.0 s, as when a window spanning a pick-up misreads it and
+    the next estimate disagrees: benchmark case 0055 of seed 20261130), the controller is
+    back at the prior and no window shows "no change" under it again -- the robot carries
+    the tool.  PERSISTENCE_WINDOWS agreeing estimates, each explaining its window to the
+    no-change level and none beaten by a rival change, end the pause: the tool is
+    installed and the arm tracks within a pulse.  Without that rule (``resume`` False:
+    ``_described_run`` always False) the controller stays on the prior for the rest of
+    the run."""
+    import ctc.adaptive as ad
+
+    calls = []
+
+    def first_update_inconsistent(masses):
+        calls.append(list(masses))
+        return len(calls) > 1
+
+    monkeypatch.setattr(ad, "_one_payload", first_update_inconsistent)
+    if not resume:
+        monkeypatch.setattr(ad, "_described_run", lambda *a: False)
+    a3 = paper_log.rig.a3_m
+    f_loaded = plant.add_payload(prior, plant.Payload(2.0, (0.10, 0.02), 0.01), a3)
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log,
+                                                             latency_s=LATENCY_S)
+    with pytest.warns(ctc.UnmodelledChangeWarning, match="not a constant payload"):
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive,
+                                          f_schedule=[(1.0, f_loaded)], substeps=SUBSTEPS)
+    assert resp.success
+    decisions = [r["decision"] for r in adaptive.identifications]
+    i = decisions.index("inconsistent")
+    assert adaptive.identifications[i]["window_s"][0] >= 0.9
+    later = adaptive.identifications[i + 1:]
+    if not resume:
+        assert not any(r["accepted"] for r in later)
+        np.testing.assert_array_equal(adaptive.f, prior)
+        return
+    resumed = [r for r in later if r["accepted"]]
+    assert resumed, decisions
+    assert adaptive.payload_history[-1][1] == pytest.approx(2.0, rel=0.05)
+    # the run that resumed: agreeing estimates that each explained their window
+    assert all(r["rivals"] and all(h["z_run"] < 0 for h in r["rivals"]) for r in resumed[:1])
+    k = int(np.ceil((resumed[0]["window_s"][1] + 2 * LATENCY_S) / paper_log.rig.sample_time_s))
+    assert np.abs(resp.e_pulses[k:]).max() <= 1
+
+
 @pytest.mark.parametrize("factor, named", [(1.15, True), (0.85, False)])
 def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor, named):
     """The drive friction x1.15 / x0.85 at 1.0 s (supervisor step 3's rival hypothesis).
