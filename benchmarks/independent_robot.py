@@ -66,7 +66,6 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.integrate import solve_ivp

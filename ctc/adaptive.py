@@ -316,7 +316,14 @@ change in a linear-Gaussian regression):
    0055, flexible arm, 1.07 kg picked up) the updates read 3.19, 0.78 and
    1.13 kg, and the next six windows agreed on 1.06-1.07 kg, the payload
    ahead of friction and drive rivals by z = -4.4 to -6.4, while the
-   controller stayed on the prior.  From then on, only
+   controller stayed on the prior (now it ends on 1.07 kg).  On a fifth draw
+   (seed 20261271) the rule fired twice: a 4.27 kg pick-up installed on
+   three agreeing windows' pooled evidence (case 0044), and a friction change
+   x0.95 left on a 0.65 kg payload for the run's last 0.04 s (0045; both tracked as
+   without the rule; ``docs/supervisor_history.rst``).  Requiring the
+   payload *significantly* ahead of every rival was tried and dropped: on
+   the tests' 2 kg pick-up it resumed a window later on a pooled 1.82 kg that
+   went stale.  From then on, only
    :data:`PERSISTENCE_WINDOWS` agreeing
    estimates update (the robot has shown a change no payload explains, and
    one window's residual is no evidence of a payload any more: a friction

@@ -581,7 +581,7 @@ class ArmAdaptiveComputedTorque:
                 suspect = self._friction_named or "friction" in self._causes
                 if z > (-self._z_threshold if suspect else self._z_threshold):
                     rec.update(decision="friction", cause="friction",
-                               reason=(f"a friction change (viscous x"
+                               reason=("a friction change (viscous x"
                                        + " / x".join(f"{v:.3g}" for v in fr.viscous_factor)
                                        + ", Coulomb x"
                                        + " / x".join(f"{v:.3g}" for v in fr.coulomb_factor)

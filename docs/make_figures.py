@@ -100,6 +100,24 @@ it in ``optimisers``):
     a tenth of full scale and the default gains; about 2 min a case), and the
     fourth draw rerun with ``--max-current-per-pulse 0.1`` in a fresh output
     folder (``figures/changes_20261130_cap01_run.txt``).
+``changes_inconsistent``
+    ``benchmarks/bench_changes.py --n 58 --seed 20261130 --cases 9,21,36,55
+    --jobs 2`` with fresh output and robustness folders: the fourth draw's cases
+    with an ``'unexplained'`` and an ``'update'`` event, the only ones the end of
+    an inconsistent pause on agreeing estimates that describe their windows can
+    move (``figures/changes_inconsistent_20261130.rst``,
+    ``figures/changes_inconsistent_20261130_run.txt``; about 30 min on one core;
+    the same cases on the version before:
+    ``figures/changes_inconsistent_20261130_before_run.txt``).
+``changes_fifth``
+    ``benchmarks/bench_changes.py --n 58 --seed 20261271 --jobs 2`` with fresh
+    output and robustness folders (every prior identified by this version): a
+    fifth draw, on a seed chosen before its first run
+    (``figures/changes_20261271.rst``, ``figures/changes_20261271_run.txt``;
+    about 50 min on 2 cores).  Its three cases with an inconsistent decision
+    on the version before the end of an inconsistent pause on agreeing
+    estimates (the same script at commit d0309a3, ``--cases 15,44,45`` with
+    the run's logs and priors): ``figures/changes_20261271_inconsistent_before_run.txt``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -210,7 +228,7 @@ DATA = REPO / "tests" / "data"
 SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real_rigs", "speed",
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
-            "changes_fourth", "current_cap",
+            "changes_fourth", "current_cap", "changes_inconsistent", "changes_fifth",
             "arms", "arms_compliant", "arms_compliant_puma123", "arms_random", "arm_payload",
             "arm_adaptive",
             "arm_adaptive_compliant", "arm_excitation")
@@ -453,10 +471,12 @@ CHANGES_UPDATE_CASES = {
 }
 
 
-def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False, extra=()):
+def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False, extra=(), own_logs=False):
     """``benchmarks/bench_changes.py`` on ``cases`` (comma-separated) or its first ``n``
     draws of ``seed``; ``fresh``: in a new output folder (no case or prior cached by
-    another version is reused).  Returns the section's record."""
+    another version is reused); ``own_logs``: the robustness suite's logs and
+    identifications in a new folder too (every prior identified by this version).
+    Returns the section's record."""
     import tempfile
 
     args = ["benchmarks/bench_changes.py", "--n", str(n), "--seed", str(seed), "--jobs", "2",
@@ -467,6 +487,8 @@ def _bench_changes(ctx, name, seed, cases=None, n=60, fresh=False, extra=()):
         text, wall = _run(args, ctx["raw"], name, timeout=3 * 3600)
     else:
         with tempfile.TemporaryDirectory() as tmp:
+            if own_logs:
+                args += ["--robust-out", str(Path(tmp) / "robustness")]
             text, wall = _run(args + ["--out", tmp], ctx["raw"], f"{name}_run", timeout=3 * 3600)
     return {"printed": text.splitlines()[-30:], "wall_s": wall}
 
@@ -496,6 +518,25 @@ def changes_third(ctx):
 def changes_fourth(ctx):
     return _bench_changes(ctx, "changes_20261130", 20261130, n=2 if ctx["quick"] else 58,
                           fresh=True)
+
+
+#: The cases of the fourth draw (seed 20261130) with an ``'unexplained'`` event and an
+#: ``'update'`` event (``figures/changes_20261130.txt``): an inconsistent episode needs
+#: updates before it and reports the change, so only these can be moved by the rule that
+#: agreeing estimates describing their windows end its pause (:mod:`ctc.adaptive`, step 5).
+FOURTH_REPORTED_UPDATE_CASES = "9,21,36,55"
+
+
+def changes_inconsistent(ctx):
+    """The fourth draw's cases an inconsistent pause can touch, every prior identified anew."""
+    return _bench_changes(ctx, "changes_inconsistent_20261130", 20261130,
+                          FOURTH_REPORTED_UPDATE_CASES, n=58, fresh=True, own_logs=True)
+
+
+def changes_fifth(ctx):
+    """A fifth draw of the changes benchmark, seed chosen before its first run."""
+    return _bench_changes(ctx, "changes_20261271", 20261271, n=2 if ctx["quick"] else 58,
+                          fresh=True, own_logs=True)
 
 
 #: The flexible payload changes of the fourth draw of the changes benchmark (seed 20261130):

@@ -95,7 +95,7 @@ def test_puma_links23_are_the_papers_f():
     p = puma.standard_parameters()
     fv = f(p)
     # eq. 3: f1 - f2 is the reflected rotor inertia of joint 3, f7 holds joint 2's
-    k3, k2 = PUMA560_DH[2]["gear_ratio"], PUMA560_DH[1]["gear_ratio"]
+    k3 = PUMA560_DH[2]["gear_ratio"]
     assert fv[0] - fv[1] == pytest.approx(200e-6 * k3 ** 2, rel=1e-12)
     assert "Ia2" in f.expressions[6] and "Ia3" in f.expressions[0] and "Ia3" not in f.expressions[1]
     # the library's eq.-2 model with this f is the DH model, in the paper's convention
