@@ -106,8 +106,9 @@ it in ``optimisers``):
     with an ``'unexplained'`` and an ``'update'`` event, the only ones the end of
     an inconsistent pause on agreeing estimates that describe their windows can
     move (``figures/changes_inconsistent_20261130.rst``,
-    ``figures/changes_inconsistent_20261130_run.txt``; about 30 min on one core;
-    the same cases on the version before:
+    ``figures/changes_inconsistent_20261130_run.txt``; about 15 min, run with
+    ``--jobs 1`` beside another benchmark; the same cases on the version before,
+    the same script at commit d0309a3:
     ``figures/changes_inconsistent_20261130_before_run.txt``).
 ``changes_fifth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261271 --jobs 2`` with fresh
