@@ -110,6 +110,9 @@ it in ``optimisers``):
     ``--jobs 1`` beside another benchmark; the same cases on the version before,
     the same script at commit d0309a3:
     ``figures/changes_inconsistent_20261130_before_run.txt``).
+    The fourth draw's cases 0016, 0028 and 0055 with fresh output and
+    robustness folders on the version before (commit d0309a3, ``--cases
+    16,28,55``): ``figures/changes_20261130_rerun_run.txt``.
 ``changes_fifth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261271 --jobs 2`` with fresh
     output and robustness folders (every prior identified by this version): a
