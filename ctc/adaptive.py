@@ -323,8 +323,7 @@ change in a linear-Gaussian regression):
    without the rule; ``docs/supervisor_history.rst``).  Requiring the
    payload *significantly* ahead of every rival was tried and dropped: on
    the tests' 2 kg pick-up it resumed a window later on a pooled 1.82 kg that
-   went stale.  From then on, only
-   :data:`PERSISTENCE_WINDOWS` agreeing
+   went stale.  From then on, only :data:`PERSISTENCE_WINDOWS` agreeing
    estimates update (the robot has shown a change no payload explains, and
    one window's residual is no evidence of a payload any more: a friction
    change reads as a small payload in a quiet window, a put-down as a
@@ -471,6 +470,11 @@ _N_PAYLOAD = 4
 # why updates are paused (``_frozen``), for the decision's reason
 #: The rival hypotheses of step 3 (a decision's and an event's ``cause``) and their text.
 _RIVAL_TEXT = {"friction": "friction", "drive": "joint stiffness and damping"}
+
+#: The other way out of a pause, for the decision's reason (step 5).
+_RESUME_TEXT = {"rolled back": f" or {PERSISTENCE_WINDOWS} agreeing estimates",
+                "inconsistent": f" or {PERSISTENCE_WINDOWS} agreeing estimates that describe "
+                                "their windows"}
 
 _FROZEN_REASONS = {"diverging": "tracking diverged under an update",
                   "inconsistent": "the robot changed in a way no payload explained",
@@ -1634,10 +1638,7 @@ class AdaptiveComputedTorqueController:
         if self._frozen and decision == "update":
             decision = "unexplained"
             reason = (_FROZEN_REASONS[self._frozen] + "; updates resume after a window the model "
-                      "describes" + (f" or {PERSISTENCE_WINDOWS} agreeing estimates"
-                                     if self._frozen == "rolled back" else
-                                     f" or {PERSISTENCE_WINDOWS} agreeing estimates that describe "
-                                     "their windows" if self._frozen == "inconsistent" else ""))
+                      "describes" + _RESUME_TEXT.get(self._frozen, ""))
         if self._isolated and decision == "update" and not persistent:
             # once the robot has changed in a way no payload explained, one window's residual
             # is no evidence of a payload: only PERSISTENCE_WINDOWS agreeing estimates are

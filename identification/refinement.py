@@ -470,7 +470,7 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
             if nit >= max_iter + 1:
                 for s in active:
                     done_reason.setdefault(s, "iteration limit")
-            lead = int(np.argmin(cost))
+            lead = int(np.argmin(cost)) if leader_stop else -1
             if leader_stop and done_reason.get(lead, "").startswith("converged"):
                 for s in active:
                     done_reason.setdefault(s, f"stopped: start {lead + 1} converged below it")
