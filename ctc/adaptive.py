@@ -370,7 +370,22 @@ change in a linear-Gaussian regression):
    (event ``'fallback'``, :class:`ctc.guard.FollowingErrorWarning`): a
    computed-torque controller that far off has lost the arm (a
    flexible-joint CTC whose model is far off, a heavy tool on a compliant
-   arm, can otherwise go unstable).
+   arm, can otherwise go unstable).  The supervisor then goes on with the P
+   law's windows -- the paper's own identification setting -- to say what
+   changed (the controller's ``_diagnose``): each window
+   is identified with the P law in the loop, the payload beside the rival
+   changes of step 3, and Vuong's terms of each rival against the payload
+   add up over the windows since the fallback; from the second window on, a
+   rival significantly ahead (the Bonferroni threshold at ``false_alarm``,
+   ahead in the window too, and significant against the model in use) is
+   named (event ``'unexplained'`` with its ``cause``), and a significant,
+   plausible payload that every rival trails by that margin is named too
+   (event ``'diagnosis'``, ``cause='payload'``).  The P law keeps the arm
+   either way: the diagnosis reports, it never switches back.  A drive
+   damping doubled on a rigid arm trips the limit within 0.03-0.13 s of the
+   change, before any window of the computed-torque controller can name it
+   (the changes benchmark's fifth draw, cases 0008 and 0023): the P law's
+   windows do.
 
 So an update reaches the arm only when the window shows it, a payload
 describes it and the arm tracks better with it; otherwise the controller
@@ -825,6 +840,24 @@ def _vuong_z(total, spread):
     return total / math.sqrt(spread)
 
 
+def _run_evidence(rivals, terms_by_cause, false_alarm) -> float:
+    """Add each rival's Vuong terms to its run's and set its ``z_run`` and ``threshold``.
+
+    The evidence of a run's successive windows adds up (independent windows);
+    the threshold is the standard normal quantile at ``false_alarm`` shared
+    among the rivals (Bonferroni).  Returns the threshold.
+    """
+    from scipy.stats import norm
+
+    threshold = float(norm.isf(false_alarm / max(len(rivals), 1)))
+    for h in rivals:
+        terms = terms_by_cause.setdefault(h["cause"], [])
+        terms.append(h["terms"])
+        h["z_run"] = _vuong_z(*np.sum(terms, axis=0))
+        h["threshold"] = threshold
+    return threshold
+
+
 def _fit_held_change(window, law, space, substeps, opts, null_state=None):
     """Fit a change hypothesis with the model in use held (a
     :class:`identification.parameters.HeldModelChange`) on a window, the controller in the loop.
@@ -968,11 +1001,24 @@ class AdaptiveComputedTorqueController:
         K2, K3, D2, D3 over the model's, its ``lr``, ``y_now``, ``y_new``).
     events : list of dict
         Supervisor events: ``t_s``, ``kind`` (``'update'``,
-        ``'unexplained'``, ``'rollback'``, ``'fallback'``) and ``message``;
-        a named rival change adds ``cause`` (``'friction'``, ``'drive'``) and
-        its fitted ``friction_change`` or ``drive_change``.
+        ``'unexplained'``, ``'rollback'``, ``'fallback'``, ``'diagnosis'``)
+        and ``message``; a named rival change adds ``cause`` (``'friction'``,
+        ``'drive'``) and its fitted ``friction_change`` or ``drive_change``; a
+        payload named after the fallback (``'diagnosis'``) ``cause='payload'``
+        and its ``payload``.
     fallback_t_s : float or None
         When the following-error limit handed the arm to the P law (None: never).
+    diagnosis : str or None
+        What the P law's windows after the fallback named (step 6):
+        ``'friction'``, ``'drive'``, ``'payload'``, or None (not yet, or no
+        fallback).
+    diagnoses : list of dict
+        Every P-law window identified after the fallback: ``window_s``,
+        ``wall_time_s``, the payload estimate's ``mass_kg``, ``x``, ``fun``,
+        ``fun_current`` (the model in use's), ``lr``, ``threshold``,
+        ``plausible``, ``rivals`` (each as in ``identifications``, with its
+        ``lr`` against the model in use) and ``named`` (a window the
+        identification refused: ``window_s``, ``named`` and its ``error``).
     baseline : float or None
         Median residual per value (pulses^2) of the windows without change.
 
@@ -1098,7 +1144,8 @@ class AdaptiveComputedTorqueController:
         """Compile (or load) every kernel a window identification uses, now, not in the loop.
 
         One identification of a still window (zero errors and currents) with
-        the CTC in the loop; its outcome is discarded.
+        the CTC in the loop, and with the P law when a following-error limit is
+        set (step 6); its outcome is discarded.
         """
         import warnings
 
@@ -1109,14 +1156,20 @@ class AdaptiveComputedTorqueController:
         rows = [(k, k % 2, k % 2, 0.0, 0.0, self._ctc.estimator_state(), self.f) for k in range(n)]
         window = self.window_log(rows)
         law = self._ctc.logged_law_with(window, rows[0][5], self.f)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
-                identification.identify(window, parameters=self._space(rows[0][5]),
-                                        controller=law, rng=0, progress=False, workers=1,
-                                        refine_options=dict(max_iter=1, n_starts=1))
-            except ValueError:
-                pass  # a still window may be refused; the kernels are compiled by then
+        # the CTC's law in the loop; with a following-error limit the P law's too (the
+        # windows of the diagnosis after a fallback, step 6)
+        laws = [(law, self._space(rows[0][5]))]
+        if self.following_error is not None:
+            laws.append((None, self._space(None, settled=False)))
+        for law, space in laws:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    identification.identify(window, parameters=space, controller=law, rng=0,
+                                            progress=False, workers=1,
+                                            refine_options=dict(max_iter=1, n_starts=1))
+                except ValueError:
+                    pass  # a still window may be refused; the kernels are compiled by then
 
     @classmethod
     def from_log(cls, prior, log, *, window_s=0.1, **options):
@@ -1149,7 +1202,8 @@ class AdaptiveComputedTorqueController:
     def _space(self, state, settled=True):
         """The window's parameterisation: the payload on the prior, rigid or two-mass plant
         (``settled``: the link estimate is the model in use's, see
-        :class:`identification.flexible.FlexiblePayloadParameters`)."""
+        :class:`identification.flexible.FlexiblePayloadParameters`; ``state`` None: the
+        link starts at the motor, in the payload's wide box)."""
         from identification.parameters import PayloadParameters
 
         opts = self.identify_options
@@ -1161,11 +1215,13 @@ class AdaptiveComputedTorqueController:
         from .computed_torque import S_INIT, S_Q, S_W
         from .flexible import S_LQ
 
-        st = np.asarray(state, dtype=float)
-        # link minus motor estimate at the window's start, from the controller's own models
-        offset = st[S_LQ:S_LQ + 4] - np.concatenate([st[S_Q:S_Q + 2], st[S_W:S_W + 2]])
-        if not np.all(np.isfinite(offset)) or st[S_INIT] == 0.0:
-            offset = np.zeros(4)
+        offset = np.zeros(4)
+        if state is not None:  # None: a P-law window (step 6), no link estimate
+            st = np.asarray(state, dtype=float)
+            # link minus motor estimate at the window's start, from the controller's own models
+            offset = st[S_LQ:S_LQ + 4] - np.concatenate([st[S_Q:S_Q + 2], st[S_W:S_W + 2]])
+            if not np.all(np.isfinite(offset)) or st[S_INIT] == 0.0:
+                offset = np.zeros(4)
         joints, backlash = self.flexible_joints
         return FlexiblePayloadParameters(self.prior_f, joints, backlash, offset, bounds,
                                          link_settled=settled)
@@ -1212,6 +1268,9 @@ class AdaptiveComputedTorqueController:
         self._rows = []
         self._window_start = 0
         self.fallback_t_s = None
+        self.diagnosis = None
+        self.diagnoses = []
+        self._diagnosis_terms = {}  # per rival, Vuong's terms against the payload since the fallback
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (2,) A for sample ``k`` (see the module docstring).
@@ -1237,6 +1296,7 @@ class AdaptiveComputedTorqueController:
             if i is not None:
                 if not tripped:
                     self._fall_back(k, t, e_pulses)
+                self._after_fallback(k, e_pulses, i)
                 return i
         if self._pending is not None and k >= self._pending[0]:
             _, f, payload, kind = self._pending
@@ -1278,11 +1338,23 @@ class AdaptiveComputedTorqueController:
 
     def _fall_back(self, k, t, e_pulses):
         """Supervisor step 6: the limit tripped (:meth:`ctc.guard.FollowingErrorLimit.hold`
-        warned); no identification is pending or gathered from here on."""
+        warned); no model is pending from here on, and the windows gathered are the P law's
+        (the diagnosis, :meth:`_diagnose`)."""
         self._pending = None
         self._rows = []
+        self._busy_until = -1
         self._event(k, "fallback", self.following_error.message(t, e_pulses),
                     model_mass_kg=self.payload_mass_kg)
+
+    def _after_fallback(self, k, e_pulses, i):
+        """Gather the P law's window after the fallback; diagnose it when complete (step 6)."""
+        if self.diagnosis is not None:
+            return
+        self._rows.append((k, e_pulses[0], e_pulses[1], i[0], i[1], None, self.f))
+        if len(self._rows) >= self._n_window:
+            rows, self._rows = self._rows, []
+            if k + 1 >= self._busy_until:
+                self._diagnose(rows, k)
 
     def _supervise_tracking(self, rows, k_end) -> bool:
         """Supervisor step 4 on a completed window; True when it rolled the model back.
@@ -1605,15 +1677,7 @@ class AdaptiveComputedTorqueController:
             # a rival is the change when it explains the window significantly better than
             # the payload: Vuong's test of two non-nested models of one size, at
             # false_alarm shared among the rivals (Bonferroni)
-            from scipy.stats import norm
-
-            threshold = float(norm.isf(self.false_alarm / max(len(rivals), 1)))
-            for h in rivals:
-                # the evidence of the run's successive windows adds up (independent windows)
-                terms = self._rival_terms.setdefault(h["cause"], [])
-                terms.append(h["terms"])
-                h["z_run"] = _vuong_z(*np.sum(terms, axis=0))
-                h["threshold"] = threshold
+            threshold = _run_evidence(rivals, self._rival_terms, self.false_alarm)
             # a stiffness change the drive check named is established: the payload must
             # explain the window significantly better than it, a tie is the drive's
             winners = [h for h in rivals if h["z_run"] > threshold
@@ -1863,7 +1927,99 @@ class AdaptiveComputedTorqueController:
             self._event(k_eff, "update", f"payload {mass:.3g} kg (LR {stats['lr']:.3g} > "
                         f"{self._lr_threshold:.3g}{pooled})", mass_kg=mass, lr=stats["lr"])
 
-    def _rival_hypotheses(self, window, law, space, substeps, opts, e_est):
+    def _diagnose(self, rows, k_end):
+        """Supervisor step 6's diagnosis: what changed, read from a window of the P law.
+
+        After the fallback the rig's P law runs the arm: the paper's own
+        identification setting.  Each completed window is identified with the P
+        law in the loop (the payload, from the model in use, link starting at the
+        motor in the payload's wide box on a two-mass arm) and the rival changes
+        are fitted beside it (:meth:`_rival_hypotheses`); Vuong's terms of each
+        rival against the payload add up over the windows since the fallback.
+        From the second window on, a rival that explains the windows
+        significantly better than the payload (the run's ``z`` beyond the
+        Bonferroni threshold at ``false_alarm``, ahead in this window too, and
+        significant against the model in use) names the change (event
+        ``'unexplained'`` with its ``cause``, and an
+        :class:`UnmodelledChangeWarning`); a significant, plausible payload
+        that every rival trails by that margin names a payload (event
+        ``'diagnosis'``, ``cause='payload'``).  The P law keeps the arm either
+        way; the diagnosis ends when it has named the change.
+        """
+        import warnings
+
+        import identification
+        import plant
+
+        t0 = time.perf_counter()
+        window = self.window_log(rows)
+        space = self._space(None, settled=False)
+        opts = dict(rng=0, progress=False, workers=1)
+        opts.update({k: v for k, v in self.identify_options.items() if k != "payload_bounds"})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                res = identification.identify(window, parameters=space, controller=None, **opts)
+            except ValueError as exc:  # a window the identification refuses: no diagnosis
+                self.diagnoses.append(dict(window_s=window.window_s, named=None,
+                                           error=str(exc)))
+                return
+        substeps = res.settings["substeps"]
+        x0_new = np.asarray(res.refinement["initial_state"], dtype=float)
+        x0_now = self._start_state_of(window, None, substeps, x0_new, space)
+        F = np.stack([self.f, np.asarray(res.f, dtype=float)])
+        sim = plant.simulate_batch(window, F, substeps=substeps, errors=True, workers=1,
+                                   initial_state=np.stack([x0_now, x0_new]), controller=None,
+                                   plant=space.plant(window),
+                                   plant_parameters=space.plant_parameters(F, window))
+        e_now, e_est = sim.e_pulses[0], sim.e_pulses[1]
+        stats = window_statistics(window.e_pulses, e_now, e_est)
+        rivals = self._rival_hypotheses(window, None, space, substeps, opts, e_est, e_now=e_now)
+        threshold = _run_evidence(rivals, self._diagnosis_terms, self.false_alarm)
+        mass = float(res.payload["mass_kg"])
+        second = any("error" not in d for d in self.diagnoses)
+        winners = [h for h in rivals if second and h["z_run"] > threshold and h["z"] > 0.0
+                   and h["lr"] > self._lr_threshold]
+        payload_named = (second and not winners and rivals and stats["lr"] > self._lr_threshold
+                         and self._plausible(res) is None
+                         and all(h["z_run"] < -threshold and h["z"] < 0.0 for h in rivals))
+        wall = time.perf_counter() - t0
+        latency = wall if self.latency_s == "measured" else self.latency_s
+        k_eff = k_end + 1 + int(math.ceil(latency / self._ts))
+        self._busy_until = k_eff
+        named = None
+        t_fb = self.fallback_t_s
+        if winners:
+            rival = max(winners, key=lambda h: h["z_run"])
+            named = rival["cause"]
+            msg = (f"after the fallback to the P law at t = {t_fb:.3f} s, a "
+                   f"{_RIVAL_TEXT[named]} change explains its windows better than a payload "
+                   f"(Vuong z {rival['z_run']:.3g} > {threshold:.3g} over "
+                   f"{len(self._diagnosis_terms[named])} windows; {rival['y']:.4g} vs {stats['y_new']:.4g} "
+                   f"pulses^2 for {mass:.3g} kg in the last): " + ", ".join(
+                       f"{k.split('_')[0]} {v:+.3g}" for k, v in rival["change"].items())
+                   + "; the P law keeps the arm")
+            self._event(k_eff, "unexplained", msg, mass_kg=mass, lr=rival["lr"], cause=named,
+                        **{f"{named}_change": rival["change"]})
+            warnings.warn(msg, UnmodelledChangeWarning, stacklevel=4)
+        elif payload_named:
+            named = "payload"
+            msg = (f"after the fallback to the P law at t = {t_fb:.3f} s, a payload of "
+                   f"{mass:.3g} kg explains its windows better than any change of "
+                   + " or ".join(_RIVAL_TEXT[h["cause"]] for h in rivals)
+                   + f" (LR {stats['lr']:.3g} > {self._lr_threshold:.3g}; every rival's Vuong z "
+                   f"below {-threshold:.3g}); the P law keeps the arm")
+            self._event(k_eff, "diagnosis", msg, mass_kg=mass, lr=stats["lr"], cause=named,
+                        payload={k: v for k, v in res.payload.items() if k != "vector_cov"})
+        self.diagnosis = named
+        self.diagnoses.append(dict(window_s=window.window_s, wall_time_s=wall, mass_kg=mass,
+                                   x=np.asarray(res.x, dtype=float).tolist(),
+                                   fun=stats["y_new"], fun_current=stats["y_now"],
+                                   lr=stats["lr"], threshold=self._lr_threshold,
+                                   plausible=self._plausible(res) is None,
+                                   rivals=rivals, named=named))
+
+    def _rival_hypotheses(self, window, law, space, substeps, opts, e_est, e_now=None):
         """The window's rival changes, each fitted with the controller in the loop.
 
         A friction change (:class:`identification.friction.FrictionChangeParameters`;
@@ -1873,7 +2029,9 @@ class AdaptiveComputedTorqueController:
         ``cause`` (``'friction'`` or ``'drive'``), its output error ``y``, Vuong's
         ``z`` against the payload estimate's simulated errors ``e_est`` (the rival
         better when positive, :func:`vuong_statistic`) and its ``terms``, ``x`` and
-        ``change`` (the fitted changes by name).
+        ``change`` (the fitted changes by name); with ``e_now`` (the model in
+        use's simulated errors), also its likelihood ratio ``lr`` against the
+        model in use (:func:`window_statistics`).
         """
         from identification.flexible import DriveChangeParameters, FlexiblePayloadParameters
         from identification.friction import FrictionChangeParameters
@@ -1893,6 +2051,8 @@ class AdaptiveComputedTorqueController:
             out.append(dict(cause=cause, y=float(np.sum(r * r)), z=_vuong_z(*terms),
                             terms=list(terms), x=x.tolist(),
                             change=dict(zip(rspace.names(window), (float(v) for v in x)))))
+            if e_now is not None:
+                out[-1]["lr"] = float(window_statistics(window.e_pulses, e_now, e_fit)["lr"])
         return out
 
     def _drive_estimate(self, window, law, space, substeps, opts, x0_now):

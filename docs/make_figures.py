@@ -122,6 +122,13 @@ it in ``optimisers``):
     on the version before the end of an inconsistent pause on agreeing
     estimates (the same script at commit d0309a3, ``--cases 15,44,45`` with
     the run's logs and priors): ``figures/changes_20261271_inconsistent_before_run.txt``.
+``changes_fallback``
+    ``benchmarks/bench_changes.py --n 58 --seed 20261271 --cases 3,8,9,23
+    --jobs 2`` with fresh output and robustness folders: the fifth draw's cases
+    whose adaptive CTC fell back to the P law, the only ones the diagnosis of
+    the P law's windows (:mod:`ctc.adaptive`, step 6) can touch
+    (``figures/changes_fallback_20261271.rst``,
+    ``figures/changes_fallback_20261271_run.txt``; about 10 min).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -233,6 +240,7 @@ SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
             "changes_fourth", "current_cap", "changes_inconsistent", "changes_fifth",
+            "changes_fallback",
             "arms", "arms_compliant", "arms_compliant_puma123", "arms_random", "arm_payload",
             "arm_adaptive",
             "arm_adaptive_compliant", "arm_excitation")
@@ -541,6 +549,19 @@ def changes_fifth(ctx):
     """A fifth draw of the changes benchmark, seed chosen before its first run."""
     return _bench_changes(ctx, "changes_20261271", 20261271, n=2 if ctx["quick"] else 58,
                           fresh=True, own_logs=True)
+
+
+#: The cases of the fifth draw (seed 20261271) whose adaptive CTC fell back to the P law
+#: (``figures/changes_20261271.txt``): the diagnosis of the P law's windows
+#: (:mod:`ctc.adaptive`, step 6) acts after a fallback only, so every other case is
+#: unchanged by it bit for bit.
+FIFTH_FALLBACK_CASES = "3,8,9,23"
+
+
+def changes_fallback(ctx):
+    """The fifth draw's fallbacks with the P law's windows diagnosed, every prior identified anew."""
+    return _bench_changes(ctx, "changes_fallback_20261271", 20261271, FIFTH_FALLBACK_CASES,
+                          n=58, fresh=True, own_logs=True)
 
 
 #: The flexible payload changes of the fourth draw of the changes benchmark (seed 20261130):

@@ -283,6 +283,37 @@ def test_a_stiffness_change_on_a_flexible_arm_is_reported_not_adapted(drill_log,
                   <= np.abs(static.e_pulses[after]).max(axis=0) + 1)
 
 
+def test_after_a_fallback_on_a_flexible_arm_the_p_law_names_the_stiffness_change(drill_log,
+                                                                                  drill_result):
+    """Supervisor step 6's diagnosis on a two-mass arm: the joints lose 60 % of their
+    stiffness at 1.0 s and trip a 1.5-pulse following-error limit; the P law's windows,
+    identified through the two-mass plant with the P law in the loop, name a change of the
+    joints' stiffness and damping (softer), not a payload or friction."""
+    import warnings as _w
+
+    d = drill_result[0]
+    d = d.to_dict() if hasattr(d, "to_dict") else dict(d)
+    f = np.asarray(d["f"], dtype=float)
+    jm = (np.asarray(d["motor_inertia_reflected_kgm2"], dtype=float)
+          / np.asarray(drill_log.rig.gear_ratio) ** 2)
+    K = np.asarray(d["joint_stiffness_Nm_per_rad"], dtype=float)
+    D = d["joint_damping_Nms_per_rad"]
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(d, drill_log,
+                                                             following_error_limit=1.5)
+    with _w.catch_warnings():
+        _w.simplefilter("ignore")
+        r = plant.simulate_closed_loop(drill_log, f, adaptive,
+                                       flexible=plant.FlexibleJoints(K, D, jm),
+                                       f_schedule=[(1.0, f, plant.FlexibleJoints(0.4 * K, D, jm))],
+                                       substeps=SUBSTEPS)
+    assert r.success and adaptive.fallback_t_s is not None and adaptive.fallback_t_s >= 1.0
+    named = [e for e in adaptive.events if e["t_s"] > adaptive.fallback_t_s]
+    assert adaptive.diagnosis == "drive" and len(named) == 1, adaptive.events
+    assert named[0]["kind"] == "unexplained" and named[0]["cause"] == "drive"
+    change = named[0]["drive_change"]
+    assert change["lnK2"] < 0 and change["lnK3"] < 0, change
+
+
 def test_two_agreeing_estimates_away_from_the_model_are_evidence():
     """The persistence rule of the supervisor's step 3: successive estimates on one
     side of the model's mass, closer to each other than to it, agree; the scatter of

@@ -123,8 +123,54 @@ def test_adaptive_ctc_falls_back_to_the_p_law(paper_log, f_true):
     p = np.asarray(paper_log.rig.p_gain_A_per_pulse)
     fs = paper_log.rig.current_full_scale_A
     np.testing.assert_allclose(r.i_A[k_trip:], np.clip(p * r.e_pulses[k_trip:], -fs, fs))
+    # the P law's windows are diagnosed (step 6): the robot is its model, so nothing is named
+    assert len(ctl.diagnoses) >= 10 and ctl.diagnosis is None, ctl.diagnoses
     ctl.reset()
-    assert ctl.fallback_t_s is None and ctl.events == []
+    assert ctl.fallback_t_s is None and ctl.events == [] and ctl.diagnoses == []
+
+
+def _tripped_run(log, f, limit, schedule):
+    ctl = AdaptiveComputedTorqueController.from_log(f, log, following_error_limit=limit)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = simulate_closed_loop(log, f, ctl, n_samples=3000, substeps=SUBSTEPS,
+                                 f_schedule=schedule)
+    assert r.success and ctl.fallback_t_s is not None and ctl.fallback_t_s >= 1.0
+    # the diagnosis reports, it never switches back: the P law from the trip on
+    k_trip = int(round(ctl.fallback_t_s / log.rig.sample_time_s))
+    fs = log.rig.current_full_scale_A
+    np.testing.assert_allclose(r.i_A[k_trip:], np.clip(
+        np.asarray(log.rig.p_gain_A_per_pulse) * r.e_pulses[k_trip:], -fs, fs))
+    return ctl
+
+
+def test_after_the_fallback_the_p_law_windows_name_a_friction_change(paper_log, f_true):
+    """Supervisor step 6's diagnosis: the motors' viscous friction tripled at 1.0 s trips a
+    30-pulse limit; the P law's windows then name a friction change (an ``'unexplained'``
+    event with its cause and fitted change, after the fallback), not a payload."""
+    from identification.friction import friction_vector
+
+    v = np.array(friction_vector(paper_log.rig), dtype=float)
+    v[:2] *= 3.0
+    ctl = _tripped_run(paper_log, f_true, 30.0, [(1.0, f_true, v)])
+    named = [e for e in ctl.events if e["kind"] == "unexplained" and e["t_s"] > ctl.fallback_t_s]
+    assert ctl.diagnosis == "friction" and len(named) == 1, ctl.events
+    assert named[0]["cause"] == "friction"
+    change = named[0]["friction_change"]
+    assert change["dB2_Nms_per_rad"] > 0 and change["dB3_Nms_per_rad"] > 0, change
+    assert not [e for e in ctl.events if e["kind"] == "diagnosis"]
+
+
+def test_after_the_fallback_the_p_law_windows_name_a_payload(paper_log, f_true):
+    """The same diagnosis when a 4 kg tool trips a 1.5-pulse limit: the windows name a
+    payload of its mass (a ``'diagnosis'`` event), and no rival change."""
+    tool = plant.Payload(4.0, (0.05, 0.02), 0.002)
+    loaded = plant.add_payload(f_true, tool, paper_log.rig.a3_m)
+    ctl = _tripped_run(paper_log, f_true, 1.5, [(1.0, loaded)])
+    named = [e for e in ctl.events if e["kind"] == "diagnosis"]
+    assert ctl.diagnosis == "payload" and len(named) == 1, ctl.events
+    assert named[0]["mass_kg"] == pytest.approx(4.0, rel=0.1)
+    assert not [e for e in ctl.events if e["kind"] == "unexplained"], ctl.events
 
 
 def test_from_result_arms_the_limit(paper_log, f_true):
