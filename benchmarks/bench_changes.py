@@ -452,7 +452,13 @@ def print_report(rows, s, file=sys.stdout):
         print(f"  {r['stem']} {r['joints']} ppr {r['ppr']} P {r.get('p_gain')} {_change_text(r['change'])}: "
               f"P {r['P']['max_e_after']}, static {r['static']['max_e_after']}, adaptive "
               f"{r['adaptive']['max_e_after']}; updates {r['adaptive']['payload_history']}; events "
-              f"{[e['kind'] for e in r['adaptive']['events']]}", file=file)
+              f"{[_event_text(e) for e in r['adaptive']['events']]}", file=file)
+
+
+def _event_text(ev) -> str:
+    """``kind``, its ``cause`` when it names one, and its time: ``'unexplained:friction@1.101'``."""
+    cause = ev.get("cause")
+    return f"{ev['kind']}{':' + cause if cause else ''}@{ev['t_s']:.3f}"
 
 
 def write_rst(rows, s, path: Path, seed: int):
