@@ -129,6 +129,12 @@ it in ``optimisers``):
     the P law's windows (:mod:`ctc.adaptive`, step 6) can touch
     (``figures/changes_fallback_20261271.rst``,
     ``figures/changes_fallback_20261271_run.txt``; about 10 min).
+``changes_sixth``
+    ``benchmarks/bench_changes.py --n 58 --seed 20261327 --jobs 2`` with fresh
+    output and robustness folders: a sixth draw, on a seed chosen before its
+    first run, on the version that diagnoses the P law's windows after a
+    fallback (``figures/changes_20261327.rst``,
+    ``figures/changes_20261327_run.txt``; about 50 min on 2 cores).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -240,7 +246,7 @@ SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
             "changes_fourth", "current_cap", "changes_inconsistent", "changes_fifth",
-            "changes_fallback",
+            "changes_fallback", "changes_sixth",
             "arms", "arms_compliant", "arms_compliant_puma123", "arms_random", "arm_payload",
             "arm_adaptive",
             "arm_adaptive_compliant", "arm_excitation")
@@ -562,6 +568,12 @@ def changes_fallback(ctx):
     """The fifth draw's fallbacks with the P law's windows diagnosed, every prior identified anew."""
     return _bench_changes(ctx, "changes_fallback_20261271", 20261271, FIFTH_FALLBACK_CASES,
                           n=58, fresh=True, own_logs=True)
+
+
+def changes_sixth(ctx):
+    """A sixth draw of the changes benchmark, seed chosen before its first run."""
+    return _bench_changes(ctx, "changes_20261327", 20261327, n=2 if ctx["quick"] else 58,
+                          fresh=True, own_logs=True)
 
 
 #: The flexible payload changes of the fourth draw of the changes benchmark (seed 20261130):
