@@ -853,7 +853,7 @@ def _run_evidence(rivals, terms_by_cause, false_alarm) -> float:
     for h in rivals:
         terms = terms_by_cause.setdefault(h["cause"], [])
         terms.append(h["terms"])
-        h["z_run"] = _vuong_z(*np.sum(terms, axis=0))
+        h["z_run"] = float(_vuong_z(*np.sum(terms, axis=0)))
         h["threshold"] = threshold
     return threshold
 
@@ -1342,7 +1342,7 @@ class AdaptiveComputedTorqueController:
         (the diagnosis, :meth:`_diagnose`)."""
         self._pending = None
         self._rows = []
-        self._busy_until = -1
+        self._busy_until = -1  # the worker's identification in progress is cancelled too
         self._event(k, "fallback", self.following_error.message(t, e_pulses),
                     model_mass_kg=self.payload_mass_kg)
 
@@ -1956,31 +1956,32 @@ class AdaptiveComputedTorqueController:
         space = self._space(None, settled=False)
         opts = dict(rng=0, progress=False, workers=1)
         opts.update({k: v for k, v in self.identify_options.items() if k != "payload_bounds"})
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
                 res = identification.identify(window, parameters=space, controller=None, **opts)
-            except ValueError as exc:  # a window the identification refuses: no diagnosis
-                self.diagnoses.append(dict(window_s=window.window_s, named=None,
-                                           error=str(exc)))
-                return
-        substeps = res.settings["substeps"]
-        x0_new = np.asarray(res.refinement["initial_state"], dtype=float)
-        x0_now = self._start_state_of(window, None, substeps, x0_new, space)
-        F = np.stack([self.f, np.asarray(res.f, dtype=float)])
-        sim = plant.simulate_batch(window, F, substeps=substeps, errors=True, workers=1,
-                                   initial_state=np.stack([x0_now, x0_new]), controller=None,
-                                   plant=space.plant(window),
-                                   plant_parameters=space.plant_parameters(F, window))
-        e_now, e_est = sim.e_pulses[0], sim.e_pulses[1]
-        stats = window_statistics(window.e_pulses, e_now, e_est)
-        rivals = self._rival_hypotheses(window, None, space, substeps, opts, e_est, e_now=e_now)
+            substeps = res.settings["substeps"]
+            x0_new = np.asarray(res.refinement["initial_state"], dtype=float)
+            x0_now = self._start_state_of(window, None, substeps, x0_new, space)
+            F = np.stack([self.f, np.asarray(res.f, dtype=float)])
+            sim = plant.simulate_batch(window, F, substeps=substeps, errors=True, workers=1,
+                                       initial_state=np.stack([x0_now, x0_new]), controller=None,
+                                       plant=space.plant(window),
+                                       plant_parameters=space.plant_parameters(F, window))
+            e_now, e_est = sim.e_pulses[0], sim.e_pulses[1]
+            stats = window_statistics(window.e_pulses, e_now, e_est)
+            rivals = self._rival_hypotheses(window, None, space, substeps, opts, e_est,
+                                            e_now=e_now)
+        except ValueError as exc:  # a window the identification refuses: no diagnosis of it
+            self.diagnoses.append(dict(window_s=window.window_s, named=None, error=str(exc)))
+            return
         threshold = _run_evidence(rivals, self._diagnosis_terms, self.false_alarm)
         mass = float(res.payload["mass_kg"])
         second = any("error" not in d for d in self.diagnoses)
         winners = [h for h in rivals if second and h["z_run"] > threshold and h["z"] > 0.0
                    and h["lr"] > self._lr_threshold]
-        payload_named = (second and not winners and rivals and stats["lr"] > self._lr_threshold
+        payload_named = (second and not winners and bool(rivals)
+                         and stats["lr"] > self._lr_threshold
                          and self._plausible(res) is None
                          and all(h["z_run"] < -threshold and h["z"] < 0.0 for h in rivals))
         wall = time.perf_counter() - t0
