@@ -95,6 +95,15 @@ rigid or a two-mass flexible prior (the last paragraph):
    (the wall time of the identification, for hardware).  While a model is
    pending no other window is identified.  The kernels are compiled when
    the controller is built (one identification of the prior's log).
+6. **After a fallback.**  When the inner controller's watchdog hands the
+   arm to the P law, no model is installed any more, but the windows go on
+   being fitted -- the replay of the applied currents needs no model of the
+   controller -- to say what changed (:mod:`ctc.adaptive`, step 6, on the
+   PUMA path): two successive windows that agree name a friction change
+   (the rival ahead of the payload, event ``'unexplained'``), a payload
+   (a significant estimate inside the box that describes the window, the
+   rival trailing it; event ``'diagnosis'``), or a change neither
+   describes (``'unexplained'``, ``cause='unknown'``).
 
 **A flexible prior** (an arm identified with two-mass joints,
 ``model == "flexible"``) gets the inner controller of
@@ -264,7 +273,18 @@ class ArmAdaptiveComputedTorque:
         ``(0.0, 0.0)``.
     events : list of dict
         ``t_s``, ``kind`` (``'update'``, ``'refinement'``, ``'rollback'``,
-        ``'unexplained'``, ``'unsafe'``) and ``message``.
+        ``'unexplained'``, ``'unsafe'``, ``'diagnosis'``) and ``message``;
+        a reported change adds its ``cause`` (``'friction'``, ``'unknown'``;
+        ``'payload'`` for a diagnosis, with its ``payload``).
+    diagnosis : str or None
+        What the windows after the watchdog's fallback named (module
+        docstring): ``'friction'``, ``'payload'``, ``'unknown'``, or None.
+    diagnoses : list of dict
+        Per window after the fallback: ``window_s``, ``said`` (what the
+        window alone says, or None), ``named``, and the fits' ``mass_kg``,
+        ``lr``, ``threshold``, ``y_now``, ``y_new``, ``limit``,
+        ``friction_z``, ``friction_y``, ``friction_factors``, ``elapsed_s``
+        (or ``error`` when a fit failed).
     identifications : list of dict
         Per identified window: ``window_s``, ``decision`` (``'no change'``,
         ``'update'``, ``'refinement'``, ``'not material'`` (a significant
@@ -409,6 +429,8 @@ class ArmAdaptiveComputedTorque:
         self._friction_named = False  # a friction change reported in this episode
         self._warned = False
         self._unsafe = []  # payloads (kg) the switch check refused (flexible priors)
+        self.diagnosis = None
+        self.diagnoses = []
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (n,) A for sample ``k`` (sampled-controller protocol)."""
@@ -430,9 +452,11 @@ class ArmAdaptiveComputedTorque:
         self._E[k] = np.asarray(e_pulses, dtype=np.int64)
         self._I[k] = i  # the inner controller's command is within full scale already
         k1 = k + 1
-        if (k1 % self.window_n == 0 and self._pending is None
-                and self._ctc.fallback_t_s is None):
-            self._identify(k1)
+        if k1 % self.window_n == 0 and self._pending is None:
+            if self._ctc.fallback_t_s is None:
+                self._identify(k1)
+            elif self.diagnosis is None:
+                self._diagnose(k1)
         return i
 
     # ------------------------------------------------------------------ internals
@@ -707,6 +731,95 @@ class ArmAdaptiveComputedTorque:
                 self._event(k1, "unexplained", msg, cause=cause)
                 warnings.warn(msg, UnmodelledChangeWarning, stacklevel=3)
                 self._warned = True
+
+    def _diagnose(self, k1) -> None:
+        """What changed, read from the windows after the watchdog's fallback (module docstring).
+
+        The window ending before sample ``k1`` is fitted as every window is (the
+        currents the drive applied replayed, so the P law needs no model), with
+        the friction rival beside the payload.  Two successive windows that say
+        the same name the change.  A hypothesis *describes* a window when its
+        output error is within :data:`identification.flexible.INADEQUATE_FACTOR`
+        quantisation floors (a payload also inside its box).  Friction: the
+        window shows a change and the friction rival is ahead of the payload by
+        Vuong's ``z`` beyond the normal quantile of ``false_alarm``, or
+        describes the window where no payload does (event ``'unexplained'``,
+        ``cause='friction'``).  A payload: significant against the model in
+        use, describing the window, and friction trailing it by that margin or
+        not describing it -- one payload in both windows (event
+        ``'diagnosis'``, ``cause='payload'``).  Unknown: neither the model in
+        use, nor a payload, nor friction describes the window
+        (``'unexplained'``, ``cause='unknown'``).  The P law keeps
+        the arm; the diagnosis ends when it has named the change.
+        """
+        from identification.flexible import INADEQUATE_FACTOR
+
+        k0 = k1 - self.window_n
+        t_wall = time.perf_counter()
+        wlog = self._window_log(k1)
+        fit = self._fit_window(wlog, k0, k1)
+        rec = dict(window_s=fit["window"], named=None, said=None)
+        self.diagnoses.append(rec)
+        if not fit["ok"]:
+            rec["error"] = fit["est"].message if not fit["est"].success else fit["now"].message
+            return
+        est, st, limit = fit["est"], fit["st"], fit["limit"]
+        m = float(est.mass_kg)
+        fr = self._identify_friction(wlog, self.prior, beta=self.beta, window_s=fit["window"],
+                                     currents="logged", workers=1)
+        z = (float(vuong_residual_statistic(est.residuals_pulses, fr.residuals_pulses))
+             if fr.success else math.nan)
+        rec.update(mass_kg=m, lr=float(st["lr"]), threshold=fit["threshold"],
+                   y_now=float(st["y_now"]), y_new=float(st["y_new"]), limit=float(limit),
+                   friction_z=z, friction_y=float(fr.fun) if fr.success else math.nan,
+                   friction_factors=dict(viscous=fr.viscous_factor.tolist(),
+                                         coulomb=fr.coulomb_factor.tolist())
+                   if fr.success else None)
+        changed = st["lr"] > fit["threshold"] or st["y_now"] > limit
+        inside = m < self.bounds[0, 1] - 0.01 * (self.bounds[0, 1] - self.bounds[0, 0])
+        # each hypothesis describes the window or not (within INADEQUATE_FACTOR quantisation
+        # floors); between two that both do, or neither, Vuong's test decides
+        payload_fits = bool(st["y_new"] <= limit and inside)
+        friction_fits = bool(fr.success and fr.fun <= limit)
+        if changed and (z > self._z_threshold or (friction_fits and not payload_fits)):
+            rec["said"] = "friction"
+        elif (st["lr"] > fit["threshold"] and payload_fits
+              and (z < -self._z_threshold or not friction_fits)):
+            rec["said"] = "payload"
+        elif st["y_now"] > limit and not payload_fits and not friction_fits:
+            rec["said"] = "unknown"
+        rec["elapsed_s"] = time.perf_counter() - t_wall
+        said = [d.get("said") for d in self.diagnoses if "error" not in d][-2:]
+        if len(said) < 2 or said[0] != said[1] or said[1] is None:
+            return
+        if said[1] == "payload" and not same_payload(self.diagnoses[-2]["mass_kg"], m):
+            return
+        self.diagnosis = rec["named"] = said[1]
+        t_fb = self._ctc.fallback_t_s
+        if said[1] == "payload":
+            self._event(k1, "diagnosis",
+                        f"after the fallback to the P law at t = {t_fb:.3f} s, a payload of "
+                        f"{m:.3g} kg describes two successive windows ({st['y_new']:.4g} "
+                        f"pulses^2 in the last) and a friction change does not, or trails it "
+                        f"({rec['friction_y']:.4g} pulses^2, Vuong z {z:.3g}); the P law keeps "
+                        "the arm", mass_kg=m, cause="payload",
+                        payload=dict(mass_kg=m, com_m=np.asarray(est.com_m, float).tolist()))
+            return
+        if said[1] == "friction":
+            what = ("a friction change (viscous x" + " / x".join(
+                f"{v:.3g}" for v in fr.viscous_factor) + ", Coulomb x" + " / x".join(
+                f"{v:.3g}" for v in fr.coulomb_factor) + f", {fr.fun:.4g} pulses^2) explains "
+                f"two successive windows better than a payload ({m:.3g} kg, {st['y_new']:.4g}; "
+                f"Vuong z {z:.3g})")
+        else:
+            what = (f"neither the model in use ({st['y_now']:.4g} pulses^2), nor a payload "
+                    f"({st['y_new']:.4g}), nor a friction change describes two successive "
+                    f"windows: more than {INADEQUATE_FACTOR:g} quantisation floors "
+                    f"({fit['floor']:.4g})")
+        msg = (f"after the fallback to the P law at t = {t_fb:.3f} s, {what}; the P law keeps "
+               "the arm")
+        self._event(k1, "unexplained", msg, cause=said[1])
+        warnings.warn(msg, UnmodelledChangeWarning, stacklevel=3)
 
     def _judge_probation(self, k0, k1, mse) -> None:
         """Rollback: the first whole window after an update tracks clearly worse."""

@@ -233,3 +233,44 @@ def test_an_estimate_within_the_refinement_band_of_the_empty_gripper_is_no_updat
     assert "not material" in decisions
     assert "refinement" not in decisions and "update" not in decisions
     assert c.events == [] and c.payload is None and c.payload_history == [(0.0, 0.0)]
+
+
+def _tripped(setting, schedule, envelope):
+    _, _, log, prior, _ = setting
+    c = ArmAdaptiveComputedTorque(prior, log, envelope=envelope)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = _run(setting, c, schedule=schedule, n=2000)
+    assert c.fallback_t_s is not None
+    k = int(round(c.fallback_t_s / log.rig.sample_time_s))
+    # the P law keeps the arm from the trip on: the diagnosis installs nothing
+    p = np.asarray(prior.rig.p_gain_A_per_pulse, dtype=float)
+    np.testing.assert_allclose(r.i_A[k:], np.clip(p * r.e_pulses[k:], -40.0, 40.0))
+    return c, caught
+
+
+def test_after_the_fallback_the_windows_name_a_payload(setting):
+    """Step 6: the 2 kg tool picked up at 1 s trips a 1.5-pulse watchdog; the windows the P
+    law runs name a payload of its mass (a ``'diagnosis'`` event), no change of friction."""
+    _, _, _, _, loaded = setting
+    c, _ = _tripped(setting, [(T_CHANGE, loaded)], [1.5, 1.5])
+    named = [ev for ev in c.events if ev["kind"] == "diagnosis"]
+    assert c.diagnosis == "payload" and len(named) == 1, c.diagnoses
+    assert named[0]["mass_kg"] == pytest.approx(TOOL["mass_kg"], rel=0.02)
+    assert not [ev for ev in c.events if ev["kind"] == "unexplained"]
+    assert c.payload_history == [(0.0, 0.0)]
+
+
+def test_after_the_fallback_the_windows_name_a_change_nothing_describes(setting):
+    """Step 6: joint 2's reflected motor inertia tripled at 1 s trips the watchdog; neither a
+    payload nor a friction change describes the P law's windows: ``'unexplained'`` with
+    ``cause='unknown'`` and a warning.  A robot that is its model names nothing."""
+    arm, _, _, _, _ = setting
+    changed = arm.beta().copy()
+    changed[list(arm.base.names).index("Ia2")] *= 3.0
+    c, caught = _tripped(setting, [(T_CHANGE, changed)], [1.5, 1.5])
+    assert c.diagnosis == "unknown", c.diagnoses
+    assert [ev.get("cause") for ev in c.events if ev["kind"] == "unexplained"] == ["unknown"]
+    assert any(issubclass(w.category, UnmodelledChangeWarning) for w in caught)
+    quiet, _ = _tripped(setting, None, [0.5, 0.5])
+    assert quiet.diagnosis is None and len(quiet.diagnoses) >= 5, quiet.diagnoses
