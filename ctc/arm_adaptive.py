@@ -789,10 +789,11 @@ class ArmAdaptiveComputedTorque:
         elif st["y_now"] > limit and not payload_fits and not friction_fits:
             rec["said"] = "unknown"
         rec["elapsed_s"] = time.perf_counter() - t_wall
-        said = [d.get("said") for d in self.diagnoses if "error" not in d][-2:]
+        last = [d for d in self.diagnoses if "error" not in d][-2:]
+        said = [d["said"] for d in last]
         if len(said) < 2 or said[0] != said[1] or said[1] is None:
             return
-        if said[1] == "payload" and not same_payload(self.diagnoses[-2]["mass_kg"], m):
+        if said[1] == "payload" and not same_payload(last[0]["mass_kg"], m):
             return
         self.diagnosis = rec["named"] = said[1]
         t_fb = self._ctc.fallback_t_s
