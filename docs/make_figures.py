@@ -128,13 +128,13 @@ it in ``optimisers``):
     whose adaptive CTC fell back to the P law, the only ones the diagnosis of
     the P law's windows (:mod:`ctc.adaptive`, step 6) can touch
     (``figures/changes_fallback_20261271.rst``,
-    ``figures/changes_fallback_20261271_run.txt``; about 10 min).
+    ``figures/changes_fallback_20261271_run.txt``; about 1.5 min).
 ``changes_sixth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261327 --jobs 2`` with fresh
     output and robustness folders: a sixth draw, on a seed chosen before its
     first run, on the version that diagnoses the P law's windows after a
     fallback (``figures/changes_20261327.rst``,
-    ``figures/changes_20261327_run.txt``; about 50 min on 2 cores).
+    ``figures/changes_20261327_run.txt``; 35 min on 2 cores).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
