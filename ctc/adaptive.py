@@ -1977,12 +1977,13 @@ class AdaptiveComputedTorqueController:
             return
         threshold = _run_evidence(rivals, self._diagnosis_terms, self.false_alarm)
         mass = float(res.payload["mass_kg"])
+        plausible = self._plausible(res) is None
         second = any("error" not in d for d in self.diagnoses)
         winners = [h for h in rivals if second and h["z_run"] > threshold and h["z"] > 0.0
                    and h["lr"] > self._lr_threshold]
         payload_named = (second and not winners and bool(rivals)
                          and stats["lr"] > self._lr_threshold
-                         and self._plausible(res) is None
+                         and plausible
                          and all(h["z_run"] < -threshold and h["z"] < 0.0 for h in rivals))
         wall = time.perf_counter() - t0
         latency = wall if self.latency_s == "measured" else self.latency_s
@@ -2017,8 +2018,7 @@ class AdaptiveComputedTorqueController:
                                    x=np.asarray(res.x, dtype=float).tolist(),
                                    fun=stats["y_new"], fun_current=stats["y_now"],
                                    lr=stats["lr"], threshold=self._lr_threshold,
-                                   plausible=self._plausible(res) is None,
-                                   rivals=rivals, named=named))
+                                   plausible=plausible, rivals=rivals, named=named))
 
     def _rival_hypotheses(self, window, law, space, substeps, opts, e_est, e_now=None):
         """The window's rival changes, each fitted with the controller in the loop.
