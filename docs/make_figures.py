@@ -143,9 +143,11 @@ it in ``optimisers``):
 ``arms_compliant``
     ``benchmarks/bench_arms.py --compliant --n 6 0 0 --seed 20261701 --jobs 2``:
     planar two-link arms with two-mass joints, half with backlash
-    (``figures/arms_compliant.rst``; about 25 min on 2 cores; seeds 20261122
-    to 20261127 were this benchmark's development draws; ``--n 0 3 0`` adds
-    PUMA joints 1-3, about 15 min a draw).
+    (``figures/arms_compliant.rst``; 6 min on 2 cores with the flexible fit's
+    ``leader_stop``, about 25 min before it:
+    ``figures/bench_arms_compliant_before_leader_stop.txt``; seeds 20261122 to
+    20261127 were this benchmark's development draws; ``--n 0 3 0`` adds PUMA
+    joints 1-3, about 7 min a draw).
 ``arms_compliant_puma123``
     ``benchmarks/bench_arms.py --compliant --n 0 2 0 --seed 20261801 --jobs 2``:
     PUMA 560 joints 1-3 with two-mass joints and backlash, two draws of a
