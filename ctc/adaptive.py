@@ -374,8 +374,11 @@ change in a linear-Gaussian regression):
    law's windows -- the paper's own identification setting -- to say what
    changed (the controller's ``_diagnose``): each window
    is identified with the P law in the loop, the payload beside the rival
-   changes of step 3, and Vuong's terms of each rival against the payload
-   add up over the windows since the fallback; from the second window on, a
+   changes of step 3, and each window's Vuong ``z`` of a rival against the
+   payload is combined with the earlier ones since the fallback by
+   Stouffer's method (every window counts once: the trip's transient, whose
+   residuals are orders of magnitude larger, would outweigh every later
+   window in summed Vuong terms); from the second window on, a
    rival significantly ahead (the Bonferroni threshold at ``false_alarm``,
    ahead in the window too, and significant against the model in use) is
    named (event ``'unexplained'`` with its ``cause``), and a significant,
@@ -840,24 +843,6 @@ def _vuong_z(total, spread):
     return total / math.sqrt(spread)
 
 
-def _run_evidence(rivals, terms_by_cause, false_alarm) -> float:
-    """Add each rival's Vuong terms to its run's and set its ``z_run`` and ``threshold``.
-
-    The evidence of a run's successive windows adds up (independent windows);
-    the threshold is the standard normal quantile at ``false_alarm`` shared
-    among the rivals (Bonferroni).  Returns the threshold.
-    """
-    from scipy.stats import norm
-
-    threshold = float(norm.isf(false_alarm / max(len(rivals), 1)))
-    for h in rivals:
-        terms = terms_by_cause.setdefault(h["cause"], [])
-        terms.append(h["terms"])
-        h["z_run"] = float(_vuong_z(*np.sum(terms, axis=0)))
-        h["threshold"] = threshold
-    return threshold
-
-
 def _fit_held_change(window, law, space, substeps, opts, null_state=None):
     """Fit a change hypothesis with the model in use held (a
     :class:`identification.parameters.HeldModelChange`) on a window, the controller in the loop.
@@ -1270,7 +1255,7 @@ class AdaptiveComputedTorqueController:
         self.fallback_t_s = None
         self.diagnosis = None
         self.diagnoses = []
-        self._diagnosis_terms = {}  # per rival, Vuong's terms against the payload since the fallback
+        self._diagnosis_z = {}  # per rival, the windows' Vuong z against the payload since the fallback
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (2,) A for sample ``k`` (see the module docstring).
@@ -1677,7 +1662,15 @@ class AdaptiveComputedTorqueController:
             # a rival is the change when it explains the window significantly better than
             # the payload: Vuong's test of two non-nested models of one size, at
             # false_alarm shared among the rivals (Bonferroni)
-            threshold = _run_evidence(rivals, self._rival_terms, self.false_alarm)
+            from scipy.stats import norm
+
+            threshold = float(norm.isf(self.false_alarm / max(len(rivals), 1)))
+            for h in rivals:
+                # the evidence of the run's successive windows adds up (independent windows)
+                terms = self._rival_terms.setdefault(h["cause"], [])
+                terms.append(h["terms"])
+                h["z_run"] = _vuong_z(*np.sum(terms, axis=0))
+                h["threshold"] = threshold
             # a stiffness change the drive check named is established: the payload must
             # explain the window significantly better than it, a tie is the drive's
             winners = [h for h in rivals if h["z_run"] > threshold
@@ -1934,16 +1927,20 @@ class AdaptiveComputedTorqueController:
         identification setting.  Each completed window is identified with the P
         law in the loop (the payload, from the model in use, link starting at the
         motor in the payload's wide box on a two-mass arm) and the rival changes
-        are fitted beside it (:meth:`_rival_hypotheses`); Vuong's terms of each
-        rival against the payload add up over the windows since the fallback.
-        From the second window on, a rival that explains the windows
-        significantly better than the payload (the run's ``z`` beyond the
+        are fitted beside it (:meth:`_rival_hypotheses`); each window's Vuong
+        ``z`` of a rival against the payload is combined with the earlier
+        windows' since the fallback by Stouffer's method (their sum over the
+        square root of their number).  From the second window on, a rival that
+        explains the windows significantly better than the payload (the run's
+        ``z`` beyond the
         Bonferroni threshold at ``false_alarm``, ahead in this window too, and
         significant against the model in use) names the change (event
         ``'unexplained'`` with its ``cause``, and an
         :class:`UnmodelledChangeWarning`); a significant, plausible payload
         that every rival trails by that margin names a payload (event
-        ``'diagnosis'``, ``cause='payload'``).  The P law keeps the arm either
+        ``'diagnosis'``, ``cause='payload'``, its ``mass_kg`` the median of the
+        plausible windows' estimates since the fallback, its ``payload`` the
+        last window's).  The P law keeps the arm either
         way; the diagnosis ends when it has named the change.
         """
         import warnings
@@ -1975,7 +1972,18 @@ class AdaptiveComputedTorqueController:
         except ValueError as exc:  # a window the identification refuses: no diagnosis of it
             self.diagnoses.append(dict(window_s=window.window_s, named=None, error=str(exc)))
             return
-        threshold = _run_evidence(rivals, self._diagnosis_terms, self.false_alarm)
+        from scipy.stats import norm
+
+        threshold = float(norm.isf(self.false_alarm / max(len(rivals), 1)))
+        for h in rivals:
+            # Stouffer's combination of the windows' z (each standard normal when the two
+            # fit alike; S. A. Stouffer et al., The American Soldier, 1949): every window
+            # counts once -- summed Vuong terms would let the trip's transient, whose
+            # residuals are orders of magnitude larger, outweigh every later window
+            zs = self._diagnosis_z.setdefault(h["cause"], [])
+            zs.append(h["z"])
+            h["z_run"] = float(np.sum(zs) / math.sqrt(len(zs)))
+            h["threshold"] = threshold
         mass = float(res.payload["mass_kg"])
         plausible = self._plausible(res) is None
         second = any("error" not in d for d in self.diagnoses)
@@ -1997,7 +2005,7 @@ class AdaptiveComputedTorqueController:
             msg = (f"after the fallback to the P law at t = {t_fb:.3f} s, a "
                    f"{_RIVAL_TEXT[named]} change explains its windows better than a payload "
                    f"(Vuong z {rival['z_run']:.3g} > {threshold:.3g} over "
-                   f"{len(self._diagnosis_terms[named])} windows; {rival['y']:.4g} vs {stats['y_new']:.4g} "
+                   f"{len(self._diagnosis_z[named])} windows; {rival['y']:.4g} vs {stats['y_new']:.4g} "
                    f"pulses^2 for {mass:.3g} kg in the last): " + ", ".join(
                        f"{k.split('_')[0]} {v:+.3g}" for k, v in rival["change"].items())
                    + "; the P law keeps the arm")
@@ -2006,12 +2014,18 @@ class AdaptiveComputedTorqueController:
             warnings.warn(msg, UnmodelledChangeWarning, stacklevel=4)
         elif payload_named:
             named = "payload"
+            # one window's estimate scatters (a 2.72 kg tool read 1.3-3.3 kg): the median
+            # of the plausible estimates since the fallback, this window's included
+            masses = [d["mass_kg"] for d in self.diagnoses if d.get("plausible")] + [mass]
+            m_named = float(np.median(masses))
             msg = (f"after the fallback to the P law at t = {t_fb:.3f} s, a payload of "
-                   f"{mass:.3g} kg explains its windows better than any change of "
+                   f"{m_named:.3g} kg (the median of {len(masses)} windows' estimates) explains "
+                   f"its windows better than any change of "
                    + " or ".join(_RIVAL_TEXT[h["cause"]] for h in rivals)
-                   + f" (LR {stats['lr']:.3g} > {self._lr_threshold:.3g}; every rival's Vuong z "
-                   f"below {-threshold:.3g}); the P law keeps the arm")
-            self._event(k_eff, "diagnosis", msg, mass_kg=mass, lr=stats["lr"], cause=named,
+                   + f" (LR {stats['lr']:.3g} > {self._lr_threshold:.3g} in the last; every "
+                   f"rival's Vuong z below {-threshold:.3g}); the P law keeps the arm")
+            self._event(k_eff, "diagnosis", msg, mass_kg=m_named, lr=stats["lr"], cause=named,
+                        windows=len(masses),
                         payload={k: v for k, v in res.payload.items() if k != "vector_cov"})
         self.diagnosis = named
         self.diagnoses.append(dict(window_s=window.window_s, wall_time_s=wall, mass_kg=mass,

@@ -124,11 +124,12 @@ it in ``optimisers``):
     the run's logs and priors): ``figures/changes_20261271_inconsistent_before_run.txt``.
 ``changes_fallback``
     ``benchmarks/bench_changes.py --n 58 --seed 20261271 --cases 3,8,9,23
-    --jobs 2`` with fresh output and robustness folders: the fifth draw's cases
-    whose adaptive CTC fell back to the P law, the only ones the diagnosis of
-    the P law's windows (:mod:`ctc.adaptive`, step 6) can touch
-    (``figures/changes_fallback_20261271.rst``,
-    ``figures/changes_fallback_20261271_run.txt``; about 1.5 min).
+    --jobs 2`` and ``--seed 20261327 --cases 2,21,25``, each with fresh output
+    and robustness folders: the fifth and sixth draws' cases whose adaptive
+    CTC fell back to the P law, the only ones the diagnosis of the P law's
+    windows (:mod:`ctc.adaptive`, step 6) can touch
+    (``figures/changes_fallback_20261271.rst``, ``..._20261327.rst`` and their
+    ``_run.txt``).
 ``changes_sixth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261327 --jobs 2`` with fresh
     output and robustness folders: a sixth draw, on a seed chosen before its
@@ -559,17 +560,18 @@ def changes_fifth(ctx):
                           fresh=True, own_logs=True)
 
 
-#: The cases of the fifth draw (seed 20261271) whose adaptive CTC fell back to the P law
-#: (``figures/changes_20261271.txt``): the diagnosis of the P law's windows
-#: (:mod:`ctc.adaptive`, step 6) acts after a fallback only, so every other case is
-#: unchanged by it bit for bit.
-FIFTH_FALLBACK_CASES = "3,8,9,23"
+#: The cases of the fifth and sixth draws whose adaptive CTC fell back to the P law
+#: (``figures/changes_20261271.txt``, ``figures/changes_20261327.txt``): the diagnosis of
+#: the P law's windows (:mod:`ctc.adaptive`, step 6) acts after a fallback only, so every
+#: other case is unchanged by it bit for bit.
+FALLBACK_CASES = {20261271: "3,8,9,23", 20261327: "2,21,25"}
 
 
 def changes_fallback(ctx):
-    """The fifth draw's fallbacks with the P law's windows diagnosed, every prior identified anew."""
-    return _bench_changes(ctx, "changes_fallback_20261271", 20261271, FIFTH_FALLBACK_CASES,
-                          n=58, fresh=True, own_logs=True)
+    """The draws' fallbacks with the P law's windows diagnosed, every prior identified anew."""
+    return {str(seed): _bench_changes(ctx, f"changes_fallback_{seed}", seed, cases, n=58,
+                                      fresh=True, own_logs=True)
+            for seed, cases in FALLBACK_CASES.items()}
 
 
 def changes_sixth(ctx):
