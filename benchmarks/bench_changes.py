@@ -456,9 +456,11 @@ def print_report(rows, s, file=sys.stdout):
 
 
 def _event_text(ev) -> str:
-    """``kind``, its ``cause`` when it names one, and its time: ``'unexplained:friction@1.101'``."""
+    """``kind``, its ``cause`` when it names one (a named payload with its mass), and its
+    time: ``'unexplained:friction@1.101'``, ``'diagnosis:payload 2.87 kg@2.929'``."""
     cause = ev.get("cause")
-    return f"{ev['kind']}{':' + cause if cause else ''}@{ev['t_s']:.3f}"
+    mass = f" {ev['mass_kg']:.3g} kg" if cause == "payload" and "mass_kg" in ev else ""
+    return f"{ev['kind']}{':' + cause if cause else ''}{mass}@{ev['t_s']:.3f}"
 
 
 def write_rst(rows, s, path: Path, seed: int):
