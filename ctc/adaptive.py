@@ -377,7 +377,7 @@ change in a linear-Gaussian regression):
    changes of step 3, and each window's Vuong ``z`` of a rival against the
    payload is combined with the earlier ones since the fallback by
    Stouffer's method (every window counts once: the trip's transient, whose
-   residuals are orders of magnitude larger, would outweigh every later
+   residuals are far larger, would outweigh every later
    window in summed Vuong terms); from the second window on, a
    rival significantly ahead (the Bonferroni threshold at ``false_alarm``,
    ahead in the window too, and significant against the model in use) is
@@ -1939,8 +1939,8 @@ class AdaptiveComputedTorqueController:
         :class:`UnmodelledChangeWarning`); a significant, plausible payload
         that every rival trails by that margin names a payload (event
         ``'diagnosis'``, ``cause='payload'``, its ``mass_kg`` the median of the
-        plausible windows' estimates since the fallback, its ``payload`` the
-        last window's).  The P law keeps the arm either
+        plausible windows' estimates since the fallback, ``mass_range_kg``
+        their smallest and largest, its ``payload`` the last window's).  The P law keeps the arm either
         way; the diagnosis ends when it has named the change.
         """
         import warnings
@@ -1979,7 +1979,7 @@ class AdaptiveComputedTorqueController:
             # Stouffer's combination of the windows' z (each standard normal when the two
             # fit alike; S. A. Stouffer et al., The American Soldier, 1949): every window
             # counts once -- summed Vuong terms would let the trip's transient, whose
-            # residuals are orders of magnitude larger, outweigh every later window
+            # residuals are far larger, outweigh every later window
             zs = self._diagnosis_z.setdefault(h["cause"], [])
             zs.append(h["z"])
             h["z_run"] = float(np.sum(zs) / math.sqrt(len(zs)))
@@ -2019,13 +2019,14 @@ class AdaptiveComputedTorqueController:
             masses = [d["mass_kg"] for d in self.diagnoses if d.get("plausible")] + [mass]
             m_named = float(np.median(masses))
             msg = (f"after the fallback to the P law at t = {t_fb:.3f} s, a payload of "
-                   f"{m_named:.3g} kg (the median of {len(masses)} windows' estimates) explains "
-                   f"its windows better than any change of "
+                   f"{m_named:.3g} kg (the median of {len(masses)} windows' estimates, "
+                   f"{min(masses):.3g} to {max(masses):.3g} kg) explains its windows better "
+                   f"than any change of "
                    + " or ".join(_RIVAL_TEXT[h["cause"]] for h in rivals)
                    + f" (LR {stats['lr']:.3g} > {self._lr_threshold:.3g} in the last; every "
                    f"rival's Vuong z below {-threshold:.3g}); the P law keeps the arm")
             self._event(k_eff, "diagnosis", msg, mass_kg=m_named, lr=stats["lr"], cause=named,
-                        windows=len(masses),
+                        windows=len(masses), mass_range_kg=[min(masses), max(masses)],
                         payload={k: v for k, v in res.payload.items() if k != "vector_cov"})
         self.diagnosis = named
         self.diagnoses.append(dict(window_s=window.window_s, wall_time_s=wall, mass_kg=mass,
