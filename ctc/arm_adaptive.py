@@ -579,7 +579,7 @@ class ArmAdaptiveComputedTorque:
             self._rejected = None
             self._friction_named = False
             return
-        if m >= self.bounds[0, 1] - 0.01 * (self.bounds[0, 1] - self.bounds[0, 0]):
+        if self._at_mass_bound(m):
             rec.update(decision="implausible", reason=f"mass {m:.3g} kg at the box's upper end")
             self._unexplained(k1, rec)
             return
@@ -732,6 +732,12 @@ class ArmAdaptiveComputedTorque:
                 warnings.warn(msg, UnmodelledChangeWarning, stacklevel=3)
                 self._warned = True
 
+    def _at_mass_bound(self, m) -> bool:
+        """Whether a mass (kg) is at the upper end of the box (within 1 % of its width): the
+        optimiser's edge, not the robot's payload."""
+        lo, hi = self.bounds[0]
+        return bool(m >= hi - 0.01 * (hi - lo))
+
     def _diagnose(self, k1) -> None:
         """What changed, read from the windows after the watchdog's fallback (module docstring).
 
@@ -776,7 +782,7 @@ class ArmAdaptiveComputedTorque:
                                          coulomb=fr.coulomb_factor.tolist())
                    if fr.success else None)
         changed = st["lr"] > fit["threshold"] or st["y_now"] > limit
-        inside = m < self.bounds[0, 1] - 0.01 * (self.bounds[0, 1] - self.bounds[0, 0])
+        inside = not self._at_mass_bound(m)
         # each hypothesis describes the window or not (within INADEQUATE_FACTOR quantisation
         # floors); between two that both do, or neither, Vuong's test decides
         payload_fits = bool(st["y_new"] <= limit and inside)
