@@ -107,6 +107,33 @@ def test_a_put_down_returns_to_the_empty_gripper(paper_log, prior):
     assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0) <= 1)
 
 
+def test_a_put_down_read_above_the_mass_resolution_yields_to_the_empty_gripper(
+        paper_log, prior, monkeypatch):
+    """While a payload is in use the empty gripper is the nested null of every estimate:
+    with the mass-resolution rule switched off (SMALL_MASS_FRACTION = 0), a put-down's
+    estimates, whatever mass they read, do not explain their windows significantly better
+    than no payload, and the update is still to the empty gripper."""
+    monkeypatch.setattr(ctc.adaptive, "SMALL_MASS_FRACTION", 0.0)
+    a3 = paper_log.rig.a3_m
+    f_loaded = plant.add_payload(prior, plant.Payload(2.0, (0.10, 0.02), 0.01), a3)
+    schedule = [(0.8, f_loaded), (2.2, np.asarray(prior, dtype=float))]
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(prior, paper_log,
+                                                             latency_s=LATENCY_S)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ctc.UnmodelledChangeWarning)
+        resp = plant.simulate_closed_loop(paper_log, prior, adaptive, f_schedule=schedule,
+                                          substeps=SUBSTEPS)
+    assert resp.success
+    assert any(m == pytest.approx(2.0, rel=0.05) for _, m in adaptive.payload_history)
+    assert adaptive.payload_history[-1][1] == 0.0 and adaptive.payload is None
+    np.testing.assert_array_equal(adaptive.f, prior)
+    emptied = [r for r in adaptive.identifications if r["empty_gripper"] and r["accepted"]]
+    # the window's own estimate read a mass, yet the empty gripper was installed
+    assert emptied and all(r["window_s"][0] > 2.0 for r in emptied)
+    k = int(np.ceil(2.7 / paper_log.rig.sample_time_s))
+    assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0) <= 1)
+
+
 def test_measured_latency_delays_the_switch(paper_log, prior):
     """``latency_s='measured'``: a new model takes effect after the measured wall time."""
     a3 = paper_log.rig.a3_m
