@@ -118,8 +118,12 @@ it in ``optimisers``):
     output and robustness folders (every prior identified by this version): a
     fifth draw, on a seed chosen before its first run
     (``figures/changes_20261271.rst``, ``figures/changes_20261271_run.txt``;
-    about 50 min on 2 cores).  Its three cases with an inconsistent decision
-    on the version before the end of an inconsistent pause on agreeing
+    39-50 min on 2 cores).  Its first run, on the version before the
+    diagnosis of the P law's windows after a fallback and before every
+    estimate was tested against the empty gripper:
+    ``figures/changes_20261271_before_empty_gripper_run.txt``.  Its three
+    cases with an inconsistent decision on the version before the end of an
+    inconsistent pause on agreeing
     estimates (the same script at commit d0309a3, ``--cases 15,44,45`` with
     the run's logs and priors): ``figures/changes_20261271_inconsistent_before_run.txt``.
 ``changes_fallback``
@@ -133,9 +137,11 @@ it in ``optimisers``):
 ``changes_sixth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261327 --jobs 2`` with fresh
     output and robustness folders: a sixth draw, on a seed chosen before its
-    first run, on the version that diagnoses the P law's windows after a
-    fallback (``figures/changes_20261327.rst``,
-    ``figures/changes_20261327_run.txt``; 35 min on 2 cores).
+    first run (``figures/changes_20261327.rst``,
+    ``figures/changes_20261327_run.txt``; 34 min on 2 cores).  Its first run,
+    on the version that diagnosed the P law's windows after a fallback with
+    summed Vuong terms and before every estimate was tested against the
+    empty gripper: ``figures/changes_20261327_before_empty_gripper_run.txt``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
