@@ -1537,7 +1537,6 @@ class AdaptiveComputedTorqueController:
         stats = window_statistics(window.e_pulses, e_now, sim.e_pulses[1])
         e_est = sim.e_pulses[1]  # the estimate's simulated errors (the rival is tested against them)
         empty = over_empty = None
-        emptied = False  # the nested test below installed the empty gripper
         if nested:
             empty = window_statistics(window.e_pulses, e_now, sim.e_pulses[2])
             # the estimate's four parameters against the empty gripper it nests
@@ -1554,6 +1553,12 @@ class AdaptiveComputedTorqueController:
         # the no-change level a payload must bring the residual back to (never below
         # the quantisation level)
         floor = max(baseline, QUANTISATION_VARIANCE)
+        # the empty gripper explains the window to that level and beats the model in use as
+        # an estimate must (significant, and removing ``improvement`` of its output error)
+        empty_explains = empty is not None and (
+            empty["y_new"] / empty["n_values"] <= self.explain_factor * floor
+            and empty["lr"] > self._lr_threshold
+            and empty["y_new"] < (1.0 - self.improvement) * empty["y_now"])
         # once this episode's change has been reported as one no payload explains, an
         # estimate at its search bound (implausible, step 2) is no evidence of a payload: it
         # neither extends nor breaks the run of agreeing estimates (step 5)
@@ -1580,23 +1585,19 @@ class AdaptiveComputedTorqueController:
                                 or evident)
         reason = None
         decision = "baseline" if first else "no change"
-        if misfit and significant and empty is not None:
+        if misfit and significant and tiny and empty_explains:
             # a sub-resolution estimate: when no payload at all explains the window as
             # well (to the quantisation level), the robot carries none -- the estimate's
             # centre of mass, wherever the optimiser left it, is not applied
-            per_value_empty = empty["y_new"] / empty["n_values"]
-            if (tiny and per_value_empty <= self.explain_factor * floor
-                    and empty["lr"] > self._lr_threshold
-                    and empty["y_new"] < (1.0 - self.improvement) * empty["y_now"]):
-                f_est, payload_est, mass = np.array(self.prior_f, dtype=float), None, 0.0
-                stats, per_value_new = empty, per_value_empty
-                e_est = sim.e_pulses[2]
-                if self.payload is None and np.array_equal(self.f, self.prior_f):
-                    # the empty gripper is the model in use: what explains the window is
-                    # that model from the estimate's start state (the model's own
-                    # prediction-error start state fitted the window worse) -- the model
-                    # describes the window, and an "update" to itself is none
-                    misfit, x0_now = False, x0_new
+            f_est, payload_est, mass = np.array(self.prior_f, dtype=float), None, 0.0
+            stats, per_value_new = empty, empty["y_new"] / empty["n_values"]
+            e_est = sim.e_pulses[2]
+            if self.payload is None and np.array_equal(self.f, self.prior_f):
+                # the empty gripper is the model in use: what explains the window is
+                # that model from the estimate's start state (the model's own
+                # prediction-error start state fitted the window worse) -- the model
+                # describes the window, and an "update" to itself is none
+                misfit, x0_now = False, x0_new
         if misfit and significant:
             reason = None if payload_est is None else self._plausible(res)
             if reason is not None:
@@ -1777,17 +1778,14 @@ class AdaptiveComputedTorqueController:
                       f"robot for {self._undescribed} successive windows and no payload does ("
                       + (reason or "no payload estimate explains them") + ")")
             self._undescribed = 0
-        if (decision == "update" and payload_est is not None and not tiny and nested
-                and over_empty["lr"] <= self._lr_threshold
-                and empty["y_new"] / empty["n_values"] <= self.explain_factor * floor
-                and empty["lr"] > self._lr_threshold
-                and empty["y_new"] < (1.0 - self.improvement) * empty["y_now"]):
+        if (decision == "update" and payload_est is not None and not tiny and empty_explains
+                and over_empty["lr"] <= self._lr_threshold):
             # an update while a payload is in use, whose estimate does not explain the window
             # significantly better than the empty gripper it nests (its four payload
             # parameters at zero), which explains the window too: the update is to no
             # payload (a put-down's estimate need not fall below the mass resolution)
             f_est, payload_est, mass = np.array(self.prior_f, dtype=float), None, 0.0
-            stats, e_est, emptied = empty, sim.e_pulses[2], True
+            stats, e_est = empty, sim.e_pulses[2]
         if self._validating is not None and f_used is self._validating[0]:
             self._validating = None
         if decision in ("baseline", "no change") and np.array_equal(f_used, self.prior_f):
@@ -1834,7 +1832,7 @@ class AdaptiveComputedTorqueController:
                                          fun_current_own=y_own,
                                          lr=stats["lr"], threshold=self._lr_threshold,
                                          tau=stats["tau"], tracking_mse=mse, decision=decision,
-                                         empty_gripper=bool((tiny or emptied) and payload_est is None),
+                                         empty_gripper=payload_est is None,
                                          friction=next((h for h in rivals
                                                         if h["cause"] == "friction"), None),
                                          rivals=rivals, drive=drive,
