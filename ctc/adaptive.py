@@ -855,6 +855,14 @@ def _vuong_z(total, spread):
     return total / math.sqrt(spread)
 
 
+def _rival_threshold(false_alarm, n_rivals) -> float:
+    """Vuong's ``z`` a rival must pass: the standard normal quantile at ``false_alarm``
+    shared among ``n_rivals`` hypotheses (Bonferroni)."""
+    from scipy.stats import norm
+
+    return float(norm.isf(false_alarm / max(int(n_rivals), 1)))
+
+
 def _fit_held_change(window, law, space, substeps, opts, null_state=None):
     """Fit a change hypothesis with the model in use held (a
     :class:`identification.parameters.HeldModelChange`) on a window, the controller in the loop.
@@ -1682,9 +1690,7 @@ class AdaptiveComputedTorqueController:
             # a rival is the change when it explains the window significantly better than
             # the payload: Vuong's test of two non-nested models of one size, at
             # false_alarm shared among the rivals (Bonferroni)
-            from scipy.stats import norm
-
-            threshold = float(norm.isf(self.false_alarm / max(len(rivals), 1)))
+            threshold = _rival_threshold(self.false_alarm, len(rivals))
             for h in rivals:
                 # the evidence of the run's successive windows adds up (independent windows)
                 terms = self._rival_terms.setdefault(h["cause"], [])
@@ -1778,7 +1784,7 @@ class AdaptiveComputedTorqueController:
                       f"robot for {self._undescribed} successive windows and no payload does ("
                       + (reason or "no payload estimate explains them") + ")")
             self._undescribed = 0
-        if (decision == "update" and payload_est is not None and not tiny and empty_explains
+        if (decision == "update" and payload_est is not None and empty_explains
                 and over_empty["lr"] <= self._lr_threshold):
             # an update while a payload is in use, whose estimate does not explain the window
             # significantly better than the empty gripper it nests (its four payload
@@ -2000,9 +2006,7 @@ class AdaptiveComputedTorqueController:
         except ValueError as exc:  # a window the identification refuses: no diagnosis of it
             self.diagnoses.append(dict(window_s=window.window_s, named=None, error=str(exc)))
             return
-        from scipy.stats import norm
-
-        threshold = float(norm.isf(self.false_alarm / max(len(rivals), 1)))
+        threshold = _rival_threshold(self.false_alarm, len(rivals))
         for h in rivals:
             # Stouffer's combination of the windows' z (each standard normal when the two
             # fit alike; S. A. Stouffer et al., The American Soldier, 1949): every window
