@@ -121,7 +121,9 @@ it in ``optimisers``):
     39-50 min on 2 cores).  Its first run, on the version before the
     diagnosis of the P law's windows after a fallback and before every
     estimate was tested against the empty gripper:
-    ``figures/changes_20261271_before_empty_gripper_run.txt``.  Its three
+    ``figures/changes_20261271_before_empty_gripper_run.txt``; its second, on
+    the version before the quiet refinement (:mod:`ctc.adaptive`, step 3):
+    ``figures/changes_20261271_before_quiet_refinement_run.txt``.  Its three
     cases with an inconsistent decision on the version before the end of an
     inconsistent pause on agreeing
     estimates (the same script at commit d0309a3, ``--cases 15,44,45`` with
@@ -141,7 +143,9 @@ it in ``optimisers``):
     ``figures/changes_20261327_run.txt``; 34 min on 2 cores).  Its first run,
     on the version that diagnosed the P law's windows after a fallback with
     summed Vuong terms and before every estimate was tested against the
-    empty gripper: ``figures/changes_20261327_before_empty_gripper_run.txt``.
+    empty gripper: ``figures/changes_20261327_before_empty_gripper_run.txt``;
+    its second, on the version before the quiet refinement (:mod:`ctc.adaptive`,
+    step 3): ``figures/changes_20261327_before_quiet_refinement_run.txt``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
