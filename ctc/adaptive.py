@@ -1677,9 +1677,6 @@ class AdaptiveComputedTorqueController:
         measured = bool(significant and not first and payload_est is not None
                         and per_value_new <= self.explain_factor * floor
                         and self._plausible(res) is None)
-        # a window the payload in use describes is a measurement of that payload too, when
-        # its estimate is plausible and explains it: not significant against the model in
-        # use, one window at a time, but pooled with the others (the quiet refinement, step 3)
         if measured:
             # every window's significant, plausible, explaining estimate is a measurement of
             # the payload the robot carries: pooled for refinements (step 3)
@@ -2065,7 +2062,7 @@ class AdaptiveComputedTorqueController:
         covariance of the model's payload or of the pool.
         """
         m_use = self.payload_mass_kg
-        same = [q for q in self._since if same_payload(q[1]["mass_kg"], m_use)]
+        same = [e for e in self._since if same_payload(e[1]["mass_kg"], m_use)]
         if len(same) < PERSISTENCE_WINDOWS or self.payload.get("vector") is None:
             return None, None
         a3 = self.log.rig.a3_m

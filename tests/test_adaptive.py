@@ -441,6 +441,11 @@ def test_a_refinement_weighs_each_estimate_by_its_information(paper_log, prior):
     assert _pooled(same)[1]["vector_cov"] is None
 
 
+#: A window's covariance of the linear payload vector [m, m xp, m yp, J] (standard errors
+#: 0.05 kg, 0.01 kg m, 0.006 kg m, 0.004 kg m^2): the model's payload as one window knows it.
+ONE_WINDOW_COV = np.diag(np.array([0.05, 0.01, 0.006, 0.004]) ** 2).tolist()
+
+
 def test_the_quiet_refinement_holds_its_false_alarm_rate_and_finds_a_model_off(paper_log, prior):
     """Step 3's quiet refinement: the windows since the model took effect, pooled with the
     payload in use by their information, replace it when it lies outside the
@@ -455,7 +460,7 @@ def test_the_quiet_refinement_holds_its_false_alarm_rate_and_finds_a_model_off(p
     A = payload_delta_matrix(paper_log.rig.a3_m)
     m, xp, yp, izz = 2.0, 0.10, 0.02, 0.01
     p_true = np.array([m, m * xp, m * yp, izz + m * (xp * xp + yp * yp)])
-    C = np.diag(np.array([0.05, 0.01, 0.006, 0.004]) ** 2)  # one window's, of [m, m xp, m yp, J]
+    C = np.asarray(ONE_WINDOW_COV)
     L = np.linalg.cholesky(C)
 
     def estimate(p, cov):
@@ -493,11 +498,6 @@ def test_the_quiet_refinement_holds_its_false_alarm_rate_and_finds_a_model_off(p
     np.testing.assert_allclose(payload["vector"], expected, rtol=1e-9)
     assert payload["mass_kg"] == pytest.approx(m, rel=0.05)
     np.testing.assert_allclose(f, prior + A @ np.asarray(payload["vector"]), rtol=1e-12, atol=1e-12)
-
-
-#: A window's covariance of the linear payload vector [m, m xp, m yp, J] (standard errors
-#: 0.05 kg, 0.01 kg m, 0.006 kg m, 0.004 kg m^2): the model's payload as one window knows it.
-ONE_WINDOW_COV = np.diag(np.array([0.05, 0.01, 0.006, 0.004]) ** 2).tolist()
 
 
 def _run_from_model(log, prior, model, f_robot, schedule=()):
