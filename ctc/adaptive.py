@@ -720,6 +720,14 @@ def _pooled(estimates, a3=None):
     return f, payload
 
 
+def _wald(p_a, p_b, cov) -> float:
+    """Wald's statistic ``d' C^+ d`` of two linear payload vectors, ``d = p_a - p_b``,
+    ``C`` the covariance of ``d`` (a pseudo-inverse: a direction no window excites
+    counts for nothing)."""
+    d = np.asarray(p_a, dtype=float) - np.asarray(p_b, dtype=float)
+    return float(d @ np.linalg.pinv(np.asarray(cov, dtype=float), hermitian=True) @ d)
+
+
 def _one_payload_test(a, b, threshold) -> bool:
     """Whether two windows' payload estimates are of one payload: Wald's test.
 
@@ -736,11 +744,10 @@ def _one_payload_test(a, b, threshold) -> bool:
     if ca is None or cb is None:
         return False
     C = np.asarray(ca, dtype=float) + np.asarray(cb, dtype=float)
-    d = np.asarray(a["vector"], dtype=float) - np.asarray(b["vector"], dtype=float)
-    if not (np.all(np.isfinite(C)) and np.all(np.isfinite(d))):
+    if not (np.all(np.isfinite(C)) and np.all(np.isfinite(a["vector"]))
+            and np.all(np.isfinite(b["vector"]))):
         return False
-    q = float(d @ np.linalg.pinv(C, hermitian=True) @ d)
-    return q <= threshold
+    return _wald(a["vector"], b["vector"], C) <= threshold
 
 
 def _described_run(significant_run, rival_run, rivals) -> bool:
@@ -1674,17 +1681,16 @@ class AdaptiveComputedTorqueController:
             reason = (f"the model leaves {per_value_now:.3g} pulses^2 per value (baseline "
                       f"{baseline:.3g}) and no payload reduces it significantly")
         own = (f_est, payload_est)
-        measured = bool(significant and not first and payload_est is not None
-                        and per_value_new <= self.explain_factor * floor
-                        and self._plausible(res) is None)
+        # the estimate is a payload that explains its window, plausibly
+        describes = bool(payload_est is not None and per_value_new <= self.explain_factor * floor
+                         and self._plausible(res) is None)
+        measured = significant and not first and describes
         if measured:
             # every window's significant, plausible, explaining estimate is a measurement of
             # the payload the robot carries: pooled for refinements (step 3)
             self._pool.append(own)
-        if (decision == "no change" and self.payload is not None and payload_est is not None
-                and payload_est.get("vector_cov") is not None
-                and per_value_new <= self.explain_factor * floor
-                and self._plausible(res) is None):
+        if (decision == "no change" and self.payload is not None and describes
+                and payload_est.get("vector_cov") is not None):
             # a window the payload in use describes is a measurement of it too, when its
             # estimate is plausible and explains it, significant or not: the quiet
             # refinement's evidence (step 3), since the model in use took effect
@@ -2079,9 +2085,7 @@ class AdaptiveComputedTorqueController:
         if cov is None:
             return None, None
         payload_comb = dict(payload_comb, pooled=len(same) + int(self.payload.get("pooled", 1)))
-        d = (np.asarray(self.payload["vector"], dtype=float)
-             - np.asarray(payload_comb["vector"], dtype=float))
-        q = float(d @ np.linalg.pinv(np.asarray(cov, dtype=float), hermitian=True) @ d)
+        q = _wald(self.payload["vector"], payload_comb["vector"], cov)
         ok = q > self._lr_threshold and same_payload(payload_comb["mass_kg"], m_use)
         return ((f_comb, payload_comb) if ok else None), q
 
