@@ -147,9 +147,15 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool, compliant: bool
         events=[dict(t_s=float(ev["t_s"]), kind=ev["kind"], message=ev["message"])
                 for ev in adaptive.events],
         window_s_median=float(np.median([r["elapsed_s"] for r in adaptive.identifications])),
-        decisions=[(round(r["window_s"][0], 2), r["decision"], round(r["mass_kg"], 3), round(r["lr"], 1), round(r["y_now"], 1), round(r["y_new"], 1), round(r["tracking_mse"], 2))
+        decisions=[(round(r["window_s"][0], 2), r["decision"], round(r["mass_kg"], 3),
+                    round(r["mass_std"], 4), round(r["lr"], 1), round(r["y_now"], 1),
+                    round(r["y_new"], 1), round(r["tracking_mse"], 2), r.get("quiet_wald"))
                    for r in adaptive.identifications],
-        fallback=adaptive.fallback_t_s)
+        fallback=adaptive.fallback_t_s,
+        # a model identified but not yet in effect when the run ended: (t_effective_s, kg)
+        pending=None if adaptive._pending is None else (
+            float(adaptive._pending[0] * adaptive.ts),
+            0.0 if adaptive._pending[2] is None else float(adaptive._pending[2]["mass_kg"])))
     if repeat:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -284,8 +290,10 @@ def main(argv=None):
         print(f"  {r['family']} seed {r['seed']}: change {r['change']}, tool {r['tool']}, friction "
               f"{'known' if r['friction_known'] else 'identified'}, static {r['static']['max_after']}, "
               f"adaptive {r['adaptive']['max_after']}, history "
-              f"{[(round(t, 2), round(m, 3)) for t, m in r['adaptive']['history']]}, "
-              f"missed {[k for k, v in r['score'].items() if v is False]}, settings {r['settings']}")
+              f"{[(round(t, 2), round(m, 3)) for t, m in r['adaptive']['history']]}"
+              + (f" (pending at the run's end: {r['adaptive']['pending'][1]:.3f} kg from "
+                 f"{r['adaptive']['pending'][0]:.2f} s)" if r["adaptive"].get("pending") else "")
+              + f", missed {[k for k, v in r['score'].items() if v is False]}, settings {r['settings']}")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1, default=float) + "\n")
 

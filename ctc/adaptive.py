@@ -114,15 +114,21 @@ change in a linear-Gaussian regression):
    below the resolution -- its centre of mass takes up what the window leaves
    (the changes benchmark's sixth draw, case 0033: a 3.17 kg tool put down read
    0.26 kg, and the arm tracked 1 / 3 pulses until the end against the static
-   CTC's 1 / 1).  An update whose mass is the model's own (within 25 % +
-   50 g) refines the payload in use: it installs the pooled estimate of every
+   CTC's 1 / 1).  An update whose mass is the model's own (within 25 % + 50 g)
+   refines the payload in use: it installs the pooled estimate of every
    significant, plausible and explaining estimate of that mass from the
-   windows since the payload took effect -- not the update's own window,
-   which may span the change -- (the model is affine in the linear payload vector
-   ``[m, m xp, m yp, J]``, so the pooled model is the pooled payload's), not the
-   last window's alone -- single windows' centre-of-mass estimates scatter by
-   tens of centimetres.  The pooling weighs each window's vector by its inverse
-   covariance (from the window identification's standard errors,
+   windows since the payload took effect that is one payload with the update's
+   estimate (the window's, pooled with its episode's when it has one) by
+   Wald's test (``_one_payload_test``, below; an estimate without a covariance
+   pools with none of them) -- the model is affine in the linear payload
+   vector ``[m, m xp, m yp, J]``, so the pooled model is the pooled payload's
+   --, not the last window's alone: single windows' centre-of-mass estimates
+   scatter by tens of centimetres.  Without the test, a tool exchanged for one
+   of a similar mass, 2.0 for 2.45 kg, had the new tool's first window, 2.44
+   kg, pooled with an estimate of the old one, 2.03 kg, to 1.60 kg, and the
+   arm tracked 2 pulses 0.55 s after the exchange.  The pooling weighs each
+   window's vector by its inverse covariance (from the window
+   identification's standard errors,
    :mod:`identification.uncertainty`; the best linear unbiased combination of
    independent estimates): a window along which a link hardly moved determines
    little of the centre of mass and says so.  The plain mean it replaces let
@@ -2016,7 +2022,13 @@ class AdaptiveComputedTorqueController:
                 # it was found, pooled by their information, not the last window's alone (f
                 # is affine in the linear payload vector, so the pooled f is the pooled
                 # payload's)
-                same = [q for q in self._pool if same_payload(q[1]["mass_kg"], mass)]
+                # (each one payload with this update's estimate by Wald's test, as the
+                # episode's mates are: a window that spans a change, or the payload before
+                # it, is not this payload -- pooled with the window after a tool exchange,
+                # 2.03 kg before it and 2.44 kg after combined to 1.60 kg)
+                same = [q for q in self._pool if same_payload(q[1]["mass_kg"], mass)
+                        and (q is own or _one_payload_test(q[1], payload_est,
+                                                           self._lr_threshold))]
                 if mates:  # the episode's estimates of this payload, and the pool's
                     same = mates + [own] + [q for q in same
                                             if not any(q is r for r in mates + [own])]

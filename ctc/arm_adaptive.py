@@ -84,7 +84,24 @@ rigid or a two-mass flexible prior (the last paragraph):
    ``benchmarks/bench_arm_adaptive.py``, seed 20261201, planar draw 20261206: a refinement of a 4.97 kg tool
    judged by the window spanning its put-down was rolled back, and the
    caution that follows a rollback delayed the put-down's update by one
-   window, 17 / 5 pulses against the static CTC's 1 / 1).  With the empty
+   window, 17 / 5 pulses against the static CTC's 1 / 1).  **Windows the
+   model describes refine it too** (the quiet refinement, as on the PUMA
+   path, ``_quiet_refinement``): a window whose likelihood ratio says
+   "no change" still has its estimate, and while a payload is in use each
+   such estimate that explains its window, lies inside the box and has a
+   standard error is a measurement of it.  Once :data:`QUIET_WINDOWS` of
+   them (within 25 % + 50 g of the model's mass) have come in since the
+   model took effect, they are pooled with the model's own estimate by
+   their information, and when the model's mass lies outside the
+   combination's confidence interval at ``false_alarm`` (Wald's ``q = (m -
+   m_comb)^2 / sd_comb^2`` beyond the chi-square quantile with one degree
+   of freedom: for a right model at most that while the windows know no
+   more than it) the combination is installed (decision
+   ``'refinement'``, no probation, the record's ``quiet_wald``; on a
+   flexible prior a heavier combination passes the switch check first;
+   not after a change no payload explains was reported).  A model within
+   +-1 pulse shows in no window's likelihood ratio, and one window's mass
+   at a pick-up can be off by what its centre of mass takes up.  With the empty
    gripper in use there is nothing to refine: an estimate within
    :data:`REFINEMENT_KG` of it is the model in use (decision ``'not
    material'``, no event; the compliant benchmark's PUMA 560 joints 1--3
@@ -158,12 +175,13 @@ import warnings
 
 import numpy as np
 
-from .adaptive import (DEFAULT_LATENCY_S, UnmodelledChangeWarning, residual_statistics,
-                       same_payload, vuong_residual_statistic)
+from .adaptive import (DEFAULT_LATENCY_S, PERSISTENCE_WINDOWS, UnmodelledChangeWarning,
+                       residual_statistics, same_payload, vuong_residual_statistic)
 from .arm import ArmComputedTorque, ArmFlexibleComputedTorque, log_envelope
 
 __all__ = ["ArmAdaptiveComputedTorque", "DEFAULT_ARM_LATENCY_S", "DEFAULT_ARM_WINDOW_S",
-           "ARM_PERSISTENCE_WINDOWS", "REFINEMENT_KG", "SWITCH_MARGIN_PULSES"]
+           "ARM_PERSISTENCE_WINDOWS", "QUIET_WINDOWS", "REFINEMENT_KG",
+           "SWITCH_MARGIN_PULSES"]
 
 #: Default window (s): the paper's 100-200 ms, its upper end (a window of an n-joint arm
 #: determines the mass and the first moment of a point mass on the last link;
@@ -175,6 +193,10 @@ DEFAULT_ARM_LATENCY_S = DEFAULT_LATENCY_S
 
 #: Successive agreeing estimates that update after a rollback or an unexplained change.
 ARM_PERSISTENCE_WINDOWS = 2
+
+#: Estimates of windows the model in use describes that the quiet refinement pools with
+#: the model (step 4): the PUMA path's :data:`ctc.adaptive.PERSISTENCE_WINDOWS`.
+QUIET_WINDOWS = PERSISTENCE_WINDOWS
 
 
 #: The switch check's tolerance (flexible priors, module docstring): an update's model may
@@ -206,14 +228,19 @@ def _pooled(entries):
         unknown): the base parameters are linear in the point mass's standard parameters,
         so the pooled ``beta`` is the pooled payload's (for the centre of mass as a
         first-moment mean, to first order).
+    mass_std : float
+        The pooled mass's standard error, ``(sum 1 / sd**2)**-1/2`` (kg; NaN when a
+        standard error is unknown).
     """
     sds = np.array([q[1] for q in entries], dtype=float)
-    w = 1.0 / sds ** 2 if np.all(np.isfinite(sds)) else np.ones(len(entries))
+    known = bool(np.all(np.isfinite(sds)) and np.all(sds > 0))
+    w = 1.0 / sds ** 2 if known else np.ones(len(entries))
+    sd = float(1.0 / math.sqrt(w.sum())) if known else math.nan
     w = w / w.sum()
     beta = np.sum([wi * np.asarray(q[2], dtype=float) for wi, q in zip(w, entries)], axis=0)
     m = float(np.dot(w, [q[0] for q in entries]))
     com = np.sum([wi * np.asarray(q[3], dtype=float) for wi, q in zip(w, entries)], axis=0)
-    return beta, m, com
+    return beta, m, com, sd
 
 
 def _refines(a, b) -> bool:
@@ -296,7 +323,8 @@ class ArmAdaptiveComputedTorque:
         rival adds ``friction_z``, ``friction_y`` and ``friction_factors``), ``mass_kg``, ``mass_std``, ``lr``, ``threshold``,
         ``y_now``, ``y_new`` (pulses^2), ``tracking_mse`` (pulses^2),
         ``elapsed_s``, ``reason`` and, when the decision was taken on the
-        second half of a window spanning a change, ``half_window``.
+        second half of a window spanning a change, ``half_window``; a window the
+        payload in use was tested by the quiet refinement, ``quiet_wald`` (step 4).
 
     Raises
     ------
@@ -418,12 +446,13 @@ class ArmAdaptiveComputedTorque:
         self.identifications = []
         self._E = np.zeros((0, self.n), dtype=np.int64)
         self._I = np.zeros((0, self.n))
-        self._pending = None  # (k_effective, beta, payload, trigger_mse)
+        self._pending = None  # (k_effective, beta, payload, trigger_mse, quiet)
         self._rejected = None  # the mass (kg) a rollback rejected, until a window shows no change
         self._probation = None  # (k_from, trigger_mse, previous beta, previous payload)
         self._cautious = False  # after a rollback or an unexplained change: agreeing estimates
         self._agree = []  # the latest successive significant estimates (m, sd, beta, com)
         self._pool = []  # estimates of the payload in use since its update (m, sd, beta, com)
+        self._since = []  # estimates of windows the model in use describes, since it took effect
         self._odd = 0  # successive windows a payload does not describe
         self._causes = []  # their causes ('friction', 'unknown')
         self._friction_named = False  # a friction change reported in this episode
@@ -435,15 +464,17 @@ class ArmAdaptiveComputedTorque:
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (n,) A for sample ``k`` (sampled-controller protocol)."""
         if self._pending is not None and k >= self._pending[0]:
-            k_eff, beta, payload, trigger = self._pending
+            k_eff, beta, payload, trigger, quiet = self._pending
             self._pending = None
             m_new = 0.0 if payload is None else payload["mass_kg"]
-            # a refinement of the payload in use (its mass within REFINEMENT_KG + 5 %) moves
-            # the model little and is on no probation (one on trial stays); another payload is
-            if not _refines(m_new, self.payload_mass_kg):
+            # a refinement of the payload in use (its mass within REFINEMENT_KG + 5 %, or the
+            # quiet refinement's combination) moves the model little and is on no probation
+            # (one on trial stays); another payload is
+            if not quiet and not _refines(m_new, self.payload_mass_kg):
                 self._probation = (k_eff, trigger, self.beta, self.payload)
             self._install(beta, payload)
             self.payload_history.append((k * self.ts, self.payload_mass_kg))
+            self._since = []  # the quiet refinement tests the model on windows it has run
         i = np.asarray(self._ctc(k, t, q_meas, e_pulses), dtype=float)
         if k >= self._E.shape[0]:
             grow = max(k + 1, 2 * self._E.shape[0], 1024)
@@ -578,6 +609,7 @@ class ArmAdaptiveComputedTorque:
             self._cautious = False
             self._rejected = None
             self._friction_named = False
+            self._quiet_refinement(k1, fit, rec, mse)
             return
         if self._at_mass_bound(m):
             rec.update(decision="implausible", reason=f"mass {m:.3g} kg at the box's upper end")
@@ -653,7 +685,7 @@ class ArmAdaptiveComputedTorque:
         # of the mass; equal weights without them): single windows of a small payload
         # scatter by 10 %
         pool = (self._pool + agreed) if kind == "refinement" else list(agreed)
-        beta, m_pool, com = _pooled(pool)
+        beta, m_pool, com, sd_pool = _pooled(pool)
         if kind == "update" and m_pool > 0 and self.flexible:
             refused = self._switch_refused(k1, m_pool, beta, rec)
             if refused:
@@ -661,12 +693,77 @@ class ArmAdaptiveComputedTorque:
                 return
         self._pool = pool
         # the effective sample is set by _identify once the window's wall time is known
-        self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com) if m_pool > 0 else None, mse)
+        self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com, mass_std=sd_pool)
+                         if m_pool > 0 else None, mse, False)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"
                    + (", the second half of a window spanning a change" if rec.get("half_window")
                       else "")
                    + (f"; {len(self._pool)} estimates pooled: {m_pool:.3g} kg"
                       if len(self._pool) > 1 else ""))
+
+    def _quiet_refinement(self, k1, fit, rec, mse) -> None:
+        """Windows the model in use describes refine it (module docstring, step 4).
+
+        The window's estimate (plausible: inside the box, below its upper mass end and
+        above :data:`REFINEMENT_KG`; explaining: its output error within the adequacy
+        limit; with a standard error) is kept as a measurement of the payload in use.
+        Once :data:`QUIET_WINDOWS` of them within 25 % + 50 g of the model's mass have
+        come in since the model took effect, they are pooled with the model's own
+        estimate by their information (:func:`_pooled`), and when the model's mass lies
+        outside the combination's confidence interval at ``false_alarm`` -- ``q =
+        (m_model - m_comb)**2 / sd_comb**2`` beyond the chi-square quantile with one
+        degree of freedom -- the combination is installed (decision ``'refinement'``, no
+        probation; on a flexible prior a heavier combination passes the switch check
+        first).  For a model that is the robot's payload, ``q`` is at most a chi-square
+        with one degree of freedom: a false alarm at most ``false_alarm``.  For a model
+        that is itself an estimate with its standard error, ``q`` is a chi-square times
+        the ratio of the windows' information to the model's: at most ``false_alarm``
+        while the windows know no more than the model, and more often once they know
+        more -- then the combination, which is installed, is the better estimate, and its
+        information is the sum of both (the PUMA path's rule on the linear payload
+        vector, :mod:`ctc.adaptive`).  Not after a change no payload explains was
+        reported (the windows since measure the changed robot).
+        """
+        if self.payload is None or self._warned:
+            # not after a change no payload explains was reported: the windows since then
+            # measure the changed robot, not the payload (the PUMA path's rule too)
+            return
+        est, st = fit["est"], fit["st"]
+        m, sd = float(est.mass_kg), float(est.x_std[0])
+        if (st["y_new"] > fit["limit"] or self._at_mass_bound(m) or m <= REFINEMENT_KG
+                or not np.isfinite(sd) or sd <= 0):
+            return
+        self._since.append((m, sd, np.asarray(est.beta, dtype=float),
+                            np.asarray(est.com_m, dtype=float).copy()))
+        m0 = self.payload_mass_kg
+        sd0 = float(self.payload.get("mass_std", math.nan))
+        same = [e for e in self._since if same_payload(e[0], m0)]
+        if len(same) < QUIET_WINDOWS or not np.isfinite(sd0) or sd0 <= 0:
+            return
+        model = (m0, sd0, self.beta, np.asarray(self.payload["com_m"], dtype=float))
+        beta, m_comb, com, sd_comb = _pooled([model] + same)
+        q = (m0 - m_comb) ** 2 / sd_comb ** 2
+        threshold = float(self._chi2.isf(self.false_alarm, 1))
+        rec["quiet_wald"] = float(q)
+        if not (q > threshold and same_payload(m_comb, m0)):
+            return
+        if self.flexible and m_comb > m0:
+            # a heavier model raises the loop gain at the springs' modes: the switch check
+            refused = self._switch_refused(k1, m_comb, beta, rec)
+            if refused:
+                rec.update(decision="unsafe", reason=refused)
+                return
+        # the estimates of the payload in use since its update (the model's own evidence
+        # when a rollback emptied them)
+        self._pool = (self._pool or [model]) + same
+        self._since = []
+        self._pending = (None, beta, dict(mass_kg=m_comb, com_m=com, mass_std=sd_comb), mse,
+                         True)
+        rec.update(decision="refinement",
+                   reason=(f"the {len(same)} windows since the model took effect, pooled with "
+                           f"its payload ({m0:.3g} +- {sd0:.2g} kg): {m_comb:.3g} +- "
+                           f"{sd_comb:.2g} kg; the model lies outside its confidence interval, "
+                           f"Wald {q:.3g} > {threshold:.3g}"))
 
     def _switch_refused(self, k1, mass, beta, rec):
         """The switch check of a flexible prior (module docstring): None when the update to
@@ -720,6 +817,7 @@ class ArmAdaptiveComputedTorque:
         """A window no plausible payload describes: reported the second time in a row."""
         self._odd += 1
         self._agree = []
+        self._since = []  # the robot changed: not measurements of the payload in use
         self._causes.append(rec.get("cause", "unknown"))
         if self._odd >= 2:
             self._cautious = True
@@ -837,6 +935,7 @@ class ArmAdaptiveComputedTorque:
         if mse > self.explain_factor * max(trigger, 1.0):
             self._rejected = self.payload_mass_kg
             self._pool = []
+            self._since = []
             self._install(beta_before, payload_before)
             self.payload_history.append((k1 * self.ts, self.payload_mass_kg))
             self._cautious = True

@@ -123,7 +123,10 @@ it in ``optimisers``):
     estimate was tested against the empty gripper:
     ``figures/changes_20261271_before_empty_gripper_run.txt``; its second, on
     the version before the quiet refinement (:mod:`ctc.adaptive`, step 3):
-    ``figures/changes_20261271_before_quiet_refinement_run.txt``.  Its three
+    ``figures/changes_20261271_before_quiet_refinement_run.txt``; its third,
+    on the version before a refinement pooled only the estimates that are one
+    payload with its own (Wald's test, step 3):
+    ``figures/changes_20261271_before_wald_pool_run.txt``.  Its three
     cases with an inconsistent decision on the version before the end of an
     inconsistent pause on agreeing
     estimates (the same script at commit d0309a3, ``--cases 15,44,45`` with
@@ -145,7 +148,10 @@ it in ``optimisers``):
     summed Vuong terms and before every estimate was tested against the
     empty gripper: ``figures/changes_20261327_before_empty_gripper_run.txt``;
     its second, on the version before the quiet refinement (:mod:`ctc.adaptive`,
-    step 3): ``figures/changes_20261327_before_quiet_refinement_run.txt``.
+    step 3): ``figures/changes_20261327_before_quiet_refinement_run.txt``; its
+    third, on the version before a refinement pooled only the estimates that
+    are one payload with its own (Wald's test, step 3):
+    ``figures/changes_20261327_before_wald_pool_run.txt``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -204,6 +210,9 @@ it in ``optimisers``):
     arms and PUMA joints 1-3 of the independent simulator, the static and the
     adaptive CTC of the arm side by side (``figures/bench_arm_adaptive.txt``); then
     ``--n 20 12 --seed 20261601``, a second draw (``figures/bench_arm_adaptive_20261601.txt``).
+    Both before the quiet refinement (:mod:`ctc.arm_adaptive`, step 4):
+    ``figures/bench_arm_adaptive_before_quiet_refinement.txt`` and
+    ``figures/bench_arm_adaptive_20261601_before_quiet_refinement.txt``.
 ``arm_adaptive_compliant``
     ``benchmarks/bench_arm_adaptive.py --compliant --n 6 2 --seed 20262001 --jobs 2``:
     the same changes on compliant arms (two-mass joints, half with backlash), the

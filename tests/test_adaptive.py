@@ -557,19 +557,20 @@ def test_a_second_tool_of_a_similar_mass_is_found(paper_log, prior):
     (within 25 % + 50 g of it: estimates of the new tool refine the payload in use).  The
     quiet refinement pools the windows since the model took effect, not the old tool's:
     the last mass within 5 % of 2.45 kg (pooled with the earlier windows, the new tool was
-    outvoted: 2.20 kg at the end of the run).  Tracking: within +-1 pulse from 1 s after
-    the exchange; from 0.5 s after, one sample of 2 pulses (at 2.55 s: a refinement of the
-    right 2 kg model on the window before the exchange, 18 windows pooled, moved the
-    significant refinements a window later, and their pooling put 1.6 kg in use for 0.2 s
-    -- the supervisor before the quiet refinement held +-1 pulse from 0.5 s after)."""
+    outvoted: 2.20 kg at the end of the run).  A refinement pools only the estimates that
+    are one payload with its window's (Wald's test; when it pooled every estimate of a
+    mass within 25 % + 50 g, the first window of the new tool, 2.44 kg, and an estimate of
+    the old one, 2.03 kg, combined to 1.60 kg, in use for 0.2 s, and one sample reached 2
+    pulses 0.55 s after the exchange): after the exchange no model lighter than the old
+    tool's; tracking within +-1 pulse from 0.5 s after the exchange."""
     a3 = paper_log.rig.a3_m
     old, new = plant.Payload(2.0, (0.10, 0.02), 0.01), plant.Payload(2.45, (0.10, 0.02), 0.01)
     schedule = [(2.0, plant.add_payload(prior, new, a3))]
     c, resp = _run_from_model(paper_log, prior, old, plant.add_payload(prior, old, a3), schedule)
     assert c.payload_history[-1][1] == pytest.approx(2.45, rel=0.05)
     ts = paper_log.rig.sample_time_s
-    assert np.abs(resp.e_pulses[int(np.ceil(2.5 / ts)):]).max() <= 2
-    assert np.all(np.abs(resp.e_pulses[int(np.ceil(3.0 / ts)):]).max(axis=0) <= 1)
+    assert np.abs(resp.e_pulses[int(np.ceil(2.5 / ts)):]).max() <= 1
+    assert min(m for t, m in c.payload_history if t >= 2.0) > 1.95, c.payload_history
 
 
 def test_one_payload_test_holds_its_false_alarm_rate():

@@ -6,6 +6,7 @@ with ``plant=``); the acceptance evidence is the independent robot's,
 """
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -274,3 +275,83 @@ def test_after_the_fallback_the_windows_name_a_change_nothing_describes(setting)
     assert any(issubclass(w.category, UnmodelledChangeWarning) for w in caught)
     quiet, _ = _tripped(setting, None, [0.5, 0.5])
     assert quiet.diagnosis is None and len(quiet.diagnoses) >= 5, quiet.diagnoses
+
+
+def test_the_quiet_refinement_holds_its_false_alarm_rate_and_finds_a_model_off(setting):
+    """Step 4's quiet refinement, fed windows the model in use describes (synthetic fits).
+    False alarms (400 trials, each a model and QUIET_WINDOWS windows of +-50 g): no more
+    than 5 x false_alarm (plus two) for the robot's own payload known to +-50 g, and for a
+    model that is itself an estimate carrying as much information as the windows.  A model
+    10 % heavy, with QUIET_WINDOWS windows of +-20 g, is replaced by the
+    information-weighted combination of the model and the windows (computed here
+    independently), on no probation, and the windows start again; fewer windows, a model
+    without a standard error, estimates that do not explain their windows, or a run that
+    reported a change no payload explains, do nothing."""
+    from types import SimpleNamespace
+
+    from ctc.arm_adaptive import QUIET_WINDOWS
+
+    arm, _, log, prior, _ = setting
+    com = np.array(TOOL["com_m"], dtype=float)
+
+    def beta_of(m):
+        return prior.beta + arm.model.payload_delta(m, com, base=arm.base)
+
+    built = ArmAdaptiveComputedTorque(prior, log, false_alarm=0.01)
+
+    def controller(m0, sd0):
+        built.reset()
+        built._install(beta_of(m0), dict(mass_kg=m0, com_m=com, mass_std=sd0))
+        return built
+
+    def fit(m, sd, y_new=1.0):
+        est = SimpleNamespace(mass_kg=m, x_std=np.array([sd, 0.01, 0.01, 0.01]),
+                              beta=beta_of(m), com_m=com)
+        return dict(est=est, st=dict(y_new=y_new), limit=2.0)
+
+    def feed(c, masses, sd, y_new=1.0):
+        for m in masses:
+            rec = {}
+            c._quiet_refinement(0, fit(m, sd, y_new), rec, 0.5)
+        return rec
+
+    rng = np.random.default_rng(11)
+    n, fa, sd = 400, 0.01, 0.05
+    for sd0, estimated in ((sd, False), (sd / np.sqrt(QUIET_WINDOWS), True)):
+        installed = 0
+        for _ in range(n):
+            m0 = 2.0 + (sd0 * rng.normal() if estimated else 0.0)
+            c = controller(m0, sd0)
+            feed(c, 2.0 + sd * rng.normal(size=QUIET_WINDOWS), sd)
+            installed += c._pending is not None
+        assert installed <= 5 * fa * n + 2, (sd0, installed)
+
+    m0, sd0, sd = 2.2, 0.05, 0.02
+    masses = 2.0 + 0.002 * rng.normal(size=QUIET_WINDOWS)
+    c = controller(m0, sd0)
+    rec = feed(c, masses[:-1], sd)
+    assert c._pending is None and "quiet_wald" not in rec  # too few windows
+    rec = feed(c, masses[-1:], sd)
+    w = np.array([1 / sd0 ** 2] + [1 / sd ** 2] * QUIET_WINDOWS)
+    m_comb = np.dot(w, np.concatenate([[m0], masses])) / w.sum()
+    assert rec["decision"] == "refinement" and rec["quiet_wald"] > 10
+    assert c._pending[2]["mass_kg"] == pytest.approx(m_comb, rel=1e-12)
+    assert c._pending[2]["mass_std"] == pytest.approx(w.sum() ** -0.5, rel=1e-12)
+    np.testing.assert_allclose(c._pending[1], beta_of(m_comb), rtol=1e-9, atol=1e-12)
+    # installed at its sample, on no probation (a move of 0.19 kg, beyond the 5 % + 50 g
+    # of a significant refinement's), and the windows start again
+    c._pending = (0,) + c._pending[1:]
+    c(0, 0.0, np.zeros(arm.n_joints), np.zeros(arm.n_joints, dtype=np.int64))
+    assert c.payload_mass_kg == pytest.approx(m_comb) and c._probation is None
+    assert c._since == [] and c.payload_history[-1] == (0.0, pytest.approx(m_comb))
+
+    c = controller(m0, math.nan)  # how much the model knows is unknown
+    feed(c, masses, sd)
+    assert c._pending is None
+    c = controller(m0, sd0)  # estimates that do not explain their windows
+    feed(c, masses, sd, y_new=3.0)
+    assert c._pending is None and c._since == []
+    c = controller(m0, sd0)  # after a change no payload explains was reported
+    c._warned = True
+    feed(c, masses, sd)
+    assert c._pending is None and c._since == []
