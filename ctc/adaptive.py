@@ -380,7 +380,9 @@ change in a linear-Gaussian regression):
    (seed 20261271) the rule fired twice: a 4.27 kg pick-up installed on
    three agreeing windows' pooled evidence (case 0044), and a friction change
    x0.95 left on a 0.65 kg payload for the run's last 0.04 s (0045; both tracked as
-   without the rule; ``docs/supervisor_history.rst``).  Requiring the
+   without the rule; ``docs/supervisor_history.rst``; since refinements pool
+   only the estimates that are one payload with their own, 0045 never pauses
+   and drifts through refinements to 0.66 kg instead).  Requiring the
    payload *significantly* ahead of every rival was tried and dropped: on
    the tests' 2 kg pick-up it resumed a window later on a pooled 1.82 kg that
    went stale.  From then on, only :data:`PERSISTENCE_WINDOWS` agreeing

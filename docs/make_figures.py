@@ -197,7 +197,9 @@ it in ``optimisers``):
     (``figures/bench_arm_payload_random_20262811.txt``); and
     ``benchmarks/bench_arm_adaptive.py --n 0 0 3 3 --seed 20262781 --jobs 2`` (the
     adaptive CTC through a change on both kinds;
-    ``figures/bench_arm_adaptive_random_20262781.txt``).
+    ``figures/bench_arm_adaptive_random_20262781.txt``; before the quiet
+    refinement of :mod:`ctc.arm_adaptive`:
+    ``figures/bench_arm_adaptive_random_20262781_before_quiet_refinement.txt``).
 ``arm_payload``
     ``benchmarks/bench_arm_payload.py --n 8 6 --seed 20261125 --jobs 2``: a
     payload on the last link of planar two-link arms and PUMA joints 1-3
@@ -222,8 +224,13 @@ it in ``optimisers``):
     ``figures/bench_arm_adaptive_compliant_20262001_rerun.txt``); its PUMA 1-3 draw
     rerun after the empty gripper stopped being "refined" (``--only puma123:20262001``,
     ``figures/bench_arm_adaptive_compliant_20262001_rerun_puma123.txt``); and a draw of
-    payload changes only (``--kinds pick-up,put-down --n 3 0 --seed 20262101 --jobs 1``,
-    ``figures/bench_arm_adaptive_compliant_payload_20262101.txt``).
+    payload changes only (``--kinds pick-up,put-down --n 3 0 --seed 20262101 --jobs 2``,
+    ``figures/bench_arm_adaptive_compliant_payload_20262101.txt``; its first run, on the
+    version before the start-window fix:
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_before_start_window.txt``;
+    its draw 20262103 on the version before the quiet refinement, the same script at
+    commit 7fee51d with ``--only planar2:20262103``:
+    ``figures/bench_arm_adaptive_compliant_payload_20262103_at_7fee51d.txt``).
 ``arm_excitation``
     ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
     excitation design for any arm (``design_excitation(..., model=)``) against each
@@ -700,7 +707,7 @@ def arm_adaptive_compliant(ctx):
              "bench_arm_adaptive_compliant_20262001_rerun"),
             ("20262001", ["--n", "6", "2", "--only", "puma123:20262001"],
              "bench_arm_adaptive_compliant_20262001_rerun_puma123"),
-            ("20262101", ["--kinds", "pick-up,put-down", "--n", "3", "0", "--jobs", "1"],
+            ("20262101", ["--kinds", "pick-up,put-down", "--n", "3", "0", "--jobs", "2"],
              "bench_arm_adaptive_compliant_payload_20262101"))
     for seed, args, name in runs[:1] if ctx["quick"] else runs:
         text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", *args, "--seed", seed],
