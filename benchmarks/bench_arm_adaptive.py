@@ -153,9 +153,7 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool, compliant: bool
                    for r in adaptive.identifications],
         fallback=adaptive.fallback_t_s,
         # a model identified but not yet in effect when the run ended: (t_effective_s, kg)
-        pending=None if adaptive._pending is None else (
-            float(adaptive._pending[0] * adaptive.ts),
-            0.0 if adaptive._pending[2] is None else float(adaptive._pending[2]["mass_kg"])))
+        pending=adaptive.pending)
     if repeat:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

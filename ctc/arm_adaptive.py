@@ -957,6 +957,16 @@ class ArmAdaptiveComputedTorque:
         return self._ctc.fallback_t_s
 
     @property
+    def pending(self):
+        """A model identified but not yet in effect: ``(t_s, mass_kg)``, the time (s) it
+        takes effect and its payload's mass (kg; 0.0 for the empty gripper), or None.  At
+        the end of a run, the model its last window found."""
+        if self._pending is None or self._pending[0] is None:
+            return None
+        payload = self._pending[2]
+        return (self._pending[0] * self.ts, 0.0 if payload is None else float(payload["mass_kg"]))
+
+    @property
     def limit(self):
         """The drive's current limit (A), per joint."""
         return self._ctc.limit

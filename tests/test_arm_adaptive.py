@@ -340,8 +340,11 @@ def test_the_quiet_refinement_holds_its_false_alarm_rate_and_finds_a_model_off(s
     np.testing.assert_allclose(c._pending[1], beta_of(m_comb), rtol=1e-9, atol=1e-12)
     # installed at its sample, on no probation (a move of 0.19 kg, beyond the 5 % + 50 g
     # of a significant refinement's), and the windows start again
+    assert c.pending is None  # its sample is set once the window's latency is known
     c._pending = (0,) + c._pending[1:]
+    assert c.pending == (0.0, pytest.approx(m_comb))
     c(0, 0.0, np.zeros(arm.n_joints), np.zeros(arm.n_joints, dtype=np.int64))
+    assert c.pending is None
     assert c.payload_mass_kg == pytest.approx(m_comb) and c._probation is None
     assert c._since == [] and c.payload_history[-1] == (0.0, pytest.approx(m_comb))
 
