@@ -427,8 +427,9 @@ change in a linear-Gaussian regression):
    joint whose pulse error passes its limit -- by default twice the largest
    error of the P-controlled log the prior was identified from, the rig's
    own controller's following error on that reference
-   (:func:`ctc.guard.lost_bound`) -- hands the arm to that P law
-   (``i = P e``, clipped at full scale) at once and for the rest of the run
+   (:func:`ctc.guard.lost_bound`) -- for longer than the limit's dwell time
+   (20 ms within 100 ms), or passes twice it, hands the arm to that P law
+   (``i = P e``, clipped at full scale) for the rest of the run
    (event ``'fallback'``, :class:`ctc.guard.FollowingErrorWarning`): a
    computed-torque controller that far off has lost the arm (a
    flexible-joint CTC whose model is far off, a heavy tool on a compliant
@@ -1338,6 +1339,7 @@ class AdaptiveComputedTorqueController:
         self._rows = []
         self._window_start = 0
         self.fallback_t_s = None
+        self._following_above = None  # the samples beyond the limit (ctc.guard)
         self.diagnosis = None
         self.diagnoses = []
         self._diagnosis_z = {}  # per rival, the windows' Vuong z against the payload since the fallback

@@ -457,6 +457,7 @@ class ArmComputedTorque:
         self.a_prev = np.zeros(self.n)
         self.z = np.zeros(self.n)  # error sum of the integral action (rad s)
         self.fallback_t_s = None
+        self._following_above = None  # the samples beyond the limit (ctc.guard)
 
     def __call__(self, k, t, q_meas, e_pulses):
         """Motor currents (n,) A for sample ``k`` at time ``t`` (sampled-controller protocol).

@@ -461,6 +461,7 @@ class ComputedTorqueController:
         self.following_error = None
         #: when the limit handed the arm to the rig's P law (s; None: never)
         self.fallback_t_s = None
+        self._following_above = None  # the samples beyond the limit (ctc.guard)
 
     @classmethod
     def from_log(cls, f, log, *, gains=None, nonlinear_velocity="reference", friction=True,
@@ -487,8 +488,9 @@ class ComputedTorqueController:
             ``Trajectory.from_terms(...)`` or ``Trajectory.paper(T)``.
         following_error_limit : None, 'log', float, array_like (2,) or ctc.guard.FollowingErrorLimit
             A following-error limit (:mod:`ctc.guard`; default none, the
-            paper's CTC): from the first sample at which a joint's pulse
-            error passes it, the rig's P law ``i = P e`` holds the arm until
+            paper's CTC): from the sample at which it trips (a joint's
+            pulse error beyond it for longer than its dwell time, or beyond
+            twice it), the rig's P law ``i = P e`` holds the arm until
             :meth:`reset` (``fallback_t_s``, a
             :class:`ctc.guard.FollowingErrorWarning`).  ``'log'``: twice the
             log's largest P-law error per joint, at least
@@ -588,6 +590,7 @@ class ComputedTorqueController:
         """Clear the estimator state and re-arm the following-error limit (call before a new run)."""
         self._state[:] = 0.0
         self.fallback_t_s = None
+        self._following_above = None  # the samples beyond the limit (ctc.guard)
 
     def set_model_f(self, f) -> np.ndarray:
         """Switch the controller's model (D_hat, h_hat, g_hat) to ``f`` (on-line adaptation).

@@ -527,6 +527,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         self._state[:] = 0.0
         self.n_estimator_resets = 0
         self.fallback_t_s = None
+        self._following_above = None  # the samples beyond the limit (ctc.guard)
 
     def set_model_f(self, f) -> np.ndarray:
         """Switch the controller's model to the rigid-equivalent ``f`` (its link model follows).

@@ -312,7 +312,9 @@ def test_after_a_fallback_on_a_flexible_arm_the_p_law_names_the_stiffness_change
     """Supervisor step 6's diagnosis on a two-mass arm: the joints lose 60 % of their
     stiffness at 1.0 s and trip a 1.5-pulse following-error limit; the P law's windows,
     identified through the two-mass plant with the P law in the loop, name a change of the
-    joints' stiffness and damping (softer), not a payload or friction."""
+    joints' stiffness and damping (softer), not a payload or friction.  (A limit with a dwell
+    time trips later, after the supervisor has read the change as a payload: the test is of
+    the diagnosis, so the limit trips at once.)"""
     import warnings as _w
 
     d = drill_result[0]
@@ -322,8 +324,11 @@ def test_after_a_fallback_on_a_flexible_arm_the_p_law_names_the_stiffness_change
           / np.asarray(drill_log.rig.gear_ratio) ** 2)
     K = np.asarray(d["joint_stiffness_Nm_per_rad"], dtype=float)
     D = d["joint_damping_Nms_per_rad"]
-    adaptive = ctc.AdaptiveComputedTorqueController.from_log(d, drill_log,
-                                                             following_error_limit=1.5)
+    from ctc.guard import FollowingErrorLimit
+
+    # no dwell time: the limit trips at the first sample beyond it
+    adaptive = ctc.AdaptiveComputedTorqueController.from_log(
+        d, drill_log, following_error_limit=FollowingErrorLimit(drill_log, 1.5, dwell_s=0.0))
     with _w.catch_warnings():
         _w.simplefilter("ignore")
         r = plant.simulate_closed_loop(drill_log, f, adaptive,
