@@ -448,7 +448,7 @@ change in a linear-Gaussian regression):
    plausible payload that every rival trails by that margin is named too
    (event ``'diagnosis'``, ``cause='payload'``).  The P law keeps the arm
    either way: the diagnosis reports, it never switches back.  A drive
-   damping doubled on a rigid arm trips the limit within 0.03-0.13 s of the
+   damping doubled on a rigid arm trips the limit within 0.05-0.15 s of the
    change, before any window of the computed-torque controller can name it
    (the changes benchmark's fifth draw, cases 0008 and 0023): the P law's
    windows do.
@@ -1023,9 +1023,9 @@ class AdaptiveComputedTorqueController:
     trajectory : plant.logs.trajectory.Trajectory, optional
         The reference to follow (default the log's).
     following_error_limit : 'log', float, array_like (2,), ctc.guard.FollowingErrorLimit or None
-        The following-error limit (pulses per joint) beyond which the rig's
-        P law takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor
-        step 6).  ``'log'`` (default): :func:`ctc.guard.lost_bound` of the
+        The following-error limit (pulses per joint): beyond it for more
+        than 20 ms of the last 100 ms, or beyond twice it, the rig's P law
+        takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor step 6).  ``'log'`` (default): :func:`ctc.guard.lost_bound` of the
         log, twice its largest P-law error per joint, at least
         :data:`ctc.guard.MIN_LIMIT_PULSES`.  None: no limit.
     **ctc_options

@@ -39,8 +39,8 @@ Safety: :meth:`ArmComputedTorque.from_result` arms the following-error
 limit (``envelope``, :func:`log_envelope`, :class:`ctc.guard.FollowingErrorLimit`,
 the same rule as the PUMA controllers' ``from_result``): a tracking error
 beyond twice the largest error of the P loop the log was recorded with
-(:func:`ctc.guard.lost_bound`) hands the
-arm to that P law for the rest of the run, with a
+(:func:`ctc.guard.lost_bound`) for more than 20 ms of the last 100 ms, or
+beyond twice that, hands the arm to that P law for the rest of the run, with a
 :class:`ctc.guard.FollowingErrorWarning` (the model does not fit).  A
 flexible result gives :class:`ArmFlexibleComputedTorque` (the motor-side
 CTC with the spring torque of the identified link model) only when it holds
@@ -217,7 +217,9 @@ class ArmComputedTorque:
         Ready-made gains (default: :func:`ctc.design.design_gains` for the rig).
     envelope : array_like, shape (n,), optional
         The safety watchdog (default none): pulses per joint beyond which
-        the controller no longer trusts its model and hands the arm to the
+        (for more than 20 ms of the last 100 ms, or beyond twice them; the
+        rule of :class:`ctc.guard.FollowingErrorLimit`) the controller no
+        longer trusts its model and hands the arm to the
         rig's P law ``i = P e`` (its gains from ``rig``), for the rest of
         the run, with a :class:`ctc.guard.FollowingErrorWarning` (a
         ``RuntimeWarning``); ``tripped_at`` is the sample, ``fallback_t_s``

@@ -541,7 +541,8 @@ class ComputedTorqueController:
 
         Safety: the controller is armed with a following-error limit
         (``following_error_limit='log'``, :class:`ctc.guard.FollowingErrorLimit`:
-        twice the log's largest P-law error per joint): a robot the model no
+        twice the log's largest P-law error per joint, tripping after 20 ms
+        beyond it within 100 ms or at once beyond twice it): a robot the model no
         longer describes (a tool it does not know of, a badly identified
         model) is handed to the rig's P law, the loop the log was recorded
         with, instead of being destabilised.  Pass

@@ -14,7 +14,7 @@ full scale, until :meth:`reset`.
 
 The limit trips as drives' following-error monitoring does, on a level and
 a time: at once when any joint's error passes :data:`HARD_FACTOR` times its
-limit, and when errors beyond the limit itself add up to more than
+limit, or once errors beyond the limit itself add up to more than
 :data:`DWELL_S` within the last :data:`DWELL_WINDOW_S` (the samples with
 some joint beyond its limit, each counted for one sample time).  A lost
 loop does one or the other: an unstable one grows through twice the limit
@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import collections
 import math
+import reprlib
 import warnings
 
 import numpy as np
@@ -123,7 +124,7 @@ def lost_bound(e_pulses) -> np.ndarray:
 
 
 class FollowingErrorWarning(RuntimeWarning):
-    """A controller's following error passed its limit: the rig's P law took over."""
+    """A controller's following-error limit tripped (:class:`FollowingErrorLimit`): the rig's P law took over."""
 
 
 class FollowingErrorLimit:
@@ -144,8 +145,8 @@ class FollowingErrorLimit:
         which the limit trips (default :data:`DWELL_S`; 0: the first sample
         beyond the limit trips it).
     window_s : float
-        The window (s, >= ``dwell_s``) over which that time is added up
-        (default :data:`DWELL_WINDOW_S`).
+        The window (s, at least ``dwell_s`` plus one sample time) over which
+        that time is added up (default :data:`DWELL_WINDOW_S`).
     hard_factor : float
         The limit trips at once where an error passes this many times the
         limit (>= 1; default :data:`HARD_FACTOR`).
@@ -198,19 +199,22 @@ class FollowingErrorLimit:
         lim.setflags(write=False)  # read-only: the per-sample check keeps its own copy
         self.limit_pulses = lim
         self._limits = tuple(float(v) for v in lim)
-        try:
-            dwell_s, window_s, hard_factor = float(dwell_s), float(window_s), float(hard_factor)
-        except (TypeError, ValueError):
-            raise ValueError("dwell_s, window_s and hard_factor must be numbers, got "
-                             f"{dwell_s!r}, {window_s!r}, {hard_factor!r}") from None
+        values = {}
+        for name, v in (("dwell_s", dwell_s), ("window_s", window_s), ("hard_factor", hard_factor)):
+            if isinstance(v, (str, bytes, bool)) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ValueError(f"{name} must be a number, got {reprlib.repr(v)}")
+            values[name] = float(v)
+        dwell_s, window_s, hard_factor = values["dwell_s"], values["window_s"], values["hard_factor"]
+        ts = float(rig.sample_time_s)
         if not (math.isfinite(dwell_s) and dwell_s >= 0.0):
             raise ValueError(f"dwell_s must be a finite number >= 0 (s), got {dwell_s!r}")
-        if not (math.isfinite(window_s) and window_s >= dwell_s):
-            raise ValueError(f"window_s must be finite and >= dwell_s = {dwell_s} (s), got {window_s!r}")
+        if not (math.isfinite(window_s) and window_s >= dwell_s + ts):
+            raise ValueError(f"window_s must be finite and at least dwell_s + one sample time "
+                             f"= {dwell_s + ts:.6g} s, got {window_s!r}")
         if not (math.isfinite(hard_factor) and hard_factor >= 1.0):
             raise ValueError(f"hard_factor must be a finite number >= 1, got {hard_factor!r}")
         self.dwell_s, self.window_s, self.hard_factor = dwell_s, window_s, hard_factor
-        self.sample_time_s = float(rig.sample_time_s)
+        self.sample_time_s = ts
 
     def exceeded(self, e_pulses) -> bool:
         """True when any joint's ``|e|`` is above its limit.
@@ -247,10 +251,11 @@ class FollowingErrorLimit:
 
         True when some joint's ``|e|`` passes ``hard_factor`` times its
         limit, or when, with this sample, the samples with some joint beyond
-        its limit add up (one sample time each) to more than ``dwell_s``
+        its limit add up (one rig sample time each) to more than ``dwell_s``
         within the last ``window_s``.  The times beyond the limit are kept
         on ``holder`` (``_following_above``, which its ``reset()`` clears);
-        a time earlier than the last one kept (a new run) starts them afresh.
+        a time earlier than the last one kept (a new run) starts them
+        afresh, and the same time again counts once.
 
         Parameters
         ----------
@@ -259,10 +264,12 @@ class FollowingErrorLimit:
         t : float
             Time (s).
         e_pulses : array_like, shape (n_joints,)
+            Pulse errors of this sample.
 
         Returns
         -------
         bool
+            Whether the limit trips at this sample.
         """
         if not self.exceeded(e_pulses):
             return False
@@ -270,11 +277,12 @@ class FollowingErrorLimit:
         if any(abs(v) > self.hard_factor * lim for v, lim in zip(values, self._limits)):
             return True
         above = getattr(holder, "_following_above", None)
-        if above is None or (above and above[-1] >= t):
+        if above is None or (above and above[-1] > t):
             above = collections.deque()
             holder._following_above = above
-        above.append(float(t))
-        while above[0] <= t - self.window_s + 0.5 * self.sample_time_s:
+        if not above or above[-1] != t:
+            above.append(float(t))
+        while above and above[0] <= t - self.window_s + 0.5 * self.sample_time_s:
             above.popleft()
         return len(above) * self.sample_time_s > self.dwell_s + 1e-12
 
@@ -325,9 +333,15 @@ class FollowingErrorLimit:
         str
         """
         e = np.asarray(e_pulses).astype(int).tolist()
-        return (f"following error {e} pulses at t = {t:.3f} s: beyond the limit "
-                f"{np.round(self.limit_pulses, 1).tolist()} for more than {1e3 * self.dwell_s:g} ms "
-                f"of the last {1e3 * self.window_s:g} ms, or beyond {self.hard_factor:g} x it: "
+        lim = np.round(self.limit_pulses, 1).tolist()
+        if np.any(np.abs(np.asarray(e_pulses, dtype=float)) > self.hard_factor * self.limit_pulses):
+            what = f"beyond {self.hard_factor:g} x the limit {lim}"
+        elif self.dwell_s > 0.0:
+            what = (f"beyond the limit {lim} for more than {1e3 * self.dwell_s:g} ms of the "
+                    f"last {1e3 * self.window_s:g} ms")
+        else:
+            what = f"beyond the limit {lim}"
+        return (f"following error {e} pulses at t = {t:.3f} s, {what}: "
                 "the model does not fit this robot; "
                 "the rig's P law holds the arm from here on (i = P e; reset() to try the model "
                 "again)")

@@ -48,8 +48,8 @@ def test_default_limit_is_the_logs_p_error(paper_log):
 
 
 def test_guard_hands_a_lost_arm_to_the_p_law(paper_log, f_true):
-    """Unguarded, the destabilising law runs away; guarded, the P law holds the arm
-    from the first sample past the limit, at the error level of the rig's own P run."""
+    """Unguarded, the destabilising law runs away; guarded, the P law holds the arm from
+    the sample at which the limit trips, at the error level of the rig's own P run."""
     n = 2000
     p = paper_log.rig.p_gain_A_per_pulse
     lost = simulate_closed_loop(paper_log, f_true, Destabilising(p), n_samples=n, substeps=SUBSTEPS)
@@ -263,6 +263,7 @@ def test_the_limit_trips_on_a_level_or_a_time(paper_log):
     assert first_trip([beyond] * n_dwell + [inside] * 50) is None          # a transient
     assert first_trip([inside] * 5 + [beyond] * 100) == 5 + n_dwell       # held beyond it
     assert first_trip([inside] * 5 + [np.array([21.0, 0.0])]) == 5         # beyond twice it
+    assert first_trip([inside] * 5 + [np.array([20.0, -20.0])]) is None    # twice it exactly
     # samples beyond the limit count within the window only: a short excursion once per
     # window never adds up, two close together do
     gap = int(np.ceil(DWELL_WINDOW_S / ts)) + 1
@@ -275,6 +276,11 @@ def test_the_limit_trips_on_a_level_or_a_time(paper_log):
     for k in range(n_dwell):
         assert not lim.trips(h, k * ts, beyond)
     assert not lim.trips(h, 0.0, beyond)
+    # the same time again (a controller called twice in a sample) counts once
+    h = _Holder()
+    for k in range(n_dwell):
+        assert not lim.trips(h, k * ts, beyond) and not lim.trips(h, k * ts, beyond)
+    assert lim.trips(h, n_dwell * ts, beyond)
     # no dwell: the first sample beyond the limit trips it
     assert FollowingErrorLimit(paper_log, 10.0, dwell_s=0.0).trips(_Holder(), 0.0, beyond)
 
@@ -282,8 +288,21 @@ def test_the_limit_trips_on_a_level_or_a_time(paper_log):
 @pytest.mark.parametrize("kw, match", [
     (dict(dwell_s=-0.01), "dwell_s"), (dict(dwell_s=np.inf), "dwell_s"),
     (dict(dwell_s=0.05, window_s=0.02), "window_s"), (dict(hard_factor=0.5), "hard_factor"),
-    (dict(hard_factor="x"), "numbers"),
+    (dict(hard_factor="x"), "hard_factor must be a number"), (dict(dwell_s="0.02"), "a number"),
+    (dict(dwell_s=0.02, window_s=0.02), "window_s"),
 ])
 def test_bad_dwell_or_hard_factor(paper_log, kw, match):
     with pytest.raises(ValueError, match=match):
         FollowingErrorLimit(paper_log, 10.0, **kw)
+
+
+def test_reset_clears_the_time_beyond_the_limit(paper_log, f_true):
+    """A controller's reset() forgets the samples beyond the limit of its last run."""
+    ctl = ComputedTorqueController.from_result(dict(f=list(f_true), model="rigid", success=True),
+                                               paper_log, following_error_limit=1.0)
+    ts = paper_log.rig.sample_time_s
+    for k in range(5):
+        assert ctl.following_error.hold(ctl, 10.0 + k * ts, np.array([1.5, 0.0])) is None
+    assert len(ctl._following_above) == 5
+    ctl.reset()
+    assert ctl._following_above is None and ctl.fallback_t_s is None
