@@ -1025,7 +1025,8 @@ class AdaptiveComputedTorqueController:
     following_error_limit : 'log', float, array_like (2,), ctc.guard.FollowingErrorLimit or None
         The following-error limit (pulses per joint): beyond it for more
         than 20 ms of the last 100 ms, or beyond twice it, the rig's P law
-        takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor step 6).  ``'log'`` (default): :func:`ctc.guard.lost_bound` of the
+        takes over until :meth:`reset` (:mod:`ctc.guard`; supervisor step
+        6).  ``'log'`` (default): :func:`ctc.guard.lost_bound` of the
         log, twice its largest P-law error per joint, at least
         :data:`ctc.guard.MIN_LIMIT_PULSES`.  None: no limit.
     **ctc_options

@@ -126,7 +126,13 @@ it in ``optimisers``):
     ``figures/changes_20261271_before_quiet_refinement_run.txt``; its third,
     on the version before a refinement pooled only the estimates that are one
     payload with its own (Wald's test, step 3):
-    ``figures/changes_20261271_before_wald_pool_run.txt``.  Its three
+    ``figures/changes_20261271_before_wald_pool_run.txt``; its fourth, on the
+    version after it (Wald's pool) and on the machine of that stop:
+    ``figures/changes_20261271_wald_pool_run.txt``.  The run in
+    ``figures/changes_20261271_run.txt`` is on the version whose
+    following-error limit trips on a level and a time (:mod:`ctc.guard`);
+    beside it, the version before (commit e24863d) on the same machine, with
+    that run's logs and priors: ``figures/changes_20261271_before_dwell_run.txt``.  Its three
     cases with an inconsistent decision on the version before the end of an
     inconsistent pause on agreeing
     estimates (the same script at commit d0309a3, ``--cases 15,44,45`` with
@@ -143,7 +149,7 @@ it in ``optimisers``):
     ``benchmarks/bench_changes.py --n 58 --seed 20261327 --jobs 2`` with fresh
     output and robustness folders: a sixth draw, on a seed chosen before its
     first run (``figures/changes_20261327.rst``,
-    ``figures/changes_20261327_run.txt``; 34 min on 2 cores).  Its first run,
+    ``figures/changes_20261327_run.txt``; 31-34 min on 2 cores).  Its first run,
     on the version that diagnosed the P law's windows after a fallback with
     summed Vuong terms and before every estimate was tested against the
     empty gripper: ``figures/changes_20261327_before_empty_gripper_run.txt``;
