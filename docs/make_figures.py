@@ -157,15 +157,12 @@ it in ``optimisers``):
     step 3): ``figures/changes_20261327_before_quiet_refinement_run.txt``; its
     third, on the version before a refinement pooled only the estimates that
     are one payload with its own (Wald's test, step 3):
-    ``figures/changes_20261327_before_wald_pool_run.txt``; its fourth, on the
-    version after it (Wald's pool) and on the machine of that stop:
-    ``figures/changes_20261327_wald_pool_run.txt``.  The run in
-    ``figures/changes_20261327_run.txt`` is on the version whose
-    following-error limit trips on a level and a time (:mod:`ctc.guard`);
-    beside it, the version before (commit e24863d) on the same machine, with
-    that run's logs and priors (``--robust-out`` and ``--out`` holding them;
-    the identification does not involve the limit):
-    ``figures/changes_20261327_before_dwell_run.txt``.
+    ``figures/changes_20261327_before_wald_pool_run.txt``.  Its fourth and
+    fifth runs, and the version before the fifth beside it, are named as the
+    fifth draw's (``..._wald_pool_run.txt``, ``..._run.txt``,
+    ``..._before_dwell_run.txt``; the version before was given the fifth
+    run's logs and priors by ``--robust-out`` and ``--out``: the
+    identification does not involve the limit).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
