@@ -216,12 +216,14 @@ class FollowingErrorLimit:
         self.dwell_s, self.window_s, self.hard_factor = dwell_s, window_s, hard_factor
         self.sample_time_s = ts
 
-    def exceeded(self, e_pulses) -> bool:
-        """True when any joint's ``|e|`` is above its limit.
+    def exceeded(self, e_pulses, factor=1.0) -> bool:
+        """True when any joint's ``|e|`` is above ``factor`` times its limit.
 
         Parameters
         ----------
         e_pulses : array_like, shape (n_joints,)
+        factor : float
+            Multiple of the limit (1: the limit itself).
 
         Returns
         -------
@@ -230,7 +232,7 @@ class FollowingErrorLimit:
         # called every sample ahead of the controller: a plain loop over a few joints
         # costs a fifth of the array expression
         values = e_pulses.tolist() if type(e_pulses) is np.ndarray else list(e_pulses)
-        return any(abs(v) > lim for v, lim in zip(values, self._limits))
+        return any(abs(v) > factor * lim for v, lim in zip(values, self._limits))
 
     def p_current(self, e_pulses) -> np.ndarray:
         """The rig's P law ``clip(P e, -I_fs, I_fs)`` (n_joints,) A.
@@ -273,8 +275,7 @@ class FollowingErrorLimit:
         """
         if not self.exceeded(e_pulses):
             return False
-        values = e_pulses.tolist() if type(e_pulses) is np.ndarray else list(e_pulses)
-        if any(abs(v) > self.hard_factor * lim for v, lim in zip(values, self._limits)):
+        if self.exceeded(e_pulses, self.hard_factor):
             return True
         above = getattr(holder, "_following_above", None)
         if above is None or (above and above[-1] > t):
@@ -334,7 +335,7 @@ class FollowingErrorLimit:
         """
         e = np.asarray(e_pulses).astype(int).tolist()
         lim = np.round(self.limit_pulses, 1).tolist()
-        if np.any(np.abs(np.asarray(e_pulses, dtype=float)) > self.hard_factor * self.limit_pulses):
+        if self.exceeded(e_pulses, self.hard_factor):
             what = f"beyond {self.hard_factor:g} x the limit {lim}"
         elif self.dwell_s > 0.0:
             what = (f"beyond the limit {lim} for more than {1e3 * self.dwell_s:g} ms of the "
