@@ -269,8 +269,8 @@ class CTCLaw(NamedTuple):
     reference: np.ndarray
 
 
-@numba.njit(nogil=True)
-def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
+@numba.njit(nogil=True, inline="always")  # IR-inlined into the lane loop (no arrays passed per lane)
+def ctc_law(lp, c, k, Y, E, CS, U, j):
     """The CTC as a compiled law of the logged-run driver (:mod:`plant.simulation.controllers`).
 
     Parameters
@@ -281,16 +281,18 @@ def ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
         Rig layout of the simulation (unused: the law's own is in ``lp``).
     k : int
         Sample index from the start of the run.
-    q2m, q3m : float
-        Measured joint angles (rad).
-    e2, e3 : float
+    Y : ndarray, shape (2, lanes)
+        Measured joint-side motor angles (rad) of every lane (joints 2, 3).
+    E : ndarray, shape (2, lanes)
         Pulse errors (unused).
     CS : ndarray, shape (S_LEN, lanes)
         Estimator states per lane.
+    U : ndarray, shape (2, lanes)
+        Currents (A): column ``j`` is written.
     j : int
         Lane.
     """
-    return _ctc_currents(k, q2m, q3m, lp.f, lp.parameters, lp.reference, CS, j)
+    U[0, j], U[1, j] = _ctc_currents(k, Y[0, j], Y[1, j], lp.f, lp.parameters, lp.reference, CS, j)
 
 
 register_control_law(CTCLawKind, ctc_law)

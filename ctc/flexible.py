@@ -307,8 +307,8 @@ class FlexibleCTCLaw(NamedTuple):
     reference: np.ndarray
 
 
-@numba.njit(nogil=True)
-def flexible_ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
+@numba.njit(nogil=True, inline="always")  # IR-inlined into the lane loop (no arrays passed per lane)
+def flexible_ctc_law(lp, c, k, Y, E, CS, U, j):
     """The flexible-joint CTC as a compiled law of the logged-run driver.
 
     Parameters
@@ -319,16 +319,18 @@ def flexible_ctc_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
         Rig layout of the simulation (unused: the law's own is in ``lp``).
     k : int
         Sample index from the start of the run.
-    q2m, q3m : float
-        Measured joint-side motor angles (rad).
-    e2, e3 : float
+    Y : ndarray, shape (2, lanes)
+        Measured joint-side motor angles (rad) of every lane (joints 2, 3).
+    E : ndarray, shape (2, lanes)
         Pulse errors (unused).
     CS : ndarray, shape (S_FLEX_LEN, lanes)
         Controller states per lane.
+    U : ndarray, shape (2, lanes)
+        Currents (A): column ``j`` is written.
     j : int
         Lane.
     """
-    return _flexible_ctc_currents(k, q2m, q3m, lp.link_f, lp.parameters, lp.reference, CS, j)
+    U[0, j], U[1, j] = _flexible_ctc_currents(k, Y[0, j], Y[1, j], lp.link_f, lp.parameters, lp.reference, CS, j)
 
 
 register_control_law(FlexibleCTCLawKind, flexible_ctc_law)

@@ -1,8 +1,15 @@
 """Acceptance of the exact closed-loop simulator (issue 3) and its failure handling."""
+import dataclasses
+import subprocess
+import sys
+from typing import NamedTuple
+
+import numba
 import numpy as np
 import pytest
 
 import plant
+from plant.simulation.controllers import LoggedController, register_control_law
 from plant.simulation.core import STATUS_DIVERGED, STATUS_NOT_PD, STATUS_OK, STATUS_STOPPED
 from plant.simulation.replay import prediction_errors
 from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound, simulate_batch
@@ -297,3 +304,61 @@ def test_ctrl_c_inside_the_kernel_is_a_keyboard_interrupt(paper_log, truth):
                 simulate_batch(paper_log, np.tile(f, (200, 1)), substeps=8, errors=False)
     finally:
         timer.cancel()
+
+
+class _ScaledPKind(NamedTuple):
+    """Type tag of a law registered from outside ``plant`` (the test's own)."""
+
+    code: int = 90
+
+
+@numba.njit(nogil=True, inline="always")
+def _scaled_p_law(lp, c, k, Y, E, CS, U, j):
+    # any number of joints: lane j's currents from every joint's pulse error
+    for m in range(U.shape[0]):
+        U[m, j] = lp * c.p_gain[m] * E[m, j]
+
+
+register_control_law(_ScaledPKind, _scaled_p_law)
+
+
+def test_a_registered_joint_generic_law_runs_in_the_logged_driver(paper_log, truth):
+    """A law of the array signature ``law(lp, c, k, Y, E, CS, U, j)``, called per lane with
+    every joint's angle and error, gives the fused P law's pulses bit for bit at scale 1, and
+    at scale 2 the pulses of a rig whose gains are doubled (the law sees the errors)."""
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    F = f * (1.0 + 0.02 * np.random.default_rng(3).standard_normal((5, 9)))
+    p = plant.simulate_batch(paper_log, F, substeps=2)
+    gains = tuple(2.0 * np.asarray(paper_log.rig.p_gain_A_per_pulse))
+    doubled = paper_log.replace(rig=dataclasses.replace(paper_log.rig, p_gain_A_per_pulse=gains))
+    for scale, log in ((1.0, paper_log), (2.0, doubled)):
+        law = LoggedController(kind=_ScaledPKind(), parameters=scale, state=np.zeros(1),
+                               name="scaled P")
+        sim = plant.simulate_batch(paper_log, F, substeps=2, controller=law)
+        ref = p if scale == 1.0 else plant.simulate_batch(log, F, substeps=2)
+        assert (scale == 1.0) == np.array_equal(ref.e_pulses, p.e_pulses)
+        np.testing.assert_array_equal(sim.e_pulses, ref.e_pulses)
+        np.testing.assert_array_equal(sim.status, ref.status)
+
+
+def test_a_law_from_outside_the_library_never_enters_the_on_disk_cache(paper_log, truth):
+    """numba pickles a cached kernel's signatures into its index: a kind class from a test or
+    a user's script there would make every later process fail to load the driver.  Such a
+    law runs in the driver's in-memory twin, and a fresh process still loads the cached one."""
+    from plant.simulation.controllers import P_LAW
+    from plant.simulation.plants import RIGID
+    from plant.simulation.simulate import for_kinds, log_chunk
+
+    assert for_kinds(log_chunk, RIGID.kind, P_LAW.kind) is log_chunk
+    twin = for_kinds(log_chunk, RIGID.kind, _ScaledPKind())
+    assert twin is not log_chunk and twin is for_kinds(log_chunk, RIGID.kind, _ScaledPKind())
+    f = np.asarray(truth("puma560_paper_rigid")["f_vector"])
+    law = LoggedController(kind=_ScaledPKind(), parameters=1.0, state=np.zeros(1))
+    plant.simulate_batch(paper_log, f[None], substeps=1, controller=law)
+    plant.simulate_batch(paper_log, f[None], substeps=1)  # the cached kernel, index written
+    code = ("import numpy as np, plant; log = plant.load_example(); "
+            f"print(plant.output_error(log, np.array({f.tolist()}), substeps=1))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert float(proc.stdout) == plant.output_error(paper_log, f, substeps=1)

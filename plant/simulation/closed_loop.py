@@ -44,7 +44,7 @@ from plant.simulation.core import STATUS_MESSAGES, STATUS_OK, advance_sample, en
 from plant.simulation.plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older code)
 from plant.simulation.response import ClosedLoopResponse
 from plant.logs.rig import rig_constants
-from plant.simulation.simulate import dummy_problem, kernel, check_substeps, new_lanes
+from plant.simulation.simulate import dummy_problem, kernel, check_substeps, for_kinds, new_lanes
 from plant.robot.model import checked_f, is_positive_definite
 
 # ClosedLoopResponse (plant.simulation.response) and FlexibleJoints (plant.simulation.plants) are
@@ -225,7 +225,7 @@ def simulate_closed_loop(
             kw = {} if friction is None else {"friction": friction}
             return (plant if joints is None else joints).lane_parameters(
                 checked_f(values, what)[None], rig, **kw)
-        read, step = _read, _step
+        read, step = _read, for_kinds(_step, plant.kind)
     P0 = lane_parameters(f_robot, "f_robot")
     if flexible is not None and not is_positive_definite(
             flexible.link_parameters(checked_f(f_robot, "f_robot"), rig)):

@@ -8,21 +8,32 @@ tag whose numba type selects the law at compile time) in the registry
 compiled once per (plant, law) with only that law, loads from numba's cache,
 and is not a copy of the sample loop.
 
-A compiled law has the signature ``law(lp, c, k, q2m, q3m, e2, e3, CS, j) ->
-(i2, i3)``: law parameters ``lp`` (any numba-typed value, e.g. a NamedTuple
-of constants and arrays), the rig layout ``c`` (:class:`plant.logs.rig.RigConstants`),
-the absolute sample index ``k`` (t = k Ts from the start of the run), the
-measured joint angles ``q2m, q3m`` (rad, the encoder counts times 2 pi / kN),
-the pulse errors ``e2, e3``, and the per-lane controller state ``CS``
-(n_cs, lanes), column ``j`` being this lane's (updated in place).  It returns
-the motor currents (A) held over the sample.
+A compiled law has the signature ``law(lp, c, k, Y, E, CS, U, j)``: law
+parameters ``lp`` (any numba-typed value, e.g. a NamedTuple of constants and
+arrays), the rig layout ``c`` (:class:`plant.logs.rig.RigConstants`), the
+absolute sample index ``k`` (t = k Ts from the start of the run), the
+measured joint angles ``Y`` (n_joints, lanes) (rad, the encoder counts times
+2 pi / kN) and the pulse errors ``E`` (n_joints, lanes) of every lane, and
+the per-lane controller state ``CS`` (n_cs, lanes); column ``j`` is this
+lane's.  It writes the motor currents (A) held over the sample to ``U[:,
+j]`` (n_joints, lanes) and updates ``CS[:, j]`` in place; the driver then
+clips the currents at the drive's full scale.  Arrays are joint-first here,
+as the core's lane arrays (one joint's lanes are contiguous, for SIMD).
 
 :data:`P_LAW` is the rig's P law ``i = P e`` (the logged experiment of the
-paper, bit for bit the driver's former inline law).  Another package
-provides its law by registering it (``register_control_law(MyKind, my_law)``) and
-describing it by a :class:`LoggedController`; :class:`ctc.ComputedTorqueController`
-does so (:meth:`~ctc.ComputedTorqueController.logged_controller`), keeping
-``plant`` independent of ``ctc``.
+paper); the driver computes its current inside its joint loop
+(:func:`is_p_law`, :func:`p_current`: the identification's hot loop), bit
+for bit what :func:`p_law` gives.  Another package provides its law by
+registering it (``register_control_law(MyKind, my_law)``) and describing it
+by a :class:`LoggedController`; :class:`ctc.ComputedTorqueController` does
+so (:meth:`~ctc.ComputedTorqueController.logged_controller`), keeping
+``plant`` independent of ``ctc``.  A law whose kind class is defined outside
+the library (a user's script) runs in an in-memory twin of the driver
+(:func:`plant.simulation.simulate.for_kinds`), so the on-disk cache never
+holds a class another process cannot import.  A law that calls a large
+compiled function is best declared ``inline="always"`` (as
+:func:`ctc.computed_torque.ctc_law`): the lane arrays are then not passed
+(and reference-counted) on every call.
 
 Replay (:func:`plant.prediction_errors`) drives the model with the logged
 input: ``i = P e_log`` for the P law (exact), the logged currents ``i_A``
@@ -40,7 +51,7 @@ from numba.core.errors import TypingError
 from numba.extending import overload
 
 __all__ = ["PLawKind", "P_LAW", "LoggedController", "CONTROL_LAWS", "register_control_law",
-           "control_law", "p_law",
+           "control_law", "p_law", "p_current", "is_p_law",
            "saturated"]
 
 
@@ -89,8 +100,53 @@ def saturated(i2, i3, c):
     return i2s, i3s, (i2s - i2) * c.torque_per_amp[0], (i3s - i3) * c.torque_per_amp[1]
 
 
-@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop (no array passed per lane)
-def p_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
+@numba.njit(nogil=True, error_model="numpy", inline="always")
+def p_current(c, m, e):
+    """The rig's P current ``P e`` of joint ``m`` for the pulse error ``e`` (A, before the clip).
+
+    Parameters
+    ----------
+    c : plant.logs.rig.RigConstants
+        Rig layout (``p_gain``, A per pulse).
+    m : int
+        Joint (0-based).
+    e : float
+        Pulse error.
+
+    Returns
+    -------
+    float
+    """
+    return c.p_gain[m] * e
+
+
+def is_p_law(kind) -> bool:
+    """True when ``kind`` is the rig's P law's (a compile-time constant in compiled code).
+
+    The logged-run driver computes the P law's current inside its joint loop
+    (:func:`p_current`, the identification's hot loop) instead of calling the
+    law with the measured angles and errors of every lane.
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        A :attr:`LoggedController.kind`.
+    """
+    return isinstance(kind, PLawKind)
+
+
+@overload(is_p_law, jit_options=dict(nogil=True), inline="always")
+def _is_p_law_overload(kind):
+    value = getattr(kind, "instance_class", None) is PLawKind
+
+    def impl(kind):
+        return value
+
+    return impl
+
+
+@numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop
+def p_law(lp, c, k, Y, E, CS, U, j):
     """The rig's P law ``i = P e`` with the rig's gains (``lp`` unused).
 
     Parameters
@@ -101,16 +157,19 @@ def p_law(lp, c, k, q2m, q3m, e2, e3, CS, j):
         Rig layout (``p_gain``).
     k : int
         Sample index.
-    q2m, q3m : float
+    Y : ndarray, shape (n_joints, lanes)
         Measured angles (unused).
-    e2, e3 : float
+    E : ndarray, shape (n_joints, lanes)
         Pulse errors.
     CS : ndarray
         Controller state (unused).
+    U : ndarray, shape (n_joints, lanes)
+        Currents (A): column ``j`` is written.
     j : int
         Lane.
     """
-    return c.p_gain[0] * e2, c.p_gain[1] * e3
+    for m in range(U.shape[0]):
+        U[m, j] = p_current(c, m, E[m, j])
 
 
 #: Registry of the logged-run driver: law kind class -> compiled law
@@ -127,8 +186,8 @@ def register_control_law(kind_class, law) -> None:
         A ``NamedTuple`` class whose instances tag the law
         (:attr:`LoggedController.kind`).
     law : numba dispatcher
-        ``law(lp, c, k, q2m, q3m, e2, e3, CS, j) -> (i2, i3)`` (see the
-        module docstring).
+        ``law(lp, c, k, Y, E, CS, U, j)``, writing lane ``j``'s currents to
+        ``U[:, j]`` (see the module docstring).
 
     Raises
     ------
@@ -147,7 +206,7 @@ def register_control_law(kind_class, law) -> None:
 register_control_law(PLawKind, p_law)
 
 
-def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
+def control_law(kind, lp, c, k, Y, E, CS, U, j):
     """The control law of ``kind``: the one place a law kind becomes its function.
 
     In compiled code the kind's type selects the law at compile time (the
@@ -158,26 +217,27 @@ def control_law(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
     ----------
     kind : NamedTuple
         A :attr:`LoggedController.kind`, registered in :data:`CONTROL_LAWS`.
-    lp, c, k, q2m, q3m, e2, e3, CS, j
-        As the laws of the module docstring.
+    lp, c, k, Y, E, CS, U, j
+        As the laws of the module docstring (lane ``j``'s currents go to
+        ``U[:, j]``).
 
     Raises
     ------
     numba.core.errors.TypingError
         At compile time, for a kind that is not registered.
     """
-    return CONTROL_LAWS[type(kind)](lp, c, k, q2m, q3m, e2, e3, CS, j)
+    return CONTROL_LAWS[type(kind)](lp, c, k, Y, E, CS, U, j)
 
 
 @overload(control_law, jit_options=dict(nogil=True, error_model="numpy"), inline="always")
-def _control_law_overload(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
+def _control_law_overload(kind, lp, c, k, Y, E, CS, U, j):
     law = CONTROL_LAWS.get(getattr(kind, "instance_class", None))
     if not isinstance(kind, types.BaseNamedTuple) or law is None:
         raise TypingError(f"unknown control-law kind {kind}; register it in "
                           "plant.simulation.controllers.CONTROL_LAWS")
 
-    def impl(kind, lp, c, k, q2m, q3m, e2, e3, CS, j):
-        return law(lp, c, k, q2m, q3m, e2, e3, CS, j)
+    def impl(kind, lp, c, k, Y, E, CS, U, j):
+        return law(lp, c, k, Y, E, CS, U, j)
 
     return impl
 

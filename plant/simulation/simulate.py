@@ -67,7 +67,7 @@ from plant.simulation.core import (
     encoder_read,
     padded_lanes,
 )
-from plant.simulation.controllers import P_LAW, as_logged_controller, control_law
+from plant.simulation.controllers import P_LAW, as_logged_controller, control_law, is_p_law, p_current
 from plant.simulation.lanes import (  # noqa: F401 (Lanes, new_lanes re-exported for the other drivers)
     Lanes,
     final_objective,
@@ -90,6 +90,8 @@ __all__ = [
     "simulate_experiment",
     "simulate_batch",
     "output_error",
+    "for_kinds",
+    "CACHEABLE_PACKAGES",
 ]
 
 #: Runge-Kutta substeps per sample for the exact reproduction of a log.  The
@@ -206,6 +208,46 @@ def default_bound(e_log) -> float:
 kernel = numba.njit(cache=True, nogil=True, error_model="numpy")
 _jit = numba.njit(nogil=True, error_model="numpy")
 
+#: Packages whose plant and control-law kinds a kernel cached on disk is compiled for.
+#: numba pickles a cached kernel's signatures, kind classes included, into the
+#: kernel's index file; a kind class from any other module (a user's script, a test)
+#: would make every later process that loads the index fail to import it.  A robot
+#: model's generated kinds live in ``plant.simulation.generated`` (importable).
+CACHEABLE_PACKAGES = ("plant", "ctc", "identification")
+
+_UNCACHED = {}
+_UNCACHED_LOCK = threading.Lock()
+
+
+def for_kinds(dispatcher, *kinds):
+    """``dispatcher`` (a kernel cached on disk), or its twin compiled in memory only.
+
+    The twin (same source, numba's ``cache=False``) serves any kind whose class
+    is defined outside :data:`CACHEABLE_PACKAGES`: a user's plant
+    (:func:`plant.simulation.plants.register_plant`) or control law
+    (:func:`plant.simulation.controllers.register_control_law`) compiles in
+    each process, and the library's on-disk cache is never written with it.
+
+    Parameters
+    ----------
+    dispatcher : numba dispatcher
+        A kernel of this module (numba's ``cache=True``, ``nogil``).
+    *kinds : NamedTuple
+        The plant and law kinds the call passes.
+
+    Returns
+    -------
+    numba dispatcher
+    """
+    if all(type(k).__module__.split(".")[0] in CACHEABLE_PACKAGES for k in kinds):
+        return dispatcher
+    with _UNCACHED_LOCK:
+        twin = _UNCACHED.get(dispatcher.py_func)
+        if twin is None:
+            twin = _UNCACHED[dispatcher.py_func] = numba.njit(
+                nogil=True, error_model="numpy")(dispatcher.py_func)
+    return twin
+
 
 # ----------------------------------------------------------------------------
 # The P-control experiment driver
@@ -219,17 +261,19 @@ def _finish(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, out, 
     compared[c_] = cmp
     if replay and code != STATUS_OK:
         for i in range(max(fill_from, 0), out.shape[1]):
-            out[c_, i, 0] = bound
-            out[c_, i, 1] = bound
+            for m in range(out.shape[2]):
+                out[c_, i, m] = bound
 
 
 @kernel
 def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
-               bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
-               CS, i_log, logged_current):
+              bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
+              CS, i_log, logged_current):
     """Simulate the candidates of one chunk of lanes against a log, in lockstep.
 
-    The driver of the logged run, in two modes (one compiled kernel):
+    The driver of the logged run, in two modes (one compiled kernel), for
+    any number of joints (``ref.shape[1]``; the encoders read state rows
+    ``enc .. enc + n_joints - 1``):
 
     * experiment (``replay`` False): the closed loop of the control law
       ``law`` (:func:`plant.simulation.controllers.control_law`; the rig's P loop ``i =
@@ -246,86 +290,96 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
       ``bound``); ``obj`` their sum of squares.  Before a window the run's
       own P loop with continuous counts (``quantize`` False).
 
-    ``ref`` (n_total, 2) unquantised reference counts; ``e_log`` (n, 2)
-    logged errors from sample ``k0`` on; the simulation starts at sample
-    ``k_start`` from the lanes' state.  Results go to ``obj[i]``,
+    ``ref`` (n_total, n_joints) unquantised reference counts; ``e_log`` (n,
+    n_joints) logged errors from sample ``k0`` on; the simulation starts at
+    sample ``k_start`` from the lanes' state.  Results go to ``obj[i]``,
     ``status[i]``, ``compared[i]`` and ``out[i]`` of candidate i; a lane that
     fails, diverges or passes ``cap`` is retired at once (early termination
-    pays).
+    pays).  Each joint is one branch-free loop over the lanes (SIMD); a
+    lane's sum of squares adds the joints in their order, then goes to its
+    running sum.
     """
     P, X, U, A, S, E, idx, W = lanes
     n_total = ref.shape[0]
     n = e_log.shape[0]
-    sc2, sc3 = c.pulses_per_rad
-    p2, p3 = c.p_gain
+    nj = ref.shape[1]
     i_lim = c.current_limit
     act = n_act
+    width = max(padded_lanes(act), 1)
+    Ym = np.zeros((nj, width))   # measured angles (rad), the law's input
+    Ep = np.zeros((nj, width))   # pulse errors, the law's input
+    Ssq = np.zeros(width)        # this sample's sum of squares per lane
     cmp = np.int64(0)  # not a literal: one signature of _finish
+    # the rig's P law runs inside the joint loop (the identification's hot loop); any
+    # other law is called per lane with every joint's measured angle and error
+    fused = is_p_law(law)
     for k in range(k_start, n_total):
-        r2 = ref[k, 0]
-        r3 = ref[k, 1]
         i = k - k0
         # divergence on the continuous error first, so truncation never sees a huge value
         for j in range(act - 1, -1, -1):
-            if abs(r2 - X[enc, j] * sc2) > bound or abs(r3 - X[enc + 1, j] * sc3) > bound:
-                _finish(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
-                        compared, replay, out, i)
-                act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
+            for m in range(nj):
+                if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
+                    _finish(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
+                            compared, replay, out, i)
+                    act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
+                    break
         if act == 0:
             break
-        _, t2 = encoder_read(r2, 1.0)
-        _, t3 = encoder_read(r3, 1.0)
-        el2 = e_log[i, 0] if i >= 0 else 0.0
-        el3 = e_log[i, 1] if i >= 0 else 0.0
+        lanes_run = padded_lanes(act)
+        within = True  # replay: no joint's logged P current beyond the drive's limit
         if replay and i >= 0:
-            m2 = cell_centre(t2 - el2)
-            m3 = cell_centre(t3 - el3)
-            for j in range(padded_lanes(act)):  # SIMD over the lanes
-                c2, _ = encoder_read(X[enc, j], sc2)
-                c3, _ = encoder_read(X[enc + 1, j], sc3)
-                d2 = m2 - c2
-                d3 = m3 - c3
-                E[j] += d2 * d2 + d3 * d3
-                # logged input (the current the rig applied) plus the predictor correction
-                if logged_current:
-                    U[0, j] = i_log[i, 0] + p2 * gain * d2
-                    U[1, j] = i_log[i, 1] + p3 * gain * d3
-                elif abs(p2 * el2) <= i_lim and abs(p3 * el3) <= i_lim:
-                    U[0, j] = p2 * (el2 + gain * d2)
-                    U[1, j] = p3 * (el3 + gain * d3)
-                else:  # the P current the drive applied (saturated), plus the correction
-                    U[0, j] = min(max(p2 * el2, -i_lim), i_lim) + p2 * gain * d2
-                    U[1, j] = min(max(p3 * el3, -i_lim), i_lim) + p3 * gain * d3
-            for j in range(act):
-                c2, _ = encoder_read(X[enc, j], sc2)
-                c3, _ = encoder_read(X[enc + 1, j], sc3)
-                out[idx[j], i, 0] = m2 - c2
-                out[idx[j], i, 1] = m3 - c3
-        else:
-            for j in range(padded_lanes(act)):  # SIMD over the lanes
-                c2, a2 = encoder_read(X[enc, j], sc2)
-                c3, a3 = encoder_read(X[enc + 1, j], sc3)
-                e2 = t2 - a2 if quantize else r2 - c2
-                e3 = t3 - a3 if quantize else r3 - c3
-                if i >= 0:
-                    d2 = el2 - (r2 - c2 if continuous_out else e2)
-                    d3 = el3 - (r3 - c3 if continuous_out else e3)
-                    E[j] += d2 * d2 + d3 * d3
-                y2 = a2 if quantize else c2
-                y3 = a3 if quantize else c3
-                u2, u3 = control_law(law, law_params, c, k, y2 / sc2, y3 / sc3, e2, e3, CS, j)
-                U[0, j] = min(max(u2, -i_lim), i_lim)  # the drive's current limit
-                U[1, j] = min(max(u3, -i_lim), i_lim)
-            if write and i >= 0:
+            for m in range(nj):
+                within = within and abs(c.p_gain[m] * e_log[i, m]) <= i_lim
+        for m in range(nj):
+            sc = c.pulses_per_rad[m]
+            r = ref[k, m]
+            _, t = encoder_read(r, 1.0)
+            el = e_log[i, m] if i >= 0 else 0.0
+            if replay and i >= 0:
+                mid = cell_centre(t - el)
+                p_m = c.p_gain[m]
+                i_m = i_log[i, m]
+                p_e = min(max(p_m * el, -i_lim), i_lim)
+                for j in range(lanes_run):  # SIMD over the lanes
+                    cc, _ = encoder_read(X[enc + m, j], sc)
+                    d = mid - cc
+                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
+                    # logged input (the current the rig applied) plus the predictor correction
+                    if logged_current:
+                        U[m, j] = i_m + p_m * gain * d
+                    elif within:
+                        U[m, j] = p_m * (el + gain * d)
+                    else:  # the P current the drive applied (saturated), plus the correction
+                        U[m, j] = p_e + p_m * gain * d
                 for j in range(act):
-                    c2, a2 = encoder_read(X[enc, j], sc2)
-                    c3, a3 = encoder_read(X[enc + 1, j], sc3)
-                    if continuous_out or not quantize:
-                        out[idx[j], i, 0] = r2 - c2
-                        out[idx[j], i, 1] = r3 - c3
+                    cc, _ = encoder_read(X[enc + m, j], sc)
+                    out[idx[j], i, m] = mid - cc
+            else:
+                for j in range(lanes_run):  # SIMD over the lanes
+                    cc, a = encoder_read(X[enc + m, j], sc)
+                    e = t - a if quantize else r - cc
+                    d = el - (r - cc if continuous_out else e)
+                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
+                    if fused:
+                        U[m, j] = min(max(p_current(c, m, e), -i_lim), i_lim)
                     else:
-                        out[idx[j], i, 0] = t2 - a2
-                        out[idx[j], i, 1] = t3 - a3
+                        Ym[m, j] = (a if quantize else cc) / sc
+                        Ep[m, j] = e
+                if write and i >= 0:
+                    for j in range(act):
+                        cc, a = encoder_read(X[enc + m, j], sc)
+                        if continuous_out or not quantize:
+                            out[idx[j], i, m] = r - cc
+                        else:
+                            out[idx[j], i, m] = t - a
+        if i >= 0:
+            for j in range(lanes_run):
+                E[j] += Ssq[j]
+        if not (fused or (replay and i >= 0)):
+            for j in range(lanes_run):
+                control_law(law, law_params, c, k, Ym, Ep, CS, U, j)
+                for m in range(nj):
+                    U[m, j] = min(max(U[m, j], -i_lim), i_lim)  # the drive's current limit
         if i >= 0:
             cmp = i + 1
             for j in range(act - 1, -1, -1):
@@ -508,14 +562,14 @@ def simulate_batch(
     law = as_logged_controller(controller, log)
     i_log = inputs.i_log
 
+    run = for_kinds(log_chunk, plant.kind, law.kind)
+
     def chunk(lo, hi):
         lanes = lanes_from(Pall, lo, hi, x0, X0)
-        log_chunk(plant.kind, lanes, inputs.constants,
-                   plant.encoder_row, inputs.ref_counts, e_log, inputs.start_index, k_start,
-                   substeps, False,
-                   bool(quantize), 0.0, bound, cap, err, bool(errors), bool(continuous_output),
-                   obj, status, compared, hi - lo, law.kind, law.parameters,
-                   law.lane_states(lanes.X.shape[1]), i_log, False)
+        run(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts, e_log,
+            inputs.start_index, k_start, substeps, False, bool(quantize), 0.0, bound, cap, err,
+            bool(errors), bool(continuous_output), obj, status, compared, hi - lo, law.kind,
+            law.parameters, law.lane_states(lanes.X.shape[1]), i_log, False)
 
     run_chunks(chunk, m, workers)
     if errors and quantize and not continuous_output:
