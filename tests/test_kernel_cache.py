@@ -93,7 +93,7 @@ arm = arm_plant(planar_arm())
 beta = arm.beta()
 log = simulate_arm(arm, beta, planar_rig(), TRAJ, 300)
 sim = simulate_arm(arm, beta * 1.01, planar_rig(), TRAJ, 300, e_log=log.errors[0], errors=False)
-stats = arm.kernels.arm_run.stats
+stats = arm.kernels.logged_run.stats
 print(sum(stats.cache_hits.values()) > 0, sum(stats.cache_misses.values()) > 0,
       arm.kernels.__file__, repr(float(sim.objective[0])), before, kernels_cached(planar_arm()))
 """
@@ -173,13 +173,13 @@ def test_generated_modules_are_written_once_and_a_missing_one_imports_as_a_place
 
 def test_only_plain_module_level_functions_are_copied_into_generated_modules():
     from plant.simulation import generated
-    from plant.simulation.arm import arm_run
     from plant.simulation.core import encoder_read
+    from plant.simulation.simulate import logged_run
 
     defined = {"np"}
-    imports, src = generated.function_copy(arm_run, "_kernel", defined)
-    assert src.startswith("@_kernel\ndef arm_run(")
-    assert imports.startswith("from plant.simulation.arm import (") and "advance_sample" in imports
+    imports, src = generated.function_copy(logged_run, "_kernel", defined)
+    assert src.startswith("@_kernel\ndef logged_run(")
+    assert imports.startswith("from plant.simulation.simulate import (") and "advance_sample" in imports
     assert " np" not in imports and "advance_sample" in defined
     with pytest.raises(ValueError, match="plain module-level"):
         generated.function_copy(encoder_read, "_kernel", set())  # a numba dispatcher

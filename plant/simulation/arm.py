@@ -36,9 +36,10 @@ column, :mod:`plant.simulation.lanes`):
   ``P gain (m - c)`` toward the centre ``m`` of the count cell the log
   allows; returns the continuous prediction errors ``m - c`` (pulses).
 
-Both run the candidates as the PUMA 560 path's driver
-(:func:`plant.simulation.simulate.log_chunk`) does, so that the two paths
-give the same objective for the same pulses: a lane that fails (D not
+Both run the candidates in the PUMA 560 path's logged-run driver -- one
+source, :func:`plant.simulation.simulate.logged_run`, compiled into the
+robot's generated module -- so that the two paths give the same objective
+for the same pulses: a lane that fails (D not
 positive definite, a non-finite state, a count beyond the divergence
 bound) or passes the early-termination cap is retired at once, with that
 driver's finite penalty (:func:`plant.simulation.lanes.final_objective`;
@@ -59,15 +60,13 @@ import sys
 from dataclasses import dataclass, field
 
 import casadi as ca
-import numba
 import numpy as np
 
-from plant.simulation.anchors import REANCHOR
 from plant.robot.codegen import function_source
-from plant.simulation.core import (STATUS_DIVERGED, STATUS_MESSAGES, STATUS_OK, STATUS_STOPPED,
-                                   advance_sample, cell_centre, encoder_read, padded_lanes)
+from plant.simulation.core import STATUS_MESSAGES, STATUS_OK
 from plant.simulation.generated import load, module_text
-from plant.simulation.lanes import final_objective, new_lanes, retire_lane
+from plant.simulation.lanes import new_lanes
+from plant.simulation.controllers import P_LAW
 from plant.simulation.parallel import run_chunks
 from plant.simulation.plants import Plant
 from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
@@ -85,9 +84,6 @@ __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm
 #: pulses).  The searches integrate more coarsely
 #: (``identification.arm.ARM_OUTPUT_ERROR_SUBSTEPS``, ``ARM_REFINE_SUBSTEPS``).
 ARM_SUBSTEPS = DEFAULT_SUBSTEPS
-
-# Helpers compiled into the robots' drivers (whose cache holds their code).
-_jit = numba.njit(nogil=True, error_model="numpy")
 
 
 @dataclass(frozen=True)
@@ -226,7 +222,7 @@ class ArmPlant(Plant):
 
         It holds the kind class, the right-hand side ``rhs``, the dynamics
         kernel ``dynamics`` and the drivers compiled for this robot
-        (``arm_run``, ``hold_and_advance``), with numba's on-disk cache.
+        (``logged_run``, ``hold_and_advance``), with numba's on-disk cache.
         """
         return sys.modules[type(self.kind).__module__]
 
@@ -508,10 +504,12 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
     """The robot's generated module (:mod:`plant.simulation.generated`): kind, kernels, drivers.
 
     Its right-hand side and dynamics kernel, and copies of the drivers
-    :func:`arm_run` and :func:`plant.simulation.closed_loop.hold_and_advance`
-    compiled for its kind, all with numba's on-disk cache.
+    :func:`plant.simulation.simulate.logged_run` and
+    :func:`plant.simulation.closed_loop.hold_and_advance` compiled for its kind,
+    all with numba's on-disk cache.
     """
     from plant.simulation.closed_loop import hold_and_advance
+    from plant.simulation.simulate import logged_run
 
     n = model.n_joints
     what = "two-mass flexible" if flexible else "rigid"
@@ -528,7 +526,7 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
               f"n_angles={n})", "", "",
               "@_kernel", _dynamics_source(code), "",
               "@_kernel", _DYNAMICS_BATCH_SOURCE],
-        copies=[(arm_run, "_kernel"), (hold_and_advance, "_kernel")])
+        copies=[(logged_run, "_kernel"), (hold_and_advance, "_kernel")])
 
 
 #: Source of ``dynamics_batch(sc, qd, beta) -> (lower, nvec)``: :func:`dynamics` state by
@@ -688,126 +686,6 @@ def reference_counts(trajectory, rig, n_samples) -> np.ndarray:
     return np.ascontiguousarray(trajectory.position(t) * rig.pulses_per_rad)
 
 
-@_jit
-def arm_finish(idx, j, code, E, k_done, k_start, n_cmp, bound, obj, status, compared, replay,
-               out, write):
-    """Record lane ``j``'s result (status ``code``, samples ``< k_done`` run).
-
-    The objective is :func:`plant.simulation.lanes.final_objective` of the
-    ``k_done - k_start`` samples compared (the PUMA 560 path's penalties: a
-    failed lane ``E + 2 bound^2`` per sample not compared, a stopped one its
-    running sum extrapolated); a failed replay lane's remaining errors are
-    ``bound``.
-    """
-    c_ = idx[j]
-    cmp = max(k_done - k_start, 0)
-    obj[c_] = final_objective(E[j], code, cmp, n_cmp, bound)
-    status[c_] = code
-    compared[c_] = k_done
-    if write and replay and code != STATUS_OK:
-        for i in range(max(k_done, 0), out.shape[1]):
-            for m in range(out.shape[2]):
-                out[c_, i, m] = bound
-
-
-def arm_run(kind, lanes, c, ref, e_log, i_log, k_start, substeps, replay, gain, bound, cap, out,
-            write, obj, status, compared, n_lanes, enc, CS):
-    """Experiment (P loop) or replay (logged current + injection) of ``n_lanes`` candidates.
-
-    The driver's one source: every robot's generated module compiles a copy
-    of it for its kind (:attr:`ArmPlant.kernels`, numba's on-disk cache).
-
-    ``ref`` (n_total, n) reference counts; ``e_log``, ``i_log`` (n_total, n)
-    logged errors and currents (compared from ``k_start`` on).  Results per
-    candidate (``idx``): ``obj`` sum of squares (experiment: ``e_log -
-    e_sim``; replay: ``m - c``) with the penalties of
-    :func:`arm_finish`, ``status``, ``compared`` (the samples run); with
-    ``write`` the errors go to ``out`` (candidates, n_total, n).  The
-    encoders read state rows ``enc .. enc + n - 1``.  As the PUMA 560
-    path's :func:`plant.simulation.simulate.log_chunk`: a lane whose
-    continuous count leaves ``bound`` pulses of the reference (checked
-    before the sample is compared), whose step fails, or whose running sum
-    passes ``cap`` after a compared sample is retired at once
-    (:func:`plant.simulation.lanes.retire_lane`; ``CS`` an empty
-    controller state).
-    """
-    P, X, U, A, S, E, idx, W = lanes
-    n_total = ref.shape[0]
-    n_cmp = max(n_total - k_start, 0)
-    nj = U.shape[0]
-    i_lim = c.current_limit
-    act = n_lanes
-    Ssq = np.zeros(max(padded_lanes(act), 1))  # per lane: this sample's sum of squares
-    for j in range(padded_lanes(act)):
-        E[j] = 0.0
-    for k in range(n_total):
-        # divergence on the continuous count first, so truncation never sees a huge value
-        for j in range(act - 1, -1, -1):
-            for m in range(nj):
-                if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
-                    arm_finish(idx, j, np.int64(STATUS_DIVERGED), E, k, k_start, n_cmp, bound,
-                               obj, status, compared, replay, out, write)
-                    act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
-                    break
-        if act == 0:
-            break
-        lanes_run = padded_lanes(act)
-        # joint by joint, one branch-free loop over the lanes each (SIMD); the lane's sum
-        # of squares over the joints in Ssq, in the joints' order, then added to E
-        for m in range(nj):
-            sc = c.pulses_per_rad[m]
-            _, tgt = encoder_read(ref[k, m], 1.0)
-            if replay:
-                mid = cell_centre(tgt - e_log[k, m])
-                i_m = i_log[k, m]
-                pg = c.p_gain[m] * gain
-                for j in range(lanes_run):
-                    d = mid - X[enc + m, j] * sc
-                    U[m, j] = i_m + pg * d
-                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
-                if write:
-                    for j in range(act):
-                        out[idx[j], k, m] = mid - X[enc + m, j] * sc
-            else:
-                el = e_log[k, m]
-                p_m = c.p_gain[m]
-                for j in range(lanes_run):
-                    _, a_ = encoder_read(X[enc + m, j], sc)
-                    e = tgt - a_
-                    d = el - e
-                    U[m, j] = min(max(p_m * e, -i_lim), i_lim)
-                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
-                if write:
-                    for j in range(act):
-                        _, a_ = encoder_read(X[enc + m, j], sc)
-                        out[idx[j], k, m] = tgt - a_
-        if k >= k_start:
-            for j in range(lanes_run):
-                E[j] += Ssq[j]
-        if k >= k_start:
-            for j in range(act - 1, -1, -1):
-                if E[j] > cap:
-                    arm_finish(idx, j, np.int64(STATUS_STOPPED), E, k + 1, k_start, n_cmp,
-                               bound, obj, status, compared, replay, out, write)
-                    act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
-            if act == 0:
-                break
-        if k == n_total - 1:
-            break
-        advance_sample(kind, P, c, X, U, A, S, W, padded_lanes(act), substeps,
-                       k % REANCHOR == 0)
-        for j in range(act - 1, -1, -1):
-            if S[j] != STATUS_OK:
-                arm_finish(idx, j, S[j], E, k + 1, k_start, n_cmp, bound, obj, status,
-                           compared, replay, out, write)
-                act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
-        if act == 0:
-            break
-    for j in range(act):
-        arm_finish(idx, j, np.int64(STATUS_OK), E, n_total, k_start, n_cmp, bound, obj, status,
-                   compared, replay, out, write)
-
-
 @dataclass(frozen=True)
 class ArmSimulation:
     """Simulated runs of a batch of candidates on one rig (a driver's result).
@@ -885,17 +763,26 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     status = np.zeros(m, dtype=np.int64)
     compared = np.zeros(m, dtype=np.int64)
 
-    run = plant.kernels.arm_run  # the driver compiled for this robot
+    run = plant.kernels.logged_run  # the logged-run driver compiled for this robot
+    k0 = int(k_start)
+    if not 0 <= k0 <= nt:
+        raise ValueError(f"k_start must be within 0..{nt}, got {k_start}")
+    # the driver's window: e_log, i_log and the errors written from sample k0 on; before it
+    # the P loop (replay: with continuous counts), as a window of the PUMA 560 path
+    e_win, i_win = e_log[k0:], i_log[k0:]
+    out_win = out[:, k0:, :] if errors else out
 
     def chunk(lo, hi):  # one chunk of candidates in its own lanes (the kernel releases the GIL)
         lanes = new_lanes(Pall, lo, hi, x0, n_inputs=n, n_angles=n)
         if X0 is not None:
             lanes.X[:] = X0[lanes.idx].T
-        run(plant.kind, lanes, c, ref, e_log, i_log, int(k_start), substeps, bool(replay),
-            float(gain), bound, cap, out, bool(errors), obj, status, compared, hi - lo,
-            int(plant.encoder_row), np.zeros((0, lanes.X.shape[1])))
+        run(plant.kind, lanes, c, int(plant.encoder_row), ref, e_win, k0, 0, substeps,
+            bool(replay), not replay, float(gain), bound, cap, out_win, bool(errors), False, obj,
+            status, compared, hi - lo, P_LAW.kind, P_LAW.parameters,
+            P_LAW.lane_states(lanes.X.shape[1]), i_win, True)
 
     run_chunks(chunk, m, workers)
+    compared += k0  # the sample each run ended at
     msgs = tuple("ok" if s == STATUS_OK else
                  f"{STATUS_MESSAGES[int(s)]} at t = {k * rig.sample_time_s:.4f} s"
                  for s, k in zip(status, compared))

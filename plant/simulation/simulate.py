@@ -253,27 +253,30 @@ def for_kinds(dispatcher, *kinds):
 # The P-control experiment driver
 # ----------------------------------------------------------------------------
 @_jit
-def _finish(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, out, fill_from):
+def finish_lane(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, write, out,
+                fill_from):
     """Record lane ``j``'s result (status ``code``); a failed replay lane's errors := bound."""
     c_ = idx[j]
     obj[c_] = final_objective(E[j], code, cmp, n, bound)
     status[c_] = code
     compared[c_] = cmp
-    if replay and code != STATUS_OK:
+    if replay and write and code != STATUS_OK:
         for i in range(max(fill_from, 0), out.shape[1]):
             for m in range(out.shape[2]):
                 out[c_, i, m] = bound
 
 
-@kernel
-def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
-              bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
-              CS, i_log, logged_current):
+def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
+               bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
+               CS, i_log, logged_current):
     """Simulate the candidates of one chunk of lanes against a log, in lockstep.
 
-    The driver of the logged run, in two modes (one compiled kernel), for
-    any number of joints (``ref.shape[1]``; the encoders read state rows
-    ``enc .. enc + n_joints - 1``):
+    The driver of the logged run, in two modes (one source), for any robot
+    and any number of joints (``ref.shape[1]``; the encoders read state
+    rows ``enc .. enc + n_joints - 1``): compiled here for the PUMA 560
+    plants (:data:`log_chunk`), and copied into each robot model's generated
+    module for its arm (:func:`plant.simulation.arm.simulate_arm`,
+    :func:`plant.simulation.arm.replay_arm`).
 
     * experiment (``replay`` False): the closed loop of the control law
       ``law`` (:func:`plant.simulation.controllers.control_law`; the rig's P loop ``i =
@@ -293,9 +296,9 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
     ``ref`` (n_total, n_joints) unquantised reference counts; ``e_log`` (n,
     n_joints) logged errors from sample ``k0`` on; the simulation starts at
     sample ``k_start`` from the lanes' state.  Results go to ``obj[i]``,
-    ``status[i]``, ``compared[i]`` and ``out[i]`` of candidate i; a lane that
-    fails, diverges or passes ``cap`` is retired at once (early termination
-    pays).  Each joint is one branch-free loop over the lanes (SIMD); a
+    ``status[i]``, ``compared[i]`` (the samples compared) and, with
+    ``write``, ``out[i]`` of candidate i; a lane that fails, diverges or
+    passes ``cap`` is retired at once (early termination pays).  Each joint is one branch-free loop over the lanes (SIMD); a
     lane's sum of squares adds the joints in their order, then goes to its
     running sum.
     """
@@ -309,7 +312,7 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
     Ym = np.zeros((nj, width))   # measured angles (rad), the law's input
     Ep = np.zeros((nj, width))   # pulse errors, the law's input
     Ssq = np.zeros(width)        # this sample's sum of squares per lane
-    cmp = np.int64(0)  # not a literal: one signature of _finish
+    cmp = np.int64(0)  # not a literal: one signature of finish_lane
     # the rig's P law runs inside the joint loop (the identification's hot loop); any
     # other law is called per lane with every joint's measured angle and error
     fused = is_p_law(law)
@@ -319,8 +322,8 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
         for j in range(act - 1, -1, -1):
             for m in range(nj):
                 if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
-                    _finish(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
-                            compared, replay, out, i)
+                    finish_lane(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
+                                compared, replay, write, out, i)
                     act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
                     break
         if act == 0:
@@ -335,6 +338,9 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
             r = ref[k, m]
             _, t = encoder_read(r, 1.0)
             el = e_log[i, m] if i >= 0 else 0.0
+            # a lane's sum of squares adds the joints in their order; the last joint's pass
+            # adds it to the running sum of a compared sample
+            first, to_sum = m == 0, m == nj - 1 and i >= 0
             if replay and i >= 0:
                 mid = cell_centre(t - el)
                 p_m = c.p_gain[m]
@@ -343,7 +349,11 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
                 for j in range(lanes_run):  # SIMD over the lanes
                     cc, _ = encoder_read(X[enc + m, j], sc)
                     d = mid - cc
-                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
+                    sq = d * d if first else Ssq[j] + d * d
+                    if to_sum:
+                        E[j] += sq
+                    else:
+                        Ssq[j] = sq
                     # logged input (the current the rig applied) plus the predictor correction
                     if logged_current:
                         U[m, j] = i_m + p_m * gain * d
@@ -351,15 +361,20 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
                         U[m, j] = p_m * (el + gain * d)
                     else:  # the P current the drive applied (saturated), plus the correction
                         U[m, j] = p_e + p_m * gain * d
-                for j in range(act):
-                    cc, _ = encoder_read(X[enc + m, j], sc)
-                    out[idx[j], i, m] = mid - cc
+                if write:
+                    for j in range(act):
+                        cc, _ = encoder_read(X[enc + m, j], sc)
+                        out[idx[j], i, m] = mid - cc
             else:
                 for j in range(lanes_run):  # SIMD over the lanes
                     cc, a = encoder_read(X[enc + m, j], sc)
                     e = t - a if quantize else r - cc
                     d = el - (r - cc if continuous_out else e)
-                    Ssq[j] = d * d if m == 0 else Ssq[j] + d * d
+                    sq = d * d if first else Ssq[j] + d * d
+                    if to_sum:
+                        E[j] += sq
+                    else:
+                        Ssq[j] = sq
                     if fused:
                         U[m, j] = min(max(p_current(c, m, e), -i_lim), i_lim)
                     else:
@@ -372,9 +387,6 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
                             out[idx[j], i, m] = r - cc
                         else:
                             out[idx[j], i, m] = t - a
-        if i >= 0:
-            for j in range(lanes_run):
-                E[j] += Ssq[j]
         if not (fused or (replay and i >= 0)):
             for j in range(lanes_run):
                 control_law(law, law_params, c, k, Ym, Ep, CS, U, j)
@@ -384,8 +396,8 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
             cmp = i + 1
             for j in range(act - 1, -1, -1):
                 if E[j] > cap:
-                    _finish(idx, j, np.int64(STATUS_STOPPED), E, cmp, n, bound, obj, status,
-                            compared, replay, out, i + 1)
+                    finish_lane(idx, j, np.int64(STATUS_STOPPED), E, cmp, n, bound, obj, status,
+                                compared, replay, write, out, i + 1)
                     act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
             if act == 0:
                 break
@@ -395,13 +407,18 @@ def log_chunk(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, qu
                        (k - k_start) % REANCHOR == 0)
         for j in range(act - 1, -1, -1):
             if S[j] != STATUS_OK:
-                _finish(idx, j, S[j], E, cmp, n, bound, obj, status, compared, replay, out, i + 1)
+                finish_lane(idx, j, S[j], E, cmp, n, bound, obj, status, compared, replay, write,
+                            out, i + 1)
                 act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
         if act == 0:
             break
     for j in range(act):
-        _finish(idx, j, np.int64(STATUS_OK), E, cmp, n, bound, obj, status, compared, replay,
-                out, n)
+        finish_lane(idx, j, np.int64(STATUS_OK), E, cmp, n, bound, obj, status, compared, replay,
+                    write, out, n)
+
+
+#: :func:`logged_run` compiled for the PUMA 560 plants (cached on disk).
+log_chunk = kernel(logged_run)
 
 
 # ----------------------------------------------------------------------------
