@@ -80,7 +80,7 @@ from plant.robot.model import (
     is_positive_definite,
     mass_terms,
 )
-from plant.simulation.controllers import LoggedController, register_control_law, saturated
+from plant.simulation.controllers import LoggedController, register_control_law
 from plant.logs.rig import RigConstants, rig_constants
 
 from .design import ESTIMATORS, GainDesign, gains_for
@@ -141,6 +141,36 @@ S_I = 9  # 9, 10 sum of the position error times Ts (integral action)
 S_LEN = 11
 
 _NLV = {"reference": 0.0, "estimate": 1.0}
+
+
+@numba.njit(nogil=True, error_model="numpy")
+def saturated(i2, i3, c):
+    """Currents clipped at the drive's full scale, and the joint torque the clip removed.
+
+    The PUMA 560 CTC laws (rigid and flexible joints) end here (issue 21): ``i_s = clip(i, -I_fs, I_fs)``
+    with ``I_fs = c.current_limit``, and ``u = k Kt (i_s - i)``, the joint-side
+    torque the drive did not give -- what an observer needs for anti-windup
+    (back-calculation: K. J. Astrom and T. Hagglund, *Advanced PID Control*,
+    2006, sec. 3.5).
+
+    Parameters
+    ----------
+    i2, i3 : float
+        Commanded motor currents (A).
+    c : plant.logs.rig.RigConstants
+        Rig layout (``current_limit``, ``torque_per_amp``).
+
+    Returns
+    -------
+    i2s, i3s : float
+        Applied currents (A).
+    u2, u3 : float
+        Joint torque removed by the clip (N m; 0 below the limit).
+    """
+    lim = c.current_limit
+    i2s = min(max(i2, -lim), lim)
+    i3s = min(max(i3, -lim), lim)
+    return i2s, i3s, (i2s - i2) * c.torque_per_amp[0], (i3s - i3) * c.torque_per_amp[1]
 
 
 @numba.njit(nogil=True)

@@ -91,7 +91,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from plant.simulation.controllers import LoggedController, register_control_law, saturated
+from plant.simulation.controllers import LoggedController, register_control_law
 from plant.robot.model import friction_torque, is_positive_definite, joint_acceleration
 from plant.simulation.plants import dead_zone, link_f as link_model_f
 
@@ -113,6 +113,7 @@ from .computed_torque import (
     tabulate_reference,
     model_f,
     reference_of,
+    saturated,
 )
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",

@@ -5,10 +5,14 @@ import dataclasses
 import json
 import math
 
+from typing import NamedTuple
+
+import numba
 import numpy as np
 import pytest
 
 import plant
+from plant.simulation.controllers import register_control_law
 from plant.simulation.arm import arm_plant, replay_arm, simulate_arm
 from plant.logs.arm_log import ArmLog, load_arm_log
 from plant.simulation.synthetic import emulate_arm_log
@@ -767,3 +771,53 @@ def test_arm_ctc_integral_action_removes_a_steady_model_error(arm):
     j = int(np.argmax(bias["pd"]))
     assert bias["pd"][j] > 1.0
     assert bias["pid"][j] < 0.5 * bias["pd"][j]
+
+
+class _HalfGainKind(NamedTuple):
+    """Type tag of a law defined outside the library (this test's)."""
+
+    code: int = 91
+
+
+@numba.njit(nogil=True, inline="always")
+def _half_gain_law(lp, c, k, Y, E, CS, U, j):
+    # every joint's current from its own pulse error: U[m, j] = lp P_m E[m, j]
+    for m in range(U.shape[0]):
+        U[m, j] = lp[0] * c.p_gain[m] * E[m, j]
+
+
+register_control_law(_HalfGainKind, _half_gain_law)
+
+
+def test_a_compiled_law_runs_in_the_loop_of_a_three_joint_arm():
+    """The logged-run driver is one source for every robot: a law registered from outside the
+    library (signature law(lp, c, k, Y, E, CS, U, j), any number of joints) runs in the loop of
+    PUMA 560 joints 1-3 (simulate_arm(controller=)) -- at scale 1 bit for bit the rig's P
+    loop, at scale 0.5 the P loop of a rig with half the gains -- in the driver's in-memory
+    twin (the robot's on-disk cache never names the test's class); a non-law is refused."""
+    from plant.simulation.controllers import LoggedController
+    from plant.simulation.simulate import for_kinds
+
+    puma = RobotModel.puma560(active=(0, 1, 2))
+    gains = np.array([0.4, 0.6, 0.3])
+    rig = Rig(**{**planar_rig().__dict__, "gear_ratio": (62.6, 107.8, 53.7),
+                 "encoder_ppr": (1000,) * 3, "p_gain_A_per_pulse": tuple(gains),
+                 "torque_constant_Nm_per_A": (0.3,) * 3, "viscous_friction_Nms_per_rad": (1e-3,) * 3,
+                 "coulomb_friction_Nm": ((0.01, 0.012),) * 3, "q0_rad": (0.0,) * 3,
+                 "qd0_rad_per_s": (0.0,) * 3, "current_full_scale_A": 6.0})
+    traj = Trajectory.from_terms([0.1, -0.2, 0.15], [[(0.3, 3.0, 0.0)], [(0.4, 2.0, 0.5)],
+                                                     [(0.3, 4.0, 1.0)]], t_ramp_s=0.2)
+    pl3 = arm_plant(puma)
+    B = pl3.beta() * np.array([[1.0], [1.03], [0.98]])
+    half = Rig(**{**rig.__dict__, "p_gain_A_per_pulse": tuple(0.5 * gains)})
+    for scale, rig_p in ((1.0, rig), (0.5, half)):
+        law = LoggedController(kind=_HalfGainKind(), parameters=np.array([scale]),
+                               state=np.zeros(1), name="scaled P")
+        sim = simulate_arm(pl3, B, rig, traj, 500, workers=1, controller=law)
+        p = simulate_arm(pl3, B, rig_p, traj, 500, workers=1)
+        assert sim.errors.shape == (3, 500, 3) and np.abs(p.errors).max() > 5
+        np.testing.assert_array_equal(sim.errors, p.errors)
+        np.testing.assert_array_equal(sim.status, p.status)
+    assert for_kinds(pl3.kernels.logged_run, pl3.kind, _HalfGainKind()) is not pl3.kernels.logged_run
+    with pytest.raises(ValueError, match="compiled law"):
+        simulate_arm(pl3, B, rig, traj, 10, controller="P")

@@ -66,10 +66,10 @@ from plant.robot.codegen import function_source
 from plant.simulation.core import STATUS_MESSAGES, STATUS_OK
 from plant.simulation.generated import load, module_text
 from plant.simulation.lanes import new_lanes
-from plant.simulation.controllers import P_LAW
+from plant.simulation.controllers import P_LAW, LoggedController
 from plant.simulation.parallel import run_chunks
 from plant.simulation.plants import Plant
-from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound
+from plant.simulation.simulate import DEFAULT_SUBSTEPS, default_bound, for_kinds
 from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
@@ -722,7 +722,7 @@ class ArmSimulation:
 
 
 def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0, qd0, k_start,
-         bound, cap=None, workers=None, initial_state=None):
+         bound, cap=None, workers=None, initial_state=None, controller=None):
     if not isinstance(plant, ArmPlant):
         raise ValueError(f"plant must be an ArmPlant (plant.simulation.arm.arm_plant), got {type(plant).__name__}")
     n = plant.n_joints
@@ -763,7 +763,13 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     status = np.zeros(m, dtype=np.int64)
     compared = np.zeros(m, dtype=np.int64)
 
-    run = plant.kernels.logged_run  # the logged-run driver compiled for this robot
+    law = P_LAW if controller is None else controller
+    if not isinstance(law, LoggedController):
+        raise ValueError("controller must be a plant.simulation.controllers.LoggedController "
+                         f"(a compiled law) or None, got {type(controller).__name__}")
+    # the logged-run driver compiled for this robot (its in-memory twin for a law defined
+    # outside the library, which the robot's on-disk cache must not name)
+    run = for_kinds(plant.kernels.logged_run, plant.kind, law.kind)
     k0 = int(k_start)
     if not 0 <= k0 <= nt:
         raise ValueError(f"k_start must be within 0..{nt}, got {k_start}")
@@ -778,8 +784,8 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
             lanes.X[:] = X0[lanes.idx].T
         run(plant.kind, lanes, c, int(plant.encoder_row), ref, e_win, k0, 0, substeps,
             bool(replay), not replay, float(gain), bound, cap, out_win, bool(errors), False, obj,
-            status, compared, hi - lo, P_LAW.kind, P_LAW.parameters,
-            P_LAW.lane_states(lanes.X.shape[1]), i_win, True)
+            status, compared, hi - lo, law.kind, law.parameters,
+            law.lane_states(lanes.X.shape[1]), i_win, True)
 
     run_chunks(chunk, m, workers)
     compared += k0  # the sample each run ended at
@@ -791,7 +797,7 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
 
 def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=ARM_SUBSTEPS,
                  errors=True, q0=None, qd0=None, k_start=0, bound=None, cap=None,
-                 workers=None) -> ArmSimulation:
+                 workers=None, controller=None) -> ArmSimulation:
     """Simulate the logged P-control experiment of an arm for candidates ``B``.
 
     At each sample ``t_k = k Ts`` the motor encoders are read
@@ -821,7 +827,8 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     q0, qd0 : array_like, shape (n,), optional
         Start state (default the rig's).
     k_start : int
-        First sample of the output error.
+        First sample of the output error (a window of the run: the loop runs
+        from t = 0, the errors before it are returned as 0).
     bound : float, optional
         Divergence bound on ``abs(ref - c)`` (pulses): a candidate beyond it
         fails with the penalty of :class:`ArmSimulation`.  Default: with
@@ -838,6 +845,13 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     workers : int, optional
         Threads (default: the CPUs this process may use); candidates are
         split into one chunk per thread.
+    controller : plant.simulation.controllers.LoggedController, optional
+        The compiled control law in the loop instead of the rig's P law: any
+        law registered with
+        :func:`plant.simulation.controllers.register_control_law`, called
+        every sample with every joint's measured angle and pulse error
+        (``law(lp, c, k, Y, E, CS, U, j)``, n joints); its currents are
+        clipped at the drive's full scale.
 
     Returns
     -------
@@ -847,14 +861,15 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     ------
     ValueError
         Wrong shapes, a rig of another joint count, no start state, a
-        non-positive bound or a NaN cap.
+        non-positive bound, a NaN cap, a ``k_start`` outside the run, or a
+        ``controller`` that is not a compiled law.
     """
     ref = reference_counts(trajectory, rig, n_samples)
     if bound is None and e_log is not None:
         bound = default_bound(e_log)
     return _run(plant, B, rig, ref, e_log, None, replay=False, gain=0.0, substeps=substeps,
                 errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, cap=cap,
-                workers=workers)
+                workers=workers, controller=controller)
 
 
 def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS, errors=True,
@@ -879,8 +894,12 @@ def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS,
         Logged errors (pulses) and currents (A).
     gain : float
         Output-injection gain (fraction of the P gain).
-    substeps, errors, q0, qd0, k_start, workers
+    substeps, errors, q0, qd0, workers
         As :func:`simulate_arm`.
+    k_start : int
+        First sample predicted (a window, as the PUMA 560 path's
+        :func:`plant.prediction_errors`): before it the rig's P loop runs
+        on the continuous counts, and the errors there are returned as 0.
     bound : float, optional
         Divergence bound on ``abs(ref - c)`` (pulses; default 1e12): a
         candidate beyond it fails (penalty of :class:`ArmSimulation`; its

@@ -51,8 +51,7 @@ from numba.core.errors import TypingError
 from numba.extending import overload
 
 __all__ = ["PLawKind", "P_LAW", "LoggedController", "CONTROL_LAWS", "register_control_law",
-           "control_law", "p_law", "p_current", "is_p_law",
-           "saturated"]
+           "control_law", "p_law", "p_current", "is_p_law"]
 
 
 class PLawKind(NamedTuple):
@@ -65,39 +64,6 @@ class PLawKind(NamedTuple):
     """
 
     code: int = 0
-
-
-_jit = numba.njit(nogil=True, error_model="numpy")
-
-
-@_jit
-def saturated(i2, i3, c):
-    """Currents clipped at the drive's full scale, and the joint torque the clip removed.
-
-    Every controller's law ends here (issue 21): ``i_s = clip(i, -I_fs, I_fs)``
-    with ``I_fs = c.current_limit``, and ``u = k Kt (i_s - i)``, the joint-side
-    torque the drive did not give -- what an observer needs for anti-windup
-    (back-calculation: K. J. Astrom and T. Hagglund, *Advanced PID Control*,
-    2006, sec. 3.5).
-
-    Parameters
-    ----------
-    i2, i3 : float
-        Commanded motor currents (A).
-    c : plant.logs.rig.RigConstants
-        Rig layout (``current_limit``, ``torque_per_amp``).
-
-    Returns
-    -------
-    i2s, i3s : float
-        Applied currents (A).
-    u2, u3 : float
-        Joint torque removed by the clip (N m; 0 below the limit).
-    """
-    lim = c.current_limit
-    i2s = min(max(i2, -lim), lim)
-    i3s = min(max(i3, -lim), lim)
-    return i2s, i3s, (i2s - i2) * c.torque_per_amp[0], (i3s - i3) * c.torque_per_amp[1]
 
 
 @numba.njit(nogil=True, error_model="numpy", inline="always")

@@ -298,9 +298,12 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
     sample ``k_start`` from the lanes' state.  Results go to ``obj[i]``,
     ``status[i]``, ``compared[i]`` (the samples compared) and, with
     ``write``, ``out[i]`` of candidate i; a lane that fails, diverges or
-    passes ``cap`` is retired at once (early termination pays).  Each joint is one branch-free loop over the lanes (SIMD); a
-    lane's sum of squares adds the joints in their order, then goes to its
-    running sum.
+    passes ``cap`` is retired at once (early termination pays).  Each joint
+    is one loop over the lanes (SIMD); a lane's sum of squares adds the
+    joints in their order, and the last joint's pass adds it to the lane's
+    running sum.  The rig's P law is computed in that loop (the
+    identification's hot loop); any other law is called per lane after it,
+    with every joint's measured angle ``Y`` and pulse error ``E``.
     """
     P, X, U, A, S, E, idx, W = lanes
     n_total = ref.shape[0]
