@@ -13,7 +13,7 @@ import pytest
 
 import plant
 from plant.simulation.controllers import register_control_law
-from plant.simulation.arm import arm_plant, replay_arm, simulate_arm
+from plant.simulation.arm import arm_plant, reference_counts, replay_arm, simulate_arm
 from plant.logs.arm_log import ArmLog, load_arm_log
 from plant.simulation.synthetic import emulate_arm_log
 from plant.robot.codegen import function_source
@@ -821,3 +821,33 @@ def test_a_compiled_law_runs_in_the_loop_of_a_three_joint_arm():
     assert for_kinds(pl3.kernels.logged_run, pl3.kind, _HalfGainKind()) is not pl3.kernels.logged_run
     with pytest.raises(ValueError, match="compiled law"):
         simulate_arm(pl3, B, rig, traj, 10, controller="P")
+
+
+def test_a_window_of_an_arm_run_is_compared_from_k_start_and_driven_from_t0(arm):
+    """k_start > 0 (an arm's window): the run -- the P loop, or the logged input with the
+    injection -- goes from t = 0 exactly as with k_start = 0 (the same errors at every
+    sample), the output error sums from k_start on, and a lane that fails before k_start
+    says when it did."""
+    rig = planar_rig()
+    log = emulate_arm_log(arm, arm.beta(), rig, TRAJ, 600, name="planar_window")
+    B = arm.beta() * np.array([[1.0], [1.04], [0.95]])
+    ref = reference_counts(TRAJ, rig, 600)
+    k = 150
+
+    def experiment(**kw):
+        return simulate_arm(arm, B, rig, TRAJ, 600, e_log=log.e_pulses, **kw)
+
+    def replay(**kw):
+        return replay_arm(arm, B, rig, ref, log.e_pulses, log.i_A, gain=0.3, **kw)
+
+    for run in (experiment, replay):
+        whole, window = run(), run(k_start=k)
+        np.testing.assert_array_equal(window.errors, whole.errors)
+        # the experiment compares the logged errors, the replay its prediction errors
+        d = log.e_pulses[None] - whole.errors if run is experiment else whole.errors
+        np.testing.assert_allclose(window.objective, (d[:, k:] ** 2).sum(axis=(1, 2)),
+                                   rtol=1e-12)
+        assert np.all(window.objective[1:] < whole.objective[1:])  # [0]: the true arm
+    early = simulate_arm(arm, B, rig, TRAJ, 600, e_log=log.e_pulses, k_start=k, bound=3.0)
+    t_fail = [float(m.split("t = ")[1].split(" s")[0]) for m in early.message if m != "ok"]
+    assert t_fail and max(t_fail) < k * rig.sample_time_s

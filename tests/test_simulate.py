@@ -349,7 +349,9 @@ def test_a_law_from_outside_the_library_never_enters_the_on_disk_cache(paper_log
     from plant.simulation.plants import RIGID
     from plant.simulation.simulate import for_kinds, log_chunk
 
-    assert for_kinds(log_chunk, RIGID.kind, P_LAW.kind) is log_chunk
+    assert for_kinds(log_chunk, RIGID.kind, P_LAW.kind, P_LAW.parameters) is log_chunk
+    # a library law whose parameters hold a class of the test's is the test's too
+    assert for_kinds(log_chunk, RIGID.kind, P_LAW.kind, (1.0, _ScaledPKind())) is not log_chunk
     twin = for_kinds(log_chunk, RIGID.kind, _ScaledPKind())
     assert twin is not log_chunk and twin is for_kinds(log_chunk, RIGID.kind, _ScaledPKind())
     f = np.asarray(truth("puma560_paper_rigid")["f_vector"])

@@ -769,26 +769,22 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
                          f"(a compiled law) or None, got {type(controller).__name__}")
     # the logged-run driver compiled for this robot (its in-memory twin for a law defined
     # outside the library, which the robot's on-disk cache must not name)
-    run = for_kinds(plant.kernels.logged_run, plant.kind, law.kind)
-    k0 = int(k_start)
-    if not 0 <= k0 <= nt:
+    run = for_kinds(plant.kernels.logged_run, plant.kind, law.kind, law.parameters)
+    k_cmp = int(k_start)
+    if not 0 <= k_cmp <= nt:
         raise ValueError(f"k_start must be within 0..{nt}, got {k_start}")
-    # the driver's window: e_log, i_log and the errors written from sample k0 on; before it
-    # the P loop (replay: with continuous counts), as a window of the PUMA 560 path
-    e_win, i_win = e_log[k0:], i_log[k0:]
-    out_win = out[:, k0:, :] if errors else out
 
     def chunk(lo, hi):  # one chunk of candidates in its own lanes (the kernel releases the GIL)
         lanes = new_lanes(Pall, lo, hi, x0, n_inputs=n, n_angles=n)
         if X0 is not None:
             lanes.X[:] = X0[lanes.idx].T
-        run(plant.kind, lanes, c, int(plant.encoder_row), ref, e_win, k0, 0, substeps,
-            bool(replay), not replay, float(gain), bound, cap, out_win, bool(errors), False, obj,
-            status, compared, hi - lo, law.kind, law.parameters,
-            law.lane_states(lanes.X.shape[1]), i_win, True)
+        # the logged data from sample 0 (k0 = 0), compared from k_start on
+        run(plant.kind, lanes, c, int(plant.encoder_row), ref, e_log, 0, k_cmp, 0, substeps,
+            bool(replay), True, float(gain), bound, cap, out, bool(errors), False, obj, status,
+            compared, hi - lo, law.kind, law.parameters, law.lane_states(lanes.X.shape[1]),
+            i_log, True)
 
     run_chunks(chunk, m, workers)
-    compared += k0  # the sample each run ended at
     msgs = tuple("ok" if s == STATUS_OK else
                  f"{STATUS_MESSAGES[int(s)]} at t = {k * rig.sample_time_s:.4f} s"
                  for s, k in zip(status, compared))
@@ -827,8 +823,8 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     q0, qd0 : array_like, shape (n,), optional
         Start state (default the rig's).
     k_start : int
-        First sample of the output error (a window of the run: the loop runs
-        from t = 0, the errors before it are returned as 0).
+        First sample of the output error (the run and its errors start at
+        t = 0).
     bound : float, optional
         Divergence bound on ``abs(ref - c)`` (pulses): a candidate beyond it
         fails with the penalty of :class:`ArmSimulation`.  Default: with
@@ -850,8 +846,8 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
         law registered with
         :func:`plant.simulation.controllers.register_control_law`, called
         every sample with every joint's measured angle and pulse error
-        (``law(lp, c, k, Y, E, CS, U, j)``, n joints); its currents are
-        clipped at the drive's full scale.
+        (``law(lp, c, k, Y, E, CS, U, j)``); it must write all n joints'
+        currents (the driver clips them at the drive's full scale).
 
     Returns
     -------
@@ -894,12 +890,9 @@ def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS,
         Logged errors (pulses) and currents (A).
     gain : float
         Output-injection gain (fraction of the P gain).
-    substeps, errors, q0, qd0, workers
-        As :func:`simulate_arm`.
-    k_start : int
-        First sample predicted (a window, as the PUMA 560 path's
-        :func:`plant.prediction_errors`): before it the rig's P loop runs
-        on the continuous counts, and the errors there are returned as 0.
+    substeps, errors, q0, qd0, k_start, workers
+        As :func:`simulate_arm` (the logged input drives the arm from t = 0;
+        the prediction errors are summed from ``k_start`` on).
     bound : float, optional
         Divergence bound on ``abs(ref - c)`` (pulses; default 1e12): a
         candidate beyond it fails (penalty of :class:`ArmSimulation`; its

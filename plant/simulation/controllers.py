@@ -98,7 +98,7 @@ def is_p_law(kind) -> bool:
     kind : NamedTuple
         A :attr:`LoggedController.kind`.
     """
-    return isinstance(kind, PLawKind)
+    return type(kind) is PLawKind
 
 
 @overload(is_p_law, jit_options=dict(nogil=True), inline="always")
@@ -233,7 +233,7 @@ class LoggedController:
     @property
     def is_p_law(self) -> bool:
         """True for the rig's P law (replay with ``P e_log``)."""
-        return isinstance(self.kind, PLawKind)
+        return type(self.kind) is PLawKind
 
     def lane_states(self, lanes) -> np.ndarray:
         """Per-lane controller state (n_cs, lanes), every column the start state.

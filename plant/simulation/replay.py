@@ -144,13 +144,13 @@ def prediction_errors(
     law = as_logged_controller(controller, log)
     i_log = inputs.i_log
 
-    run = for_kinds(log_chunk, plant.kind, law.kind)
+    run = for_kinds(log_chunk, plant.kind, law.kind, law.parameters)
 
     def chunk(lo, hi):
         # with X0, the given state at the first logged sample: no simulation before it
         lanes = lanes_from(Pall, lo, hi, x0, X0)
         run(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts,
-            inputs.e_log, k0, k0 if use_x0 else 0, substeps, True, False, float(gain),
+            inputs.e_log, k0, k0, k0 if use_x0 else 0, substeps, True, False, float(gain),
             bound, np.inf, out, True, False, cost, status, compared, hi - lo, law.kind,
             law.parameters, law.lane_states(lanes.X.shape[1]), i_log, not law.is_p_law)
 

@@ -219,27 +219,35 @@ _UNCACHED = {}
 _UNCACHED_LOCK = threading.Lock()
 
 
+def _importable(value) -> bool:
+    """Whether every class in ``value`` (through tuples) is the library's, numpy's or builtin."""
+    if type(value).__module__.split(".")[0] not in CACHEABLE_PACKAGES + ("builtins", "numpy"):
+        return False
+    return not isinstance(value, tuple) or all(_importable(v) for v in value)
+
+
 def for_kinds(dispatcher, *kinds):
     """``dispatcher`` (a kernel cached on disk), or its twin compiled in memory only.
 
-    The twin (same source, numba's ``cache=False``) serves any kind whose class
-    is defined outside :data:`CACHEABLE_PACKAGES`: a user's plant
-    (:func:`plant.simulation.plants.register_plant`) or control law
-    (:func:`plant.simulation.controllers.register_control_law`) compiles in
-    each process, and the library's on-disk cache is never written with it.
+    The twin (same source, numba's ``cache=False``) serves any call with a
+    class defined outside :data:`CACHEABLE_PACKAGES` among ``kinds`` (through
+    tuples): a user's plant (:func:`plant.simulation.plants.register_plant`)
+    or control law (:func:`plant.simulation.controllers.register_control_law`),
+    or a law's parameters of a user's class, compiles in each process, and
+    the library's on-disk cache is never written with it.
 
     Parameters
     ----------
     dispatcher : numba dispatcher
         A kernel of this module (numba's ``cache=True``, ``nogil``).
-    *kinds : NamedTuple
-        The plant and law kinds the call passes.
+    *kinds : object
+        The plant and law kinds the call passes, and the law's parameters.
 
     Returns
     -------
     numba dispatcher
     """
-    if all(type(k).__module__.split(".")[0] in CACHEABLE_PACKAGES for k in kinds):
+    if all(_importable(k) for k in kinds):
         return dispatcher
     with _UNCACHED_LOCK:
         twin = _UNCACHED.get(dispatcher.py_func)
@@ -253,22 +261,23 @@ def for_kinds(dispatcher, *kinds):
 # The P-control experiment driver
 # ----------------------------------------------------------------------------
 @_jit
-def finish_lane(idx, j, code, E, cmp, n, bound, obj, status, compared, replay, write, out,
+def finish_lane(idx, j, code, E, rows, skip, n, bound, obj, status, compared, replay, write, out,
                 fill_from):
-    """Record lane ``j``'s result (status ``code``); a failed replay lane's errors := bound."""
+    """Record lane ``j``'s result (status ``code``) after ``rows`` log rows, of which the first
+    ``skip`` are not compared (``n`` compared in all); a failed replay lane's errors := bound."""
     c_ = idx[j]
-    obj[c_] = final_objective(E[j], code, cmp, n, bound)
+    obj[c_] = final_objective(E[j], code, max(rows - skip, 0), n, bound)
     status[c_] = code
-    compared[c_] = cmp
+    compared[c_] = rows
     if replay and write and code != STATUS_OK:
         for i in range(max(fill_from, 0), out.shape[1]):
             for m in range(out.shape[2]):
                 out[c_, i, m] = bound
 
 
-def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, quantize, gain,
-               bound, cap, out, write, continuous_out, obj, status, compared, n_act, law, law_params,
-               CS, i_log, logged_current):
+def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_cmp, k_start, substeps, replay, quantize,
+               gain, bound, cap, out, write, continuous_out, obj, status, compared, n_act, law,
+               law_params, CS, i_log, logged_current):
     """Simulate the candidates of one chunk of lanes against a log, in lockstep.
 
     The driver of the logged run, in two modes (one source), for any robot
@@ -293,11 +302,14 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
       ``bound``); ``obj`` their sum of squares.  Before a window the run's
       own P loop with continuous counts (``quantize`` False).
 
-    ``ref`` (n_total, n_joints) unquantised reference counts; ``e_log`` (n,
-    n_joints) logged errors from sample ``k0`` on; the simulation starts at
-    sample ``k_start`` from the lanes' state.  Results go to ``obj[i]``,
-    ``status[i]``, ``compared[i]`` (the samples compared) and, with
-    ``write``, ``out[i]`` of candidate i; a lane that fails, diverges or
+    ``ref`` (n_total, n_joints) unquantised reference counts; ``e_log``,
+    ``i_log`` (n_total - k0, n_joints) logged errors and currents from sample
+    ``k0`` on (``out`` has their rows); the simulation starts at sample
+    ``k_start`` from the lanes' state; the output error sums from sample
+    ``k_cmp >= k0`` on (an arm's window: the logged input from ``k0 = 0``,
+    compared from ``k_cmp``).  Results go to ``obj[i]``, ``status[i]``,
+    ``compared[i]`` (the log rows run: the sample the run ended at, minus
+    ``k0``) and, with ``write``, ``out[i]`` of candidate i; a lane that fails, diverges or
     passes ``cap`` is retired at once (early termination pays).  Each joint
     is one loop over the lanes (SIMD); a lane's sum of squares adds the
     joints in their order, and the last joint's pass adds it to the lane's
@@ -307,7 +319,8 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
     """
     P, X, U, A, S, E, idx, W = lanes
     n_total = ref.shape[0]
-    n = e_log.shape[0]
+    skip = k_cmp - k0           # log rows not compared
+    n = e_log.shape[0] - skip   # rows compared in all
     nj = ref.shape[1]
     i_lim = c.current_limit
     act = n_act
@@ -315,7 +328,7 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
     Ym = np.zeros((nj, width))   # measured angles (rad), the law's input
     Ep = np.zeros((nj, width))   # pulse errors, the law's input
     Ssq = np.zeros(width)        # this sample's sum of squares per lane
-    cmp = np.int64(0)  # not a literal: one signature of finish_lane
+    rows = np.int64(0)  # log rows run (not a literal: one signature of finish_lane)
     # the rig's P law runs inside the joint loop (the identification's hot loop); any
     # other law is called per lane with every joint's measured angle and error
     fused = is_p_law(law)
@@ -325,8 +338,8 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
         for j in range(act - 1, -1, -1):
             for m in range(nj):
                 if abs(ref[k, m] - X[enc + m, j] * c.pulses_per_rad[m]) > bound:
-                    finish_lane(idx, j, np.int64(STATUS_DIVERGED), E, cmp, n, bound, obj, status,
-                                compared, replay, write, out, i)
+                    finish_lane(idx, j, np.int64(STATUS_DIVERGED), E, rows, skip, n, bound, obj,
+                                status, compared, replay, write, out, i)
                     act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
                     break
         if act == 0:
@@ -343,7 +356,7 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
             el = e_log[i, m] if i >= 0 else 0.0
             # a lane's sum of squares adds the joints in their order; the last joint's pass
             # adds it to the running sum of a compared sample
-            first, to_sum = m == 0, m == nj - 1 and i >= 0
+            first, to_sum = m == 0, m == nj - 1 and i >= skip
             if replay and i >= 0:
                 mid = cell_centre(t - el)
                 p_m = c.p_gain[m]
@@ -396,11 +409,12 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                 for m in range(nj):
                     U[m, j] = min(max(U[m, j], -i_lim), i_lim)  # the drive's current limit
         if i >= 0:
-            cmp = i + 1
+            rows = i + 1
+        if i >= skip:
             for j in range(act - 1, -1, -1):
                 if E[j] > cap:
-                    finish_lane(idx, j, np.int64(STATUS_STOPPED), E, cmp, n, bound, obj, status,
-                                compared, replay, write, out, i + 1)
+                    finish_lane(idx, j, np.int64(STATUS_STOPPED), E, rows, skip, n, bound, obj,
+                                status, compared, replay, write, out, i + 1)
                     act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
             if act == 0:
                 break
@@ -410,14 +424,14 @@ def logged_run(kind, lanes, c, enc, ref, e_log, k0, k_start, substeps, replay, q
                        (k - k_start) % REANCHOR == 0)
         for j in range(act - 1, -1, -1):
             if S[j] != STATUS_OK:
-                finish_lane(idx, j, S[j], E, cmp, n, bound, obj, status, compared, replay, write,
-                            out, i + 1)
+                finish_lane(idx, j, S[j], E, rows, skip, n, bound, obj, status, compared, replay,
+                            write, out, i + 1)
                 act = retire_lane(P, X, U, A, S, E, idx, CS, j, act)
         if act == 0:
             break
     for j in range(act):
-        finish_lane(idx, j, np.int64(STATUS_OK), E, cmp, n, bound, obj, status, compared, replay,
-                    write, out, n)
+        finish_lane(idx, j, np.int64(STATUS_OK), E, rows, skip, n, bound, obj, status, compared,
+                    replay, write, out, e_log.shape[0])
 
 
 #: :func:`logged_run` compiled for the PUMA 560 plants (cached on disk).
@@ -582,12 +596,12 @@ def simulate_batch(
     law = as_logged_controller(controller, log)
     i_log = inputs.i_log
 
-    run = for_kinds(log_chunk, plant.kind, law.kind)
+    run = for_kinds(log_chunk, plant.kind, law.kind, law.parameters)
 
     def chunk(lo, hi):
         lanes = lanes_from(Pall, lo, hi, x0, X0)
         run(plant.kind, lanes, inputs.constants, plant.encoder_row, inputs.ref_counts, e_log,
-            inputs.start_index, k_start, substeps, False, bool(quantize), 0.0, bound, cap, err,
+            inputs.start_index, inputs.start_index, k_start, substeps, False, bool(quantize), 0.0, bound, cap, err,
             bool(errors), bool(continuous_output), obj, status, compared, hi - lo, law.kind,
             law.parameters, law.lane_states(lanes.X.shape[1]), i_log, False)
 
@@ -697,7 +711,7 @@ def warm_arguments():
     """Arguments of :func:`log_chunk` on the three-sample dummy problem."""
     c, Pall, ref, e_log = dummy_problem()
     return (RIGID.kind, new_lanes(Pall, 0, 1, RIGID.initial_state(c)), c, RIGID.encoder_row,
-            ref, e_log, 0, 0, 1, False, True, 0.0, 100.0, np.inf, np.zeros((1, 3, 2)), True,
+            ref, e_log, 0, 0, 0, 1, False, True, 0.0, 100.0, np.inf, np.zeros((1, 3, 2)), True,
             False, np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64), 1,
             P_LAW.kind, P_LAW.parameters, P_LAW.lane_states(1), np.zeros((3, 2)), False)
 

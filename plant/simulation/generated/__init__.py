@@ -54,7 +54,8 @@ __all__ = ["kernel_directory", "load", "clear", "compiled", "module_text", "func
 DEPENDENCIES = ("plant/simulation/core.py", "plant/simulation/lanes.py",
                 "plant/simulation/anchors.py", "plant/simulation/plants.py", "plant/simulation/arm.py",
                 "plant/simulation/closed_loop.py", "plant/simulation/simulate.py",
-                "plant/simulation/controllers.py", "plant/robot/model.py", "ctc/arm.py")
+                "plant/simulation/controllers.py", "plant/robot/model.py", "ctc/arm.py",
+                "ctc/computed_torque.py", "ctc/flexible.py")
 
 #: Generated modules kept in the directory (the least recently used beyond are deleted).
 KEEP = 64
