@@ -721,7 +721,7 @@ class ComputedTorqueController:
             table = tabulate_reference(log.trajectory, np.arange(n) * self._ts)
         s0 = np.zeros(S_LEN) if state is None else np.asarray(state, dtype=float).reshape(S_LEN)
         return LoggedController(kind=CTCLawKind(), parameters=CTCLaw(self.parameters, self.f, table),
-                                state=s0, name="CTC")
+                                state=s0, name="CTC", n_joints=2)
 
     def estimator_state(self) -> np.ndarray:
         """A copy of the estimator state (9,) (for :meth:`logged_controller`).

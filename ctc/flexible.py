@@ -732,7 +732,7 @@ class FlexibleJointComputedTorqueController(ComputedTorqueController):
         return LoggedController(kind=FlexibleCTCLawKind(),
                                 parameters=FlexibleCTCLaw(self.flexible_parameters, self.link_f,
                                                           table),
-                                state=s0, name="flexible CTC")
+                                state=s0, name="flexible CTC", n_joints=2)
 
     def estimator_state(self) -> np.ndarray:
         """A copy of the controller state (S_FLEX_LEN,): the motor estimator (S_LEN) and the link model (4).

@@ -821,6 +821,10 @@ def test_a_compiled_law_runs_in_the_loop_of_a_three_joint_arm():
     assert for_kinds(pl3.kernels.logged_run, pl3.kind, _HalfGainKind()) is not pl3.kernels.logged_run
     with pytest.raises(ValueError, match="compiled law"):
         simulate_arm(pl3, B, rig, traj, 10, controller="P")
+    two = LoggedController(kind=_HalfGainKind(), parameters=np.array([1.0]), state=np.zeros(1),
+                           name="two-joint", n_joints=2)
+    with pytest.raises(ValueError, match="writes 2 joints' currents, the robot has 3"):
+        simulate_arm(pl3, B, rig, traj, 10, controller=two)
 
 
 def test_a_window_of_an_arm_run_is_compared_from_k_start_and_driven_from_t0(arm):

@@ -767,6 +767,7 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     if not isinstance(law, LoggedController):
         raise ValueError("controller must be a plant.simulation.controllers.LoggedController "
                          f"(a compiled law) or None, got {type(controller).__name__}")
+    law.check_joints(n)
     # the logged-run driver compiled for this robot (its in-memory twin for a law defined
     # outside the library, which the robot's on-disk cache must not name)
     run = for_kinds(plant.kernels.logged_run, plant.kind, law.kind, law.parameters)
@@ -858,7 +859,8 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     ValueError
         Wrong shapes, a rig of another joint count, no start state, a
         non-positive bound, a NaN cap, a ``k_start`` outside the run, or a
-        ``controller`` that is not a compiled law.
+        ``controller`` that is not a compiled law or writes another number of
+        joints (:meth:`~plant.simulation.controllers.LoggedController.check_joints`).
     """
     ref = reference_counts(trajectory, rig, n_samples)
     if bound is None and e_log is not None:

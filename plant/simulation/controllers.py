@@ -17,7 +17,9 @@ measured joint angles ``Y`` (n_joints, lanes) (rad, the encoder counts times
 the per-lane controller state ``CS`` (n_cs, lanes); column ``j`` is this
 lane's.  It writes the motor currents (A) held over the sample to ``U[:,
 j]`` (n_joints, lanes) and updates ``CS[:, j]`` in place; the driver then
-clips the currents at the drive's full scale.  Arrays are joint-first here,
+clips the currents at the drive's full scale.  A law written for a fixed
+number of joints says so (:attr:`LoggedController.n_joints`; the PUMA 560
+CTC laws: 2), and the drivers refuse it on a robot of another count.  Arrays are joint-first here,
 as the core's lane arrays (one joint's lanes are contiguous, for SIMD).
 
 :data:`P_LAW` is the rig's P law ``i = P e`` (the logged experiment of the
@@ -223,12 +225,34 @@ class LoggedController:
         starts from it).
     name : str
         For messages.
+    n_joints : int or None
+        The joints the law writes currents for (None: any number, e.g. a
+        law that loops over ``U.shape[0]``); a driver refuses a robot of
+        another joint count (:meth:`check_joints`).
     """
 
     kind: Any
     parameters: Any
     state: np.ndarray
     name: str = "controller"
+    n_joints: Any = None
+
+    def check_joints(self, n) -> None:
+        """Refuse a robot of ``n`` joints when the law writes another number of currents.
+
+        Parameters
+        ----------
+        n : int
+            The simulated robot's joints.
+
+        Raises
+        ------
+        ValueError
+            If :attr:`n_joints` is set and is not ``n``.
+        """
+        if self.n_joints is not None and int(self.n_joints) != int(n):
+            raise ValueError(f"the {self.name} law writes {self.n_joints} joints' currents, "
+                             f"the robot has {n}")
 
     @property
     def is_p_law(self) -> bool:

@@ -142,6 +142,7 @@ def prediction_errors(
     x0 = plant.initial_state(inputs.constants)
     k0 = inputs.start_index
     law = as_logged_controller(controller, log)
+    law.check_joints(inputs.ref_counts.shape[1])
     i_log = inputs.i_log
 
     run = for_kinds(log_chunk, plant.kind, law.kind, law.parameters)

@@ -594,6 +594,7 @@ def simulate_batch(
     X0 = start_states(log, initial_state, m, plant.n_states)
     k_start = 0 if X0 is None else inputs.start_index
     law = as_logged_controller(controller, log)
+    law.check_joints(inputs.ref_counts.shape[1])
     i_log = inputs.i_log
 
     run = for_kinds(log_chunk, plant.kind, law.kind, law.parameters)
