@@ -147,8 +147,9 @@ _NLV = {"reference": 0.0, "estimate": 1.0}
 def saturated(i2, i3, c):
     """Currents clipped at the drive's full scale, and the joint torque the clip removed.
 
-    The PUMA 560 CTC laws (rigid and flexible joints) end here (issue 21): ``i_s = clip(i, -I_fs, I_fs)``
-    with ``I_fs = c.current_limit``, and ``u = k Kt (i_s - i)``, the joint-side
+    The PUMA 560 CTC laws (rigid and flexible joints) end here (issue 21):
+    ``i_s = clip(i, -I_fs, I_fs)`` with ``I_fs = c.current_limit``, and
+    ``u = k Kt (i_s - i)``, the joint-side
     torque the drive did not give -- what an observer needs for anti-windup
     (back-calculation: K. J. Astrom and T. Hagglund, *Advanced PID Control*,
     2006, sec. 3.5).

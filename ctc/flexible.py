@@ -331,7 +331,8 @@ def flexible_ctc_law(lp, c, k, Y, E, CS, U, j):
     j : int
         Lane.
     """
-    U[0, j], U[1, j] = _flexible_ctc_currents(k, Y[0, j], Y[1, j], lp.link_f, lp.parameters, lp.reference, CS, j)
+    U[0, j], U[1, j] = _flexible_ctc_currents(k, Y[0, j], Y[1, j], lp.link_f, lp.parameters,
+                                              lp.reference, CS, j)
 
 
 register_control_law(FlexibleCTCLawKind, flexible_ctc_law)

@@ -19,8 +19,9 @@ lane's.  It writes the motor currents (A) held over the sample to ``U[:,
 j]`` (n_joints, lanes) and updates ``CS[:, j]`` in place; the driver then
 clips the currents at the drive's full scale.  A law written for a fixed
 number of joints says so (:attr:`LoggedController.n_joints`; the PUMA 560
-CTC laws: 2), and the drivers refuse it on a robot of another count.  Arrays are joint-first here,
-as the core's lane arrays (one joint's lanes are contiguous, for SIMD).
+CTC laws: 2), and the drivers refuse it on a robot of another count.  Arrays
+are joint-first here, as the core's lane arrays (one joint's lanes are
+contiguous, for SIMD).
 
 :data:`P_LAW` is the rig's P law ``i = P e`` (the logged experiment of the
 paper); the driver computes its current inside its joint loop
