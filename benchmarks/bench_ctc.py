@@ -16,7 +16,10 @@ Measures, on the bundled paper log:
   ``examples/any_arm.py``, and its closed loop on the arm's plant; the
   build and one call of the flexible-joint CTC of the same arms
   (``ctc.arm.ArmFlexibleComputedTorque``, the example's two-mass joints:
-  its link model over a sample is compiled when it is built).
+  its link model over a sample is compiled when it is built); the arm CTC's
+  law compiled in the arm's logged-run driver
+  (``ArmComputedTorque.logged_controller``, ``simulate_arm(controller=)``)
+  for one robot and for 16 side by side.
 
 The model f is the centre of the sidecar's search ranges (no truth file
 needed; timing does not depend on f).  JIT compilation is timed separately
@@ -61,7 +64,7 @@ def arm_rows(n_calls=3000, n_samples=2000):
     from any_arm import flexible_joints, reference, rig_for, robot
 
     from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
-    from plant.simulation.arm import arm_plant
+    from plant.simulation.arm import arm_plant, simulate_arm
 
     rows = []
     for name in ("planar2", "puma123", "puma6"):
@@ -79,6 +82,22 @@ def arm_rows(n_calls=3000, n_samples=2000):
                      best_of(lambda: simulate_closed_loop(rig, arm.beta(), c, trajectory=traj,
                                                           n_samples=n_samples, plant=arm), 3) * 1e3,
                      "ms"))
+        # the same law compiled in the arm's logged-run driver (ArmComputedTorque.logged_controller):
+        # one robot, and 16 robots side by side in lanes (2 threads); the first run compiles
+        # (or loads from numba's cache) the robot's law module
+        t0 = time.perf_counter()
+        simulate_arm(arm, arm.beta(), rig, traj, 10, controller=c.logged_controller(10))
+        rows.append((f"arm CTC compiled in the driver, {name}: first run (compile or load)",
+                     (time.perf_counter() - t0) * 1e3, "ms"))
+        law = c.logged_controller(n_samples)
+        for m in (1, 16):
+            B = np.tile(arm.beta(), (m, 1))
+            rows.append((f"arm CTC compiled in the driver, {name}, {m} robot(s) x {n_samples}",
+                         best_of(lambda: simulate_arm(arm, B, rig, traj, n_samples, controller=law),
+                                 3) * 1e3, "ms"))
+            rows.append((f"arm P loop in the driver, {name}, {m} robot(s) x {n_samples}",
+                         best_of(lambda: simulate_arm(arm, B, rig, traj, n_samples), 3) * 1e3,
+                         "ms"))
         stiff, damp, ia, backlash = flexible_joints(model)
         t0 = time.perf_counter()
         c = ArmFlexibleComputedTorque(arm, arm.beta(), rig, traj, stiffness=stiff, damping=damp,

@@ -60,18 +60,23 @@ P loop for any number of joints.
 from __future__ import annotations
 
 
+import math
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
-from plant.logs.rig import rig_constants
-from plant.robot.model import friction_torques
-from plant.simulation.core import cell_centres
+from plant.logs.rig import RigConstants, rig_constants
+from plant.robot.model import friction_torque, friction_torques
+from plant.simulation.controllers import LoggedController
+from plant.simulation.core import cell_centre, cell_centres
 
 from .contract import IdentifiedModel
 from .design import gains_for
 from .guard import FollowingErrorLimit
 
-__all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "log_envelope",
+__all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "ArmCTCParameters", "arm_ctc_law",
+           "log_envelope",
            "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S", "GOAL_PULSES"]
 
 
@@ -198,6 +203,205 @@ def _link_sample_kernel(plant):
                        copies=[(link_rates, "_inline"), (link_sample, "_kernel")])
     fn = _LINK_SAMPLES[robot] = load("link", text).link_sample
     return fn
+
+
+class ArmCTCParameters(NamedTuple):
+    """Parameters of the arm's compiled computed-torque law (:func:`arm_ctc_law`), by name.
+
+    Attributes
+    ----------
+    rig : plant.logs.rig.RigConstants
+        The controller's rig constants (its sample time, encoders, ``k Kt``,
+        friction feed-forward and current limit; n joints).
+    beta : ndarray, shape (r,)
+        Base parameters of the controller's model.
+    reference : ndarray, shape (n_samples, 5 n)
+        Per sample ``k``: ``q_d, qd_d`` at ``t_k = k Ts`` and ``q, qd, qdd``
+        at ``t_k + Ts / 2`` (rad, rad/s, rad/s^2), n columns each.
+    kp, kv, ki : ndarray, shape (n,)
+        Outer-loop gains (s^-2, s^-1, s^-3).
+    lq, lw : ndarray, shape (n,)
+        Current-observer gains on the position residual.
+    integral : bool
+        Integral action on (some ``ki`` is not 0).
+    watchdog : bool
+        The following-error limit is armed.
+    limit_pulses : ndarray, shape (n,)
+        Its limit per joint (pulses).
+    hard_factor, dwell_s, window_s : float
+        Its rule (:class:`ctc.guard.FollowingErrorLimit`).
+    p_gain : ndarray, shape (n,)
+        The P law it hands the arm to (A per pulse) ...
+    p_limit : float
+        ... and that law's current limit (A).
+    """
+
+    rig: RigConstants
+    beta: np.ndarray
+    reference: np.ndarray
+    kp: np.ndarray
+    kv: np.ndarray
+    ki: np.ndarray
+    lq: np.ndarray
+    lw: np.ndarray
+    integral: bool
+    watchdog: bool
+    limit_pulses: np.ndarray
+    hard_factor: float
+    dwell_s: float
+    window_s: float
+    p_gain: np.ndarray
+    p_limit: float
+
+
+def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
+    """The arm's computed torque as a compiled law of the logged-run driver (a kernel's template).
+
+    Copied into a module generated per robot (by :meth:`ArmComputedTorque.logged_controller`),
+    where ``dynamics`` is the controller's robot's dynamics kernel; the
+    law of ``ArmComputedTorque.__call__`` (watchdog, observer, outer
+    loop at mid-sample, model, friction feed-forward, current limit with
+    the observer driven by the saturated current, conditional integration),
+    operation for operation.  ``lp`` is :class:`ArmCTCParameters`; ``CS``
+    ((4 n + 1 + w), lanes) holds per lane the observer ``q_hat``, ``qd_hat``,
+    the previous acceleration, the error sums, the watchdog's trip flag and
+    its ring of the last ``w`` times beyond the limit (s).  Writes lane
+    ``j``'s currents to ``U[:, j]`` (A) (see :mod:`plant.simulation.controllers`).
+
+    Parameters
+    ----------
+    lp : ArmCTCParameters
+        The controller's model, reference table, gains and watchdog.
+    c : plant.logs.rig.RigConstants
+        Rig layout of the simulation (unused: the controller's own is ``lp.rig``).
+    k : int
+        Sample index from the start of the run (row of ``lp.reference``).
+    Y : ndarray, shape (n, lanes)
+        Measured joint angles (rad): encoder counts over pulses per radian.
+    E : ndarray, shape (n, lanes)
+        Pulse errors (the watchdog's and the P fallback's input).
+    CS : ndarray, shape (4 n + 1 + w, lanes)
+        Controller states (updated in place).
+    U : ndarray, shape (n, lanes)
+        Currents (A): column ``j`` is written.
+    j : int
+        Lane.
+    """
+    n = U.shape[0]
+    rc = lp.rig
+    ts = rc.sample_time_s
+    t = k * ts
+    if lp.watchdog:  # the following-error limit (ctc.guard.FollowingErrorLimit.trips)
+        tripped = CS[4 * n, j] != 0.0
+        if not tripped:
+            over = False
+            hard = False
+            for m in range(n):
+                ae = abs(E[m, j])
+                over = over or ae > lp.limit_pulses[m]
+                hard = hard or ae > lp.hard_factor * lp.limit_pulses[m]
+            if hard:
+                tripped = True
+            elif over:
+                w = CS.shape[0] - (4 * n + 1)
+                CS[4 * n + 1 + k % w, j] = t
+                count = 0
+                for s in range(w):
+                    if CS[4 * n + 1 + s, j] > t - lp.window_s + 0.5 * ts:
+                        count += 1
+                tripped = count * ts > lp.dwell_s + 1e-12
+            if tripped:
+                CS[4 * n, j] = 1.0
+        if tripped:
+            for m in range(n):
+                U[m, j] = min(max(lp.p_gain[m] * E[m, j], -lp.p_limit), lp.p_limit)
+            return
+    ref = lp.reference
+    sc = np.empty(2 * n)
+    v = np.empty(n)
+    a = np.empty(n)
+    for m in range(n):
+        spr = rc.pulses_per_rad[m]
+        y = cell_centre(float(round(Y[m, j] * spr))) / spr
+        q_p = CS[m, j] + ts * CS[n + m, j] + 0.5 * ts * ts * CS[2 * n + m, j]
+        w_p = CS[n + m, j] + ts * CS[2 * n + m, j]
+        r = y - q_p
+        q_h = q_p + lp.lq[m] * r
+        CS[m, j] = q_h
+        CS[n + m, j] = w_p + lp.lw[m] * r
+        a[m] = (ref[k, 4 * n + m] + lp.kv[m] * (ref[k, n + m] - CS[n + m, j])
+                + lp.kp[m] * (ref[k, m] - q_h) + lp.ki[m] * CS[3 * n + m, j])
+        q_m = q_h + (ref[k, 2 * n + m] - ref[k, m])
+        sc[2 * m] = math.sin(q_m)
+        sc[2 * m + 1] = math.cos(q_m)
+        v[m] = ref[k, 3 * n + m]
+    lower, nvec = dynamics(sc, v, lp.beta)  # noqa: F821 - the generated module's
+    D = np.empty((n, n))
+    o = 0
+    for m in range(n):
+        for i in range(m + 1):
+            D[m, i] = lower[o] + 0.0
+            D[i, m] = lower[o] + 0.0
+            o += 1
+    tf = np.empty(n)
+    cur = np.empty(n)
+    saturated = False
+    for m in range(n):
+        tf[m] = friction_torque(v[m], rc.viscous[m], rc.coulomb_pos[m], rc.coulomb_neg[m],
+                                rc.ramp_speed[m])
+        tau = 0.0
+        for i in range(n):
+            tau += D[m, i] * a[i]
+        cur[m] = (tau + nvec[m] - tf[m]) / rc.torque_per_amp[m]
+        if abs(cur[m]) > rc.current_limit:
+            saturated = True
+        elif lp.integral:  # conditional integration: frozen where the drive's limit cuts
+            CS[3 * n + m, j] += ts * (ref[k, m] - CS[m, j])
+    if saturated:  # the observer sees the acceleration the saturated current gives the model
+        lim = rc.current_limit
+        rhs = np.empty(n)
+        for m in range(n):
+            cur[m] = min(max(cur[m], -lim), lim)
+            rhs[m] = cur[m] * rc.torque_per_amp[m] - nvec[m] + tf[m]
+        a = solve_dense(D, rhs)
+    for m in range(n):
+        CS[2 * n + m, j] = a[m]
+        U[m, j] = cur[m]
+
+
+#: The compiled computed-torque law of :class:`ArmComputedTorque`, per robot (keyed by the
+#: plant's generated module; cached on disk with it).
+_CTC_LAWS = {}
+
+
+def _ctc_law_module(plant):
+    """The module generated for a robot's computed-torque law in the logged-run driver.
+
+    It holds the law's kind (``ArmCTCKind``), a copy of :func:`arm_ctc_law`
+    with the robot's dynamics kernel, registered in
+    :data:`plant.simulation.controllers.CONTROL_LAWS`, and a copy of the
+    logged-run driver (:func:`plant.simulation.simulate.logged_run`) compiled with
+    it: the law's kind lives with the driver copy whose on-disk cache names
+    it (:attr:`plant.simulation.controllers.LoggedController.driver`).
+    """
+    from plant.simulation.generated import load, module_text
+    from plant.simulation.simulate import logged_run
+
+    robot = plant.kernels.__name__
+    module = _CTC_LAWS.get(robot)
+    if module is None:
+        text = module_text(
+            f"The computed-torque law of {plant.name} in the logged-run driver: generated by "
+            "ctc.arm.",
+            imports=["", f"from {robot} import dynamics",
+                     "from plant.simulation.controllers import register_control_law"],
+            body=["class ArmCTCKind(NamedTuple):",
+                  "    \"\"\"This robot's computed-torque law kind (its type selects the law).\"\"\"",
+                  "", "    code: int = 3", "", ""],
+            copies=[(arm_ctc_law, "_inline"), (logged_run, "_kernel")],
+            tail=["register_control_law(ArmCTCKind, arm_ctc_law)"])
+        module = _CTC_LAWS[robot] = load("ctclaw", text)
+    return module
 
 
 class ArmComputedTorque:
@@ -497,6 +701,71 @@ class ArmComputedTorque:
         self.a_prev = a
         return i
 
+    def logged_controller(self, n_samples) -> LoggedController:
+        """This controller as a compiled law of the logged-run driver, for runs of ``n_samples``.
+
+        The law of ``__call__`` compiled per robot (:func:`arm_ctc_law`):
+        :func:`plant.simulation.arm.simulate_arm` (``controller=``) runs it in
+        the loop of every candidate robot at once, e.g. the tracking of this
+        model on a set of robots it may meet.  Each lane starts as
+        :meth:`reset` leaves the controller (observer on the reference's
+        start, the watchdog re-armed), with the model, gains and watchdog in
+        use now.  The model evaluation is the robot's dynamics kernel
+        (:attr:`plant.simulation.arm.ArmPlant.dynamics_kernel`: the casadi
+        function's operations), the matrix product a plain sum: the currents
+        are ``__call__``'s to rounding.
+
+        Parameters
+        ----------
+        n_samples : int or log
+            Samples from t = 0 the reference table covers (a log: its
+            ``n_total`` when it has one, a window's start plus its rows,
+            else its ``n_samples``).
+
+        Returns
+        -------
+        plant.simulation.controllers.LoggedController
+            With ``n_joints`` the robot's, ``n_samples`` and the law's own
+            copy of the driver (``driver``).
+
+        Raises
+        ------
+        ValueError
+            ``n_samples`` not a positive integer.
+        """
+        n_samples = getattr(n_samples, "n_total", getattr(n_samples, "n_samples", n_samples))
+        try:
+            nt = int(n_samples)
+        except (TypeError, ValueError):
+            nt = 0
+        if nt < 1 or nt != n_samples:
+            raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
+        n, ts = self.n, self.ts
+        t = np.arange(nt) * ts
+        q, qd, _ = self.trajectory.evaluate(t)
+        qm, qdm, qddm = self.trajectory.evaluate(t + 0.5 * ts)
+        table = np.ascontiguousarray(np.hstack([np.asarray(v, dtype=float).reshape(nt, n)
+                                                for v in (q, qd, qm, qdm, qddm)]))
+        g = self.gains
+        fe = self.following_error
+        if fe is None:
+            watch = (False, np.ones(n), 1.0, 0.0, 1.0, np.zeros(n), 0.0)
+            ring = 0
+        else:
+            watch = (True, np.asarray(fe.limit_pulses, dtype=float).copy(), fe.hard_factor,
+                     fe.dwell_s, fe.window_s, np.asarray(fe.p_gain, dtype=float).copy(),
+                     fe.current_limit)
+            ring = int(math.ceil(fe.window_s / ts)) + 2
+        lp = ArmCTCParameters(self.c, self.beta.copy(), table, *(
+            np.ascontiguousarray(v, dtype=float) for v in (
+                g.Kp, g.Kv, g.Ki, g.observer_gain[:, 0], g.observer_gain[:, 1])),
+            self._integral, *watch)
+        state = np.concatenate([table[0, :2 * n], np.zeros(2 * n + 1), np.full(ring, -np.inf)])
+        module = _ctc_law_module(self.plant)
+        return LoggedController(kind=module.ArmCTCKind(), parameters=lp, state=state,
+                                name=f"computed torque of {self.plant.name}", n_joints=n,
+                                n_samples=nt, driver=module.logged_run)
+
     def _integrate(self, q_d, q_hat, i):
         """The integral action's error sum: ``+ Ts (q_d - q_hat)`` on the joints whose current
         ``i`` is within the limit (conditional integration: no windup)."""
@@ -693,6 +962,22 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
                                     self.link_damping)
         self.link_gain = L[:, 2:4]
         return self.beta
+
+    def logged_controller(self, n_samples):
+        """Not available: the flexible CTC has no compiled law yet (its link model runs in Python).
+
+        Parameters
+        ----------
+        n_samples : int or log
+            As :meth:`ArmComputedTorque.logged_controller`.
+
+        Raises
+        ------
+        ValueError
+            Always (one line).
+        """
+        raise ValueError("the flexible-joint CTC (ArmFlexibleComputedTorque) has no compiled law "
+                         "for the logged-run driver; simulate it with plant.simulate_closed_loop")
 
     def _link_terms(self, q, qd):
         """The link model's ``D_link(q)`` (n, n) and ``n_link(q, qd)`` (n,)."""

@@ -223,6 +223,113 @@ def test_arm_ctc_tracks_within_a_pulse_and_p_does_not(arm):
     assert np.all(np.abs(r.i_A) <= 40.0)
 
 
+@pytest.mark.parametrize("limit, design, beta_scale, envelope", [
+    (40.0, {}, 1.0, None),                                # tracks within a pulse
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.0, None),    # saturates: anti-windup, observer
+    (40.0, {}, 1.3, (9.0, 6.0)),                          # wrong model: the watchdog's dwell rule
+    (3.0, {}, 1.3, (20.0, 20.0)),                         # ... and its hard limit
+])
+def test_the_compiled_arm_ctc_is_the_controllers_law(arm, limit, design, beta_scale, envelope):
+    """ArmComputedTorque.logged_controller in the arm's logged-run driver gives the pulses of the
+    Python controller in plant.simulate_closed_loop, sample for sample (same core, same
+    substeps): within the limit, saturating with integral action, and with the following-error
+    watchdog handing the arm to the P law; candidates run side by side in lanes."""
+    import warnings
+
+    from ctc.arm import ArmComputedTorque
+    from ctc.guard import FollowingErrorWarning
+
+    rig = planar_rig(p_gain=(0.05, 0.05), limit=limit)
+    ctc = ArmComputedTorque(arm, beta_scale * arm.beta(), rig, TRAJ, envelope=envelope, **design)
+    n = 2000
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FollowingErrorWarning)
+        r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=n,
+                                       plant=arm, substeps=4)
+    assert (ctc.fallback_t_s is not None) == (envelope is not None)
+    law = ctc.logged_controller(n)
+    assert law.n_joints == 2 and law.n_samples == n and law.driver is not None
+    sim = simulate_arm(arm, np.vstack([arm.beta(), 0.9 * arm.beta()]), rig, TRAJ, n,
+                       controller=law, substeps=4)
+    assert np.all(sim.status == 0)
+    np.testing.assert_array_equal(sim.errors[0], r.e_pulses)
+    assert not np.array_equal(sim.errors[1], r.e_pulses)  # the other lane is its own robot
+    # the controller itself is accepted (its law for the run's length)
+    again = simulate_arm(arm, arm.beta(), rig, TRAJ, n, controller=ctc, substeps=4)
+    np.testing.assert_array_equal(again.errors[0], r.e_pulses)
+
+
+def test_the_compiled_arm_ctc_refuses_what_it_cannot_run(arm):
+    from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
+
+    rig = planar_rig(limit=40.0)
+    ctc = ArmComputedTorque(arm, arm.beta(), rig, TRAJ)
+    law = ctc.logged_controller(100)
+    with pytest.raises(ValueError, match="cover 100 samples, the run takes 101"):
+        simulate_arm(arm, arm.beta(), rig, TRAJ, 101, controller=law)
+    for bad in (0, 2.5, "x", None):
+        with pytest.raises(ValueError, match="positive integer"):
+            ctc.logged_controller(bad)
+    flex = ArmFlexibleComputedTorque.__new__(ArmFlexibleComputedTorque)
+    with pytest.raises(ValueError, match="no compiled law"):
+        flex.logged_controller(100)
+
+
+@pytest.mark.parametrize("limit, design, beta_scale", [
+    (40.0, {}, 1.0),
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.0),     # saturated: the observer and the error sum
+    (40.0, dict(integral_bandwidth_hz=2.0), 1.2),    # a model 20 % off
+])
+def test_the_casadi_evaluation_of_the_arm_ctc_is_the_closed_loop(arm, limit, design, beta_scale):
+    """ctc.evaluate.evaluate_ctc on an arm's CTC (casadi: the robot model's function, the twin of
+    the sample step) gives the pulses of plant.simulate_closed_loop with the Python controller,
+    sample for sample over 2 s at the same substeps, and its currents to rounding."""
+    from ctc.arm import ArmComputedTorque
+    from ctc.evaluate import evaluate_ctc
+
+    rig = planar_rig(p_gain=(0.05, 0.05), limit=limit)
+    ctc = ArmComputedTorque(arm, beta_scale * arm.beta(), rig, TRAJ, **design)
+    r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000,
+                                   plant=arm, substeps=32)
+    ev = evaluate_ctc(ctc, arm.beta(), n_samples=2000, substeps=32, after_s=0.1)
+    np.testing.assert_array_equal(ev.e_pulses, r.e_pulses)
+    np.testing.assert_allclose(ev.i_A, r.i_A, rtol=0, atol=1e-9 * max(1.0, np.abs(r.i_A).max()))
+    assert ev.within_one_pulse == bool(np.all(r.max_abs_error(0.1) <= 1))
+    assert ev.e_pulses.shape == (2000, 2) and "pulses after 100 ms" in ev.summary()
+
+
+def test_the_casadi_evaluation_of_the_arm_ctc_refuses_bad_input(arm):
+    from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
+    from ctc.evaluate import build_arm_step_function, evaluate_ctc
+
+    ctc = ArmComputedTorque(arm, arm.beta(), planar_rig(limit=40.0), TRAJ)
+    with pytest.raises(ValueError, match="n_samples is required"):
+        evaluate_ctc(ctc, arm.beta())
+    with pytest.raises(ValueError, match="finite numbers"):
+        evaluate_ctc(ctc, arm.beta()[:-1], n_samples=10)
+    with pytest.raises(ValueError, match="positive integer"):
+        evaluate_ctc(ctc, arm.beta(), n_samples=0)
+    flex = ArmFlexibleComputedTorque.__new__(ArmFlexibleComputedTorque)
+    with pytest.raises(ValueError, match="rigid arm's CTC"):
+        build_arm_step_function(flex, arm.beta())
+
+
+def test_a_generated_kind_of_another_module_runs_in_memory(arm):
+    """The CTC law's driver copy is cached on disk with its own robot's plant kind only: another
+    generated module's kind (here the two-mass arm's) gets the in-memory twin, so no index on
+    disk names a module that may be pruned."""
+    from ctc.arm import ArmComputedTorque
+    from plant.simulation.simulate import for_kinds
+
+    law = ArmComputedTorque(arm, arm.beta(), planar_rig(limit=40.0), TRAJ).logged_controller(10)
+    assert for_kinds(law.driver, arm.kind, law.kind, law.parameters) is law.driver
+    flex = arm_plant(planar_arm(), flexible=True)
+    twin = for_kinds(law.driver, flex.kind, law.kind, law.parameters)
+    assert twin is not law.driver and twin.py_func is law.driver.py_func
+    # the robot's own driver never sees the law's generated kind
+    assert for_kinds(arm.kernels.logged_run, arm.kind, law.kind) is not arm.kernels.logged_run
+
+
 def test_arm_replay_prediction_errors_are_small_at_the_truth(arm):
     log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1000)
     sim = replay_arm(arm, np.vstack([arm.beta(), 1.05 * arm.beta()]), log.rig,

@@ -194,6 +194,16 @@ def test_identify_arm_on_the_rigid_log_and_its_ctc(paper_rigid_path, truth):
     p = plant.simulate_closed_loop(log.rig, f, PController.from_log(log.rig),
                                    trajectory=log.trajectory, n_samples=log.n_samples, plant=robot)
     assert np.all(p.max_abs_error(0.1) > 10)
+    # the same computed torque compiled (watchdog armed) in the loop of robots side by side:
+    # the arm driver and the PUMA path's driver give the Python loop's pulses for the true f,
+    # and each other's for every robot
+    F = np.vstack([f, 1.05 * f, 0.9 * f])
+    arm_run = simulate_arm(robot, F, log.rig, log.trajectory, log.n_samples, controller=ctl,
+                           workers=1)
+    puma_run = plant.simulate_batch(plant.load_log(paper_rigid_path), F, controller=ctl, workers=1)
+    assert np.all(arm_run.status == 0) and np.all(puma_run.status == 0)
+    np.testing.assert_array_equal(arm_run.errors[0], run.e_pulses)
+    np.testing.assert_array_equal(puma_run.e_pulses, arm_run.errors)
 
 
 @pytest.fixture(scope="module")

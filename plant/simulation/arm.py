@@ -764,13 +764,19 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     compared = np.zeros(m, dtype=np.int64)
 
     law = P_LAW if controller is None else controller
+    if not isinstance(law, LoggedController) and callable(getattr(law, "logged_controller", None)):
+        law = law.logged_controller(nt)  # e.g. a ctc.arm.ArmComputedTorque
     if not isinstance(law, LoggedController):
         raise ValueError("controller must be a plant.simulation.controllers.LoggedController "
-                         f"(a compiled law) or None, got {type(controller).__name__}")
+                         "(a compiled law), an object with logged_controller(n_samples), or None, "
+                         f"got {type(controller).__name__}")
     law.check_joints(n)
-    # the logged-run driver compiled for this robot (its in-memory twin for a law defined
-    # outside the library, which the robot's on-disk cache must not name)
-    run = for_kinds(plant.kernels.logged_run, plant.kind, law.kind, law.parameters)
+    law.check_samples(nt)
+    # the logged-run driver compiled for this robot, or the law's own copy (a law generated
+    # per robot); its in-memory twin for a law defined outside the library, which the
+    # on-disk cache must not name
+    run = for_kinds(plant.kernels.logged_run if law.driver is None else law.driver, plant.kind,
+                    law.kind, law.parameters)
     k_cmp = int(k_start)
     if not 0 <= k_cmp <= nt:
         raise ValueError(f"k_start must be within 0..{nt}, got {k_start}")
@@ -842,13 +848,17 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     workers : int, optional
         Threads (default: the CPUs this process may use); candidates are
         split into one chunk per thread.
-    controller : plant.simulation.controllers.LoggedController, optional
+    controller : plant.simulation.controllers.LoggedController or controller, optional
         The compiled control law in the loop instead of the rig's P law: any
         law registered with
         :func:`plant.simulation.controllers.register_control_law`, called
         every sample with every joint's measured angle and pulse error
         (``law(lp, c, k, Y, E, CS, U, j)``); it must write all n joints'
-        currents (the driver clips them at the drive's full scale).
+        currents (the driver clips them at the drive's full scale).  Or a
+        controller with a ``logged_controller(n_samples)`` method, e.g. a
+        :class:`ctc.arm.ArmComputedTorque` (its computed torque, compiled,
+        in the loop of every candidate robot ``B``: the controller's model
+        stays its own).
 
     Returns
     -------
@@ -859,8 +869,9 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
     ValueError
         Wrong shapes, a rig of another joint count, no start state, a
         non-positive bound, a NaN cap, a ``k_start`` outside the run, or a
-        ``controller`` that is not a compiled law or writes another number of
-        joints (:meth:`~plant.simulation.controllers.LoggedController.check_joints`).
+        ``controller`` that is not a compiled law, writes another number of
+        joints (:meth:`~plant.simulation.controllers.LoggedController.check_joints`)
+        or whose tables are shorter than the run.
     """
     ref = reference_counts(trajectory, rig, n_samples)
     if bound is None and e_log is not None:

@@ -230,6 +230,16 @@ class LoggedController:
         The joints the law writes currents for (None: any number, e.g. a
         law that loops over ``U.shape[0]``); a driver refuses a robot of
         another joint count (:meth:`check_joints`).
+    n_samples : int or None
+        The samples from t = 0 the law's tables cover (e.g. its reference;
+        None: any run); a driver refuses a longer run (:meth:`check_samples`).
+    driver : numba dispatcher or None
+        A copy of the logged-run driver compiled with this law (None: the
+        robot's own).  A law generated per robot
+        (:meth:`ctc.arm.ArmComputedTorque.logged_controller`) lives in a
+        generated module of its own with its own copy of the driver, so the
+        on-disk cache of a driver never names a law kind of another
+        generated module (which may have been pruned).
     """
 
     kind: Any
@@ -237,6 +247,8 @@ class LoggedController:
     state: np.ndarray
     name: str = "controller"
     n_joints: Any = None
+    n_samples: Any = None
+    driver: Any = None
 
     def check_joints(self, n) -> None:
         """Refuse a robot of ``n`` joints when the law writes another number of currents.
@@ -254,6 +266,23 @@ class LoggedController:
         if self.n_joints is not None and int(self.n_joints) != int(n):
             raise ValueError(f"the {self.name} law writes {self.n_joints} joints' currents, "
                              f"the robot has {n}")
+
+    def check_samples(self, n) -> None:
+        """Refuse a run of ``n`` samples beyond the law's tables.
+
+        Parameters
+        ----------
+        n : int
+            Samples from t = 0 the run takes.
+
+        Raises
+        ------
+        ValueError
+            If :attr:`n_samples` is set and smaller than ``n``.
+        """
+        if self.n_samples is not None and int(n) > int(self.n_samples):
+            raise ValueError(f"the {self.name} law's tables cover {self.n_samples} samples, "
+                             f"the run takes {n}")
 
     @property
     def is_p_law(self) -> bool:

@@ -143,9 +143,11 @@ def prediction_errors(
     k0 = inputs.start_index
     law = as_logged_controller(controller, log)
     law.check_joints(inputs.ref_counts.shape[1])
+    law.check_samples(inputs.ref_counts.shape[0])
     i_log = inputs.i_log
 
-    run = for_kinds(log_chunk, plant.kind, law.kind, law.parameters)
+    run = for_kinds(log_chunk if law.driver is None else law.driver, plant.kind, law.kind,
+                    law.parameters)
 
     def chunk(lo, hi):
         # with X0, the given state at the first logged sample: no simulation before it

@@ -47,6 +47,7 @@ the running sum extrapolated to the whole log, ``Y n_samples / n_compared``
 from __future__ import annotations
 
 import math
+import sys
 import threading
 import weakref
 from dataclasses import dataclass
@@ -93,6 +94,7 @@ __all__ = [
     "output_error",
     "for_kinds",
     "CACHEABLE_PACKAGES",
+    "GENERATED_PREFIX",
 ]
 
 #: Runge-Kutta substeps per sample for the exact reproduction of a log.  The
@@ -213,18 +215,45 @@ _jit = numba.njit(nogil=True, error_model="numpy")
 #: numba pickles a cached kernel's signatures, kind classes included, into the
 #: kernel's index file; a kind class from any other module (a user's script, a test)
 #: would make every later process that loads the index fail to import it.  A robot
-#: model's generated kinds live in ``plant.simulation.generated`` (importable).
+#: model's generated kinds live in ``plant.simulation.generated`` (importable while
+#: their file is kept: see :func:`for_kinds`).
 CACHEABLE_PACKAGES = ("plant", "ctc", "identification")
+
+#: Prefix of the modules generated per robot (:mod:`plant.simulation.generated`).
+GENERATED_PREFIX = "plant.simulation.generated."
 
 _UNCACHED = {}
 _UNCACHED_LOCK = threading.Lock()
+_HOMES = {}
 
 
-def _importable(value) -> bool:
-    """Whether every class in ``value`` (through tuples) is the library's, numpy's or builtin."""
-    if type(value).__module__.split(".")[0] not in CACHEABLE_PACKAGES + ("builtins", "numpy"):
+def _importable(value, homes=frozenset()) -> bool:
+    """Whether every class in ``value`` (through tuples) is the library's, numpy's or builtin,
+    and a generated module's only when that module is one of ``homes``."""
+    module = type(value).__module__
+    if module.split(".")[0] not in CACHEABLE_PACKAGES + ("builtins", "numpy"):
         return False
-    return not isinstance(value, tuple) or all(_importable(v) for v in value)
+    if module.startswith(GENERATED_PREFIX) and module not in homes:
+        return False
+    return not isinstance(value, tuple) or all(_importable(v, homes) for v in value)
+
+
+def _homes(dispatcher) -> frozenset:
+    """The generated modules whose classes ``dispatcher``'s on-disk cache may name: its own
+    module, if generated, and the generated modules that one imports from (they exist
+    whenever it does: it cannot be imported without them)."""
+    name = dispatcher.py_func.__module__
+    homes = _HOMES.get(name)
+    if homes is None:
+        homes = set()
+        if name.startswith(GENERATED_PREFIX):
+            homes.add(name)
+            for v in vars(sys.modules[name]).values():
+                source = getattr(getattr(v, "py_func", v), "__module__", None)
+                if isinstance(source, str) and source.startswith(GENERATED_PREFIX):
+                    homes.add(source)
+        homes = _HOMES[name] = frozenset(homes)
+    return homes
 
 
 def for_kinds(dispatcher, *kinds):
@@ -235,7 +264,13 @@ def for_kinds(dispatcher, *kinds):
     tuples): a user's plant (:func:`plant.simulation.plants.register_plant`)
     or control law (:func:`plant.simulation.controllers.register_control_law`),
     or a law's parameters of a user's class, compiles in each process, and
-    the library's on-disk cache is never written with it.
+    the library's on-disk cache is never written with it.  So does a kind of
+    a module generated per robot (:mod:`plant.simulation.generated`) that
+    is neither ``dispatcher``'s own module nor one that module imports from:
+    generated modules beyond the kept number are deleted, and an index that
+    named a deleted one would fail to load (e.g. the computed-torque law
+    generated for one robot, :func:`ctc.arm.ArmComputedTorque.logged_controller`,
+    in the loop of another robot's plant).
 
     Parameters
     ----------
@@ -248,7 +283,8 @@ def for_kinds(dispatcher, *kinds):
     -------
     numba dispatcher
     """
-    if all(_importable(k) for k in kinds):
+    homes = _homes(dispatcher)
+    if all(_importable(k, homes) for k in kinds):
         return dispatcher
     with _UNCACHED_LOCK:
         twin = _UNCACHED.get(dispatcher.py_func)
@@ -599,9 +635,12 @@ def simulate_batch(
     k_start = 0 if X0 is None else inputs.start_index
     law = as_logged_controller(controller, log)
     law.check_joints(inputs.ref_counts.shape[1])
+    law.check_samples(inputs.ref_counts.shape[0])
     i_log = inputs.i_log
 
-    run = for_kinds(log_chunk, plant.kind, law.kind, law.parameters)
+    # the driver's copy compiled with the law (a law generated per robot), else this module's
+    run = for_kinds(log_chunk if law.driver is None else law.driver, plant.kind, law.kind,
+                    law.parameters)
 
     def chunk(lo, hi):
         lanes = lanes_from(Pall, lo, hi, x0, X0)

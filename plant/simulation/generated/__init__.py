@@ -266,7 +266,7 @@ def _bound_names(text: str) -> set:
     return names
 
 
-def module_text(doc: str, *, imports=(), body=(), copies=()) -> str:
+def module_text(doc: str, *, imports=(), body=(), copies=(), tail=()) -> str:
     """The text of a generated module, for :func:`load`.
 
     Parameters
@@ -282,6 +282,8 @@ def module_text(doc: str, *, imports=(), body=(), copies=()) -> str:
         Plain module-level functions copied after ``body``, each under the
         named decorator (:func:`function_copy`), with the imports their
         global names need (from their own modules; none the module binds itself).
+    tail : sequence of str
+        Source after the copies (e.g. the registration of a copied law).
 
     Returns
     -------
@@ -295,7 +297,8 @@ def module_text(doc: str, *, imports=(), body=(), copies=()) -> str:
         line, src = function_copy(fn, decorator, defined)
         head += [line] if line else []
         sources.append(src)
-    return "\n".join(head + rest + ["", ""] + [src + "\n" for src in sources])
+    return "\n".join(head + rest + ["", ""] + [src + "\n" for src in sources]
+                     + ([*tail, ""] if tail else []))
 
 
 def _prune(directory: Path, keep: Path) -> None:
