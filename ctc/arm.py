@@ -55,7 +55,13 @@ The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
 :func:`plant.simulate_closed_loop` (``plant=`` the arm) and the independent
 simulator of ``benchmarks/`` run it; :class:`ctc.PController` is the rig's
-P loop for any number of joints.
+P loop for any number of joints.  Both controllers also exist compiled, as
+laws of the arm's logged-run driver (``logged_controller``:
+:func:`arm_ctc_law`, :func:`arm_flexible_ctc_law`, generated per robot with
+its own copy of the driver): :func:`plant.simulation.arm.simulate_arm` runs
+them in the loop of many robots at once with the Python controller's pulses,
+sample for sample -- the flexible result's model-error check runs each
+design's five robots so.
 """
 from __future__ import annotations
 
@@ -76,7 +82,7 @@ from .design import gains_for
 from .guard import FollowingErrorLimit
 
 __all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "ArmCTCParameters", "arm_ctc_law",
-           "log_envelope",
+           "ArmFlexibleCTCParameters", "arm_flexible_ctc_law", "log_envelope",
            "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S", "GOAL_PULSES"]
 
 
@@ -254,6 +260,45 @@ class ArmCTCParameters(NamedTuple):
     p_limit: float
 
 
+def watchdog_current(lp, k, E, CS, U, j, o):
+    """The following-error watchdog of a compiled CTC law (a kernel's template): True when the
+    limit has tripped -- lane ``j``'s currents are then the P law's, written to ``U[:, j]``.
+
+    ``lp`` has the watchdog's fields of :class:`ArmCTCParameters`; ``CS[o, j]`` is the trip
+    flag and the rows after it the ring of the last times beyond the limit
+    (:meth:`ctc.guard.FollowingErrorLimit.trips`, the same comparisons).
+    """
+    if not lp.watchdog:
+        return False
+    n = U.shape[0]
+    ts = lp.rig.sample_time_s
+    t = k * ts
+    tripped = CS[o, j] != 0.0
+    if not tripped:
+        over = False
+        hard = False
+        for m in range(n):
+            ae = abs(E[m, j])
+            over = over or ae > lp.limit_pulses[m]
+            hard = hard or ae > lp.hard_factor * lp.limit_pulses[m]
+        if hard:
+            tripped = True
+        elif over:
+            w = CS.shape[0] - (o + 1)
+            CS[o + 1 + k % w, j] = t
+            count = 0
+            for s in range(w):
+                if CS[o + 1 + s, j] > t - lp.window_s + 0.5 * ts:
+                    count += 1
+            tripped = count * ts > lp.dwell_s + 1e-12
+        if tripped:
+            CS[o, j] = 1.0
+    if tripped:
+        for m in range(n):
+            U[m, j] = min(max(lp.p_gain[m] * E[m, j], -lp.p_limit), lp.p_limit)
+    return tripped
+
+
 def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     """The arm's computed torque as a compiled law of the logged-run driver (a kernel's template).
 
@@ -290,32 +335,8 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     n = U.shape[0]
     rc = lp.rig
     ts = rc.sample_time_s
-    t = k * ts
-    if lp.watchdog:  # the following-error limit (ctc.guard.FollowingErrorLimit.trips)
-        tripped = CS[4 * n, j] != 0.0
-        if not tripped:
-            over = False
-            hard = False
-            for m in range(n):
-                ae = abs(E[m, j])
-                over = over or ae > lp.limit_pulses[m]
-                hard = hard or ae > lp.hard_factor * lp.limit_pulses[m]
-            if hard:
-                tripped = True
-            elif over:
-                w = CS.shape[0] - (4 * n + 1)
-                CS[4 * n + 1 + k % w, j] = t
-                count = 0
-                for s in range(w):
-                    if CS[4 * n + 1 + s, j] > t - lp.window_s + 0.5 * ts:
-                        count += 1
-                tripped = count * ts > lp.dwell_s + 1e-12
-            if tripped:
-                CS[4 * n, j] = 1.0
-        if tripped:
-            for m in range(n):
-                U[m, j] = min(max(lp.p_gain[m] * E[m, j], -lp.p_limit), lp.p_limit)
-            return
+    if watchdog_current(lp, k, E, CS, U, j, 4 * n):
+        return
     ref = lp.reference
     sc = np.empty(2 * n)
     v = np.empty(n)
@@ -369,38 +390,198 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
         U[m, j] = cur[m]
 
 
-#: The compiled computed-torque law of :class:`ArmComputedTorque`, per robot (keyed by the
-#: plant's generated module; cached on disk with it).
+class ArmFlexibleCTCParameters(NamedTuple):
+    """Parameters of the arm's compiled flexible-joint CTC law (:func:`arm_flexible_ctc_law`).
+
+    Attributes
+    ----------
+    ctc : ArmCTCParameters
+        The motor loop's: rig, reference, gains, observer, watchdog (its
+        ``beta`` the rigid-equivalent model's).
+    stiffness, damping, motor_inertia, half_backlash : ndarray, shape (n,)
+        The joints' springs (N m/rad), dampers (N m s/rad), reflected motor
+        inertias ``Jm k^2`` (kg m^2) and half backlash gaps (rad).
+    link_beta : ndarray, shape (r,)
+        Base parameters of the link model (beta minus the motor inertias).
+    link_gq, link_gw : ndarray, shape (n,)
+        The link estimate's gains on the motor's position residual.
+    link_substeps : int
+        RK4 steps of the link model per sample.
+    """
+
+    ctc: ArmCTCParameters
+    stiffness: np.ndarray
+    damping: np.ndarray
+    motor_inertia: np.ndarray
+    half_backlash: np.ndarray
+    link_beta: np.ndarray
+    link_gq: np.ndarray
+    link_gw: np.ndarray
+    link_substeps: int
+
+
+def arm_flexible_ctc_law(lp, c, k, Y, E, CS, U, j):
+    """The arm's flexible-joint computed torque as a compiled law of the driver (a template).
+
+    Copied into the module generated per robot (by
+    :meth:`ArmFlexibleComputedTorque.logged_controller`) with its link model over a sample (``link_sample``);
+    the law of ``ArmFlexibleComputedTorque.__call__`` (watchdog, motor
+    observer and link estimate, outer loop, the link model over the sample
+    with the motor on its commanded path, ``Jm k^2 a + mean tau_s - tau_f``,
+    the current limit, conditional integration, zero current and a restart
+    of the link estimate when the link model fails), operation for
+    operation.  ``CS`` ((6 n + 2 + w), lanes): per lane the motor observer
+    ``th_hat``, ``thd_hat``, the previous acceleration, the error sums, the
+    link estimate ``q_l``, ``qd_l``, the restart flag, the watchdog's trip flag and
+    ring.
+
+    Parameters
+    ----------
+    lp : ArmFlexibleCTCParameters
+        The controller's models, reference, gains and watchdog.
+    c : plant.logs.rig.RigConstants
+        Rig layout of the simulation (unused: the controller's own is ``lp.ctc.rig``).
+    k : int
+        Sample index from the start of the run.
+    Y : ndarray, shape (n, lanes)
+        Measured motor angles, joint side (rad).
+    E : ndarray, shape (n, lanes)
+        Pulse errors.
+    CS : ndarray, shape (6 n + 2 + w, lanes)
+        Controller states (updated in place).
+    U : ndarray, shape (n, lanes)
+        Currents (A): column ``j`` is written.
+    j : int
+        Lane.
+    """
+    n = U.shape[0]
+    p = lp.ctc
+    rc = p.rig
+    ts = rc.sample_time_s
+    if watchdog_current(p, k, E, CS, U, j, 6 * n + 1):
+        return
+    ref = p.reference
+    th = np.empty(n)
+    v = np.empty(n)
+    a = np.empty(n)
+    ql = np.empty(n)
+    wl = np.empty(n)
+    first = CS[6 * n, j] != 0.0
+    for m in range(n):
+        spr = rc.pulses_per_rad[m]
+        y = cell_centre(float(round(Y[m, j] * spr))) / spr
+        q_p = CS[m, j] + ts * CS[n + m, j] + 0.5 * ts * ts * CS[2 * n + m, j]
+        w_p = CS[n + m, j] + ts * CS[2 * n + m, j]
+        if first:  # springs relaxed: the link where the motor is
+            th[m] = y
+            v[m] = ref[k, n + m]
+            ql[m] = y
+            wl[m] = ref[k, n + m]
+        else:
+            r = y - q_p
+            th[m] = q_p + p.lq[m] * r
+            v[m] = w_p + p.lw[m] * r
+            ql[m] = CS[4 * n + m, j] + lp.link_gq[m] * r
+            wl[m] = CS[5 * n + m, j] + lp.link_gw[m] * r
+        CS[m, j] = th[m]
+        CS[n + m, j] = v[m]
+        a[m] = (ref[k, 4 * n + m] + p.kv[m] * (ref[k, n + m] - v[m])
+                + p.kp[m] * (ref[k, m] - th[m]) + p.ki[m] * CS[3 * n + m, j])
+    CS[6 * n, j] = 0.0
+    if first:  # the link estimate as the Python law keeps it while its model runs
+        for m in range(n):
+            CS[4 * n + m, j] = ql[m]
+            CS[5 * n + m, j] = wl[m]
+    ok = True
+    try:
+        q, w, mean_ts = link_sample(th, v, a, ql, wl, lp.stiffness, lp.damping,
+                                    lp.half_backlash, lp.link_beta,
+                                    ts / lp.link_substeps, lp.link_substeps)
+    except Exception:  # a non-finite or singular link model
+        ok = False
+        q, w, mean_ts = ql, wl, np.full(n, np.nan)
+    cur = np.empty(n)
+    tf = np.empty(n)
+    for m in range(n):
+        tf[m] = friction_torque(ref[k, 3 * n + m], rc.viscous[m], rc.coulomb_pos[m],
+                                rc.coulomb_neg[m], rc.ramp_speed[m])
+        cur[m] = (lp.motor_inertia[m] * a[m] + mean_ts[m] - tf[m]) / rc.torque_per_amp[m]
+        ok = ok and math.isfinite(cur[m])
+    if not ok:
+        # the link model diverged (a robot far from the model): never a NaN to the drive;
+        # the link estimate restarts at the motor
+        CS[6 * n, j] = 1.0
+        for m in range(n):
+            U[m, j] = 0.0
+        return
+    saturated = False
+    for m in range(n):
+        if abs(cur[m]) > rc.current_limit:
+            saturated = True
+        elif p.integral:
+            CS[3 * n + m, j] += ts * (ref[k, m] - th[m])
+    lim = rc.current_limit
+    for m in range(n):
+        if saturated:
+            cur[m] = min(max(cur[m], -lim), lim)
+            a[m] = (cur[m] * rc.torque_per_amp[m] - mean_ts[m] + tf[m]) / lp.motor_inertia[m]
+        CS[2 * n + m, j] = a[m]
+        CS[4 * n + m, j] = q[m]
+        CS[5 * n + m, j] = w[m]
+        U[m, j] = cur[m]
+
+
+#: The compiled computed-torque laws of :class:`ArmComputedTorque` and
+#: :class:`ArmFlexibleComputedTorque`, per (controller's robot, simulated plant) generated
+#: module pair (cached on disk with them).
 _CTC_LAWS = {}
 
 
-def _ctc_law_module(plant):
-    """The module generated for a robot's computed-torque law in the logged-run driver.
+def _ctc_law_module(plant, simulated=None):
+    """The module generated for a robot's computed-torque laws in the logged-run driver.
 
-    It holds the law's kind (``ArmCTCKind``), a copy of :func:`arm_ctc_law`
-    with the robot's dynamics kernel, registered in
+    It holds the laws' kinds (``ArmCTCKind``, ``ArmFlexibleCTCKind``),
+    copies of :func:`arm_ctc_law` and :func:`arm_flexible_ctc_law` with the
+    robot's dynamics kernel, registered in
     :data:`plant.simulation.controllers.CONTROL_LAWS`, and a copy of the
-    logged-run driver (:func:`plant.simulation.simulate.logged_run`) compiled with
-    it: the law's kind lives with the driver copy whose on-disk cache names
-    it (:attr:`plant.simulation.controllers.LoggedController.driver`).
+    logged-run driver (:func:`plant.simulation.simulate.logged_run`)
+    compiled with them: the laws' kinds live with the driver copy whose
+    on-disk cache names them
+    (:attr:`plant.simulation.controllers.LoggedController.driver`).  With
+    ``simulated`` (the arm plant the laws will run in, when it is not the
+    robot's own module: its two-mass plant, another robot) the module
+    imports that plant's module too, so the driver copy's cache may name
+    its kind (:func:`plant.simulation.simulate.for_kinds`).
     """
     from plant.simulation.generated import load, module_text
     from plant.simulation.simulate import logged_run
 
     robot = plant.kernels.__name__
-    module = _CTC_LAWS.get(robot)
+    other = None if simulated is None else simulated.kernels.__name__
+    if other == robot:
+        other = None
+    module = _CTC_LAWS.get((robot, other))
     if module is None:
+        imports = ["", f"from {robot} import dynamics",
+                   "from plant.simulation.controllers import register_control_law"]
+        if other is not None:
+            imports.append(f"from {other} import ArmKind as SimulatedArmKind  # noqa: F401")
         text = module_text(
-            f"The computed-torque law of {plant.name} in the logged-run driver: generated by "
+            f"The computed-torque laws of {plant.name} in the logged-run driver: generated by "
             "ctc.arm.",
-            imports=["", f"from {robot} import dynamics",
-                     "from plant.simulation.controllers import register_control_law"],
+            imports=imports,
             body=["class ArmCTCKind(NamedTuple):",
                   "    \"\"\"This robot's computed-torque law kind (its type selects the law).\"\"\"",
-                  "", "    code: int = 3", "", ""],
-            copies=[(arm_ctc_law, "_inline"), (logged_run, "_kernel")],
-            tail=["register_control_law(ArmCTCKind, arm_ctc_law)"])
-        module = _CTC_LAWS[robot] = load("ctclaw", text)
+                  "", "    code: int = 3", "", "",
+                  "class ArmFlexibleCTCKind(NamedTuple):",
+                  "    \"\"\"This robot's flexible-joint computed-torque law kind.\"\"\"",
+                  "", "    code: int = 4", "", ""],
+            copies=[(watchdog_current, "_inline"), (arm_ctc_law, "_inline"),
+                    (link_rates, "_inline"), (link_sample, "_inline"),
+                    (arm_flexible_ctc_law, "_inline"), (logged_run, "_kernel")],
+            tail=["register_control_law(ArmCTCKind, arm_ctc_law)",
+                  "register_control_law(ArmFlexibleCTCKind, arm_flexible_ctc_law)"])
+        module = _CTC_LAWS[(robot, other)] = load("ctclaw", text)
     return module
 
 
@@ -701,7 +882,7 @@ class ArmComputedTorque:
         self.a_prev = a
         return i
 
-    def logged_controller(self, n_samples) -> LoggedController:
+    def logged_controller(self, n_samples, plant=None) -> LoggedController:
         """This controller as a compiled law of the logged-run driver, for runs of ``n_samples``.
 
         The law of ``__call__`` compiled per robot (:func:`arm_ctc_law`):
@@ -721,6 +902,11 @@ class ArmComputedTorque:
             Samples from t = 0 the reference table covers (a log: its
             ``n_total`` when it has one, a window's start plus its rows,
             else its ``n_samples``).
+        plant : plant.simulation.arm.ArmPlant, optional
+            The arm the law will run in, when it is not the controller's own
+            rigid arm (e.g. the robot's two-mass arm): its generated module
+            goes with the law's, so numba's on-disk cache serves the pair (any
+            other plant runs the driver's in-memory twin).
 
         Returns
         -------
@@ -733,6 +919,18 @@ class ArmComputedTorque:
         ValueError
             ``n_samples`` not a positive integer.
         """
+        lp, ring = self._law_parameters(n_samples)
+        n = self.n
+        state = np.concatenate([lp.reference[0, :2 * n], np.zeros(2 * n + 1),
+                                np.full(ring, -np.inf)])
+        module = _ctc_law_module(self.plant, plant)
+        return LoggedController(kind=module.ArmCTCKind(), parameters=lp, state=state,
+                                name=f"computed torque of {self.plant.name}", n_joints=n,
+                                n_samples=lp.reference.shape[0], driver=module.logged_run)
+
+    def _law_parameters(self, n_samples):
+        """The compiled law's :class:`ArmCTCParameters` for ``n_samples`` samples, and the
+        length of the watchdog's ring (0 without a watchdog)."""
         n_samples = getattr(n_samples, "n_total", getattr(n_samples, "n_samples", n_samples))
         try:
             nt = int(n_samples)
@@ -760,11 +958,7 @@ class ArmComputedTorque:
             np.ascontiguousarray(v, dtype=float) for v in (
                 g.Kp, g.Kv, g.Ki, g.observer_gain[:, 0], g.observer_gain[:, 1])),
             self._integral, *watch)
-        state = np.concatenate([table[0, :2 * n], np.zeros(2 * n + 1), np.full(ring, -np.inf)])
-        module = _ctc_law_module(self.plant)
-        return LoggedController(kind=module.ArmCTCKind(), parameters=lp, state=state,
-                                name=f"computed torque of {self.plant.name}", n_joints=n,
-                                n_samples=nt, driver=module.logged_run)
+        return lp, ring
 
     def _integrate(self, q_d, q_hat, i):
         """The integral action's error sum: ``+ Ts (q_d - q_hat)`` on the joints whose current
@@ -963,21 +1157,49 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         self.link_gain = L[:, 2:4]
         return self.beta
 
-    def logged_controller(self, n_samples):
-        """Not available: the flexible CTC has no compiled law yet (its link model runs in Python).
+    def logged_controller(self, n_samples, plant=None) -> LoggedController:
+        """This controller as a compiled law of the logged-run driver (:func:`arm_flexible_ctc_law`).
+
+        As :meth:`ArmComputedTorque.logged_controller`: each lane starts as
+        :meth:`reset` leaves the controller (the link estimate restarting at
+        the motor on the first sample), with the models, gains and watchdog
+        in use now; the link model over a sample is the compiled
+        ``link_sample`` the controller calls, so the currents are
+        ``__call__``'s to rounding.
 
         Parameters
         ----------
         n_samples : int or log
-            As :meth:`ArmComputedTorque.logged_controller`.
+            Samples from t = 0 the reference table covers.
+        plant : plant.simulation.arm.ArmPlant, optional
+            The arm the law will run in (typically the robot's two-mass arm,
+            :func:`plant.simulation.arm.arm_plant` with ``flexible=True``):
+            its generated module goes with the law's, so numba's on-disk
+            cache serves the pair.
+
+        Returns
+        -------
+        plant.simulation.controllers.LoggedController
 
         Raises
         ------
         ValueError
-            Always (one line).
+            ``n_samples`` not a positive integer.
         """
-        raise ValueError("the flexible-joint CTC (ArmFlexibleComputedTorque) has no compiled law "
-                         "for the logged-run driver; simulate it with plant.simulate_closed_loop")
+        base, ring = self._law_parameters(n_samples)
+        n = self.n
+        lp = ArmFlexibleCTCParameters(
+            base, *(np.ascontiguousarray(v, dtype=float) for v in (
+                self.K, self.D, self.Ia, 0.5 * self.b, self.link_beta, self.link_gain[:, 0],
+                self.link_gain[:, 1])), int(self.link_substeps))
+        q0, qd0 = base.reference[0, :n], base.reference[0, n:2 * n]
+        state = np.concatenate([q0, qd0, np.zeros(2 * n), q0, qd0, [1.0, 0.0],
+                                np.full(ring, -np.inf)])
+        module = _ctc_law_module(self.plant, plant)
+        return LoggedController(kind=module.ArmFlexibleCTCKind(), parameters=lp, state=state,
+                                name=f"flexible-joint computed torque of {self.plant.name}",
+                                n_joints=n, n_samples=base.reference.shape[0],
+                                driver=module.logged_run)
 
     def _link_terms(self, q, qd):
         """The link model's ``D_link(q)`` (n, n) and ``n_link(q, qd)`` (n,)."""
@@ -1084,7 +1306,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     :meth:`ArmComputedTorque.from_result`)."""
     import warnings
 
-    import plant as _plant
+    from plant.simulation.arm import simulate_arm
 
     rig = result["rig"]
     n = int(min(log.n_samples, round(FLEXIBLE_CHECK_S / rig.sample_time_s)))
@@ -1094,39 +1316,45 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     row0 = np.asarray(result["plant_row"], dtype=float)
     n_sc = len(FLEXIBLE_CHECK_SCENARIOS)
 
-    def scenario_error(ctrl, i):
-        """Max abs(e) (pulses) after 0.1 s of one scenario; inf for a failed run."""
-        _, fk, fd = FLEXIBLE_CHECK_SCENARIOS[i]
-        row = row0.copy()
-        row[nb:nb + nj] *= fk
-        row[nb + nj:nb + 2 * nj] *= fd
+    fplant = result["flexible_plant"]
+    rows = np.tile(row0, (n_sc, 1))
+    for i, (_, fk, fd) in enumerate(FLEXIBLE_CHECK_SCENARIOS):
+        rows[i, nb:nb + nj] *= fk
+        rows[i, nb + nj:nb + 2 * nj] *= fd
+    after = np.arange(n) * rig.sample_time_s >= 0.1 - 1e-12  # the samples from 0.1 s on
+
+    def scenario_errors(ctrl):
+        """Max abs(e) (pulses) after 0.1 s of every scenario, inf for a failed run: the
+        controller's compiled law in the loop of the scenarios' robots at once (the pulses of
+        plant.simulate_closed_loop with the controller, sample for sample)."""
+        if not after.any():
+            return [np.inf] * n_sc
         try:
-            r = _plant.simulate_closed_loop(rig, row, ctrl, trajectory=log.trajectory,
-                                            n_samples=n, plant=result["flexible_plant"],
-                                            substeps=sub)
-            e = float(r.max_abs_error(0.1).max()) if r.success and n * rig.sample_time_s > 0.1 \
-                else np.inf
+            sim = simulate_arm(fplant, rows, rig, log.trajectory, n, substeps=sub,
+                               controller=ctrl.logged_controller(n, plant=fplant))
         except ValueError:
-            e = np.inf
-        return e if np.isfinite(e) else np.inf
+            return [np.inf] * n_sc
+        return [float(np.abs(sim.errors[i][after]).max()) if sim.status[i] == 0 else np.inf
+                for i in range(n_sc)]
 
     def check(make, bound=np.inf):
-        """(controller or None, errors per scenario): nan where the run was skipped, as soon
-        as one scenario's finite error exceeds ``bound`` (finite: the largest error of a
-        candidate that ran every scenario finitely) -- the candidate cannot be the minimax
-        one.  A failed run (inf) stops nothing: no controller may run that scenario, and
-        then it does not count."""
+        """(controller or None, errors per scenario): nan where the sequential check would have
+        skipped the run, after the first scenario (in :data:`_CHECK_ORDER`) whose finite
+        error exceeds ``bound`` (finite: the largest error of a candidate that ran every
+        scenario finitely) -- the candidate cannot be the minimax one.  A failed run (inf)
+        stops nothing: no controller may run that scenario, and then it does not count."""
         try:
             ctrl = make()
         except ValueError:
             return None, []
         env, ctrl.envelope = ctrl.envelope, None  # the check sees the law itself
+        every = scenario_errors(ctrl)
+        ctrl.envelope = env
         errs = [np.nan] * n_sc
         for i in _CHECK_ORDER:
-            errs[i] = scenario_error(ctrl, i)
+            errs[i] = every[i]
             if np.isfinite(errs[i]) and errs[i] > bound:
                 break
-        ctrl.envelope = env
         return ctrl, errs
 
     # the rigid-equivalent CTC first: its errors bound the flexible candidates' search

@@ -259,8 +259,55 @@ def test_the_compiled_arm_ctc_is_the_controllers_law(arm, limit, design, beta_sc
     np.testing.assert_array_equal(again.errors[0], r.e_pulses)
 
 
+#: Two-mass joints of the planar arm (examples/any_arm.py's rule: a 25 / 30 Hz locked-rotor
+#: mode, damping ratio 0.1, reflected motor inertia, backlash on joint 2).
+PLANAR_JOINTS = dict(stiffness=np.array([7207.3, 1895.0]), damping=np.array([3.88, 1.23]),
+                     motor_inertia=np.array([0.25, 0.24]), backlash=np.array([0.0, 0.002]))
+
+
+@pytest.mark.parametrize("limit, design, k_robot, envelope, link_k", [
+    (40.0, {}, 1.0, None, 1.0),                                   # tracks
+    (40.0, dict(integral_bandwidth_hz=2.0), 0.7, None, 1.0),      # a softer robot, integral
+    (3.0, {}, 1.0, None, 1.0),                                    # saturates
+    (40.0, {}, 0.3, (5.0, 5.0), 1.0),                             # the watchdog trips
+    (40.0, {}, 1.0, None, 100.0),                                 # the link model fails
+])
+def test_the_compiled_flexible_arm_ctc_is_the_controllers_law(arm, limit, design, k_robot, envelope,
+                                                              link_k):
+    """ArmFlexibleComputedTorque.logged_controller in the two-mass arm's driver gives the Python
+    controller's pulses in plant.simulate_closed_loop, sample for sample: within the limit, with
+    integral action on a robot 30 % softer than the model, saturating, with the watchdog
+    handing the arm to the P law, and with a link model too stiff for one RK4 step a sample
+    (non-finite: zero current, the link estimate restarts)."""
+    import warnings
+
+    from ctc.arm import ArmFlexibleComputedTorque
+
+    flex = arm_plant(planar_arm(), flexible=True)
+    j = PLANAR_JOINTS
+    row = np.concatenate([arm.beta(), k_robot * j["stiffness"], j["damping"], j["motor_inertia"],
+                          j["backlash"]])
+    rig = planar_rig(p_gain=(0.05, 0.05), limit=limit)
+    ctc = ArmFlexibleComputedTorque(arm, arm.beta(), rig, TRAJ, envelope=envelope,
+                                    **dict(j, stiffness=link_k * j["stiffness"]),
+                                    **(dict(link_substeps=1) if link_k > 1 else {}), **design)
+    n = 1500
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        r = plant.simulate_closed_loop(rig, row, ctc, trajectory=TRAJ, n_samples=n, plant=flex,
+                                       substeps=8)
+    assert r.success and (ctc.fallback_t_s is not None) == (envelope is not None)
+    if link_k > 1:
+        assert np.any(np.all(r.i_A == 0.0, axis=1))  # the failure path ran
+    sim = simulate_arm(flex, np.vstack([row, row]), rig, TRAJ, n, substeps=8,
+                       controller=ctc.logged_controller(n, plant=flex))
+    assert np.all(sim.status == 0)
+    for e in sim.errors:
+        np.testing.assert_array_equal(e, r.e_pulses)
+
+
 def test_the_compiled_arm_ctc_refuses_what_it_cannot_run(arm):
-    from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
+    from ctc.arm import ArmComputedTorque
 
     rig = planar_rig(limit=40.0)
     ctc = ArmComputedTorque(arm, arm.beta(), rig, TRAJ)
@@ -270,9 +317,6 @@ def test_the_compiled_arm_ctc_refuses_what_it_cannot_run(arm):
     for bad in (0, 2.5, "x", None):
         with pytest.raises(ValueError, match="positive integer"):
             ctc.logged_controller(bad)
-    flex = ArmFlexibleComputedTorque.__new__(ArmFlexibleComputedTorque)
-    with pytest.raises(ValueError, match="no compiled law"):
-        flex.logged_controller(100)
 
 
 @pytest.mark.parametrize("limit, design, beta_scale", [
@@ -315,9 +359,9 @@ def test_the_casadi_evaluation_of_the_arm_ctc_refuses_bad_input(arm):
 
 
 def test_a_generated_kind_of_another_module_runs_in_memory(arm):
-    """The CTC law's driver copy is cached on disk with its own robot's plant kind only: another
-    generated module's kind (here the two-mass arm's) gets the in-memory twin, so no index on
-    disk names a module that may be pruned."""
+    """The CTC law's driver copy is cached on disk with its own robot's plant kind, and with the
+    plant it was built for: another generated module's kind (here the two-mass arm's) gets the
+    in-memory twin, so no index on disk names a module that may be pruned."""
     from ctc.arm import ArmComputedTorque
     from plant.simulation.simulate import for_kinds
 
@@ -326,6 +370,10 @@ def test_a_generated_kind_of_another_module_runs_in_memory(arm):
     flex = arm_plant(planar_arm(), flexible=True)
     twin = for_kinds(law.driver, flex.kind, law.kind, law.parameters)
     assert twin is not law.driver and twin.py_func is law.driver.py_func
+    # built for the plant it runs in, the law's module imports that plant's: cached on disk
+    paired = ArmComputedTorque(arm, arm.beta(), planar_rig(limit=40.0), TRAJ).logged_controller(
+        10, plant=flex)
+    assert for_kinds(paired.driver, flex.kind, paired.kind, paired.parameters) is paired.driver
     # the robot's own driver never sees the law's generated kind
     assert for_kinds(arm.kernels.logged_run, arm.kind, law.kind) is not arm.kernels.logged_run
 

@@ -55,6 +55,7 @@ builds the same robot loads them instead of compiling them again.
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
 import sys
 from dataclasses import dataclass, field
@@ -764,8 +765,11 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     compared = np.zeros(m, dtype=np.int64)
 
     law = P_LAW if controller is None else controller
-    if not isinstance(law, LoggedController) and callable(getattr(law, "logged_controller", None)):
-        law = law.logged_controller(nt)  # e.g. a ctc.arm.ArmComputedTorque
+    make = getattr(law, "logged_controller", None)
+    if not isinstance(law, LoggedController) and callable(make):
+        # e.g. a ctc.arm.ArmComputedTorque: its law for this run, with this plant when it takes one
+        law = (make(nt, plant=plant) if "plant" in inspect.signature(make).parameters
+               else make(nt))
     if not isinstance(law, LoggedController):
         raise ValueError("controller must be a plant.simulation.controllers.LoggedController "
                          "(a compiled law), an object with logged_controller(n_samples), or None, "
@@ -855,10 +859,11 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
         every sample with every joint's measured angle and pulse error
         (``law(lp, c, k, Y, E, CS, U, j)``); it must write all n joints'
         currents (the driver clips them at the drive's full scale).  Or a
-        controller with a ``logged_controller(n_samples)`` method, e.g. a
-        :class:`ctc.arm.ArmComputedTorque` (its computed torque, compiled,
-        in the loop of every candidate robot ``B``: the controller's model
-        stays its own).
+        controller with a ``logged_controller(n_samples[, plant])`` method,
+        e.g. a :class:`ctc.arm.ArmComputedTorque` or
+        :class:`ctc.arm.ArmFlexibleComputedTorque` (its computed torque,
+        compiled, in the loop of every candidate robot ``B``: the
+        controller's model stays its own).
 
     Returns
     -------
