@@ -118,6 +118,11 @@ def test_diverging_candidate_stops_early_and_penalty_orders_failures(paper_log, 
     assert sim.objective[0] < sim.objective[1]
     with pytest.raises(plant.SimulationError, match="left the bound"):
         plant.simulate_experiment(paper_log, light, substeps=2, bound=200.0)
+    # a window whose run from t = 0 fails before the window: said so, not the window's start
+    t_fail = sim.n_compared[0] * paper_log.rig.sample_time_s
+    window = paper_log.window(t_fail + 0.5, t_fail + 1.0)
+    with pytest.raises(plant.SimulationError, match="failed before the log's window"):
+        plant.simulate_experiment(window, light, substeps=2, bound=200.0)
 
 
 @pytest.mark.parametrize(

@@ -737,9 +737,13 @@ def simulate_experiment(log, f, *, substeps=DEFAULT_SUBSTEPS, quantize=True, bou
     st = int(sim.status[0])
     if st != STATUS_OK:
         k = int(log.start_index) + int(sim.n_compared[0])
+        when = f"at t = {k * log.rig.sample_time_s:.4f} s"
+        if int(sim.n_compared[0]) == 0 and log.start_index > 0 and initial_state is None:
+            # the run from t = 0 failed before the window's rows were compared
+            when = f"before the log's window (at or before its first sample, t = " \
+                   f"{k * log.rig.sample_time_s:.4f} s)"
         raise SimulationError(
-            f"simulation of {getattr(log, 'name', 'log')} failed at t = "
-            f"{k * log.rig.sample_time_s:.4f} s: {STATUS_MESSAGES[st]}"
+            f"simulation of {getattr(log, 'name', 'log')} failed {when}: {STATUS_MESSAGES[st]}"
         )
     return sim.e_pulses[0]
 
