@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from plant.logs.rig import rig_constants
 from plant.simulation.twin import cell_centre_sx, friction_sx, sample_step_function, trunc_sx
 from plant.robot.symbolic import derive_base_model
 
@@ -213,6 +214,7 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
     g = controller.gains
     lim = c.current_limit if current_full_scale_A is None else float(current_full_scale_A)
     limited = bool(np.isfinite(lim))
+    integral = bool(np.any(g.Ki))  # the error sum only where it acts, as the controller
     x = ca.SX.sym("x", 6 * n)
     u = ca.SX.sym("u", 6 * n)
     q, w = x[0:n], x[n:2 * n]
@@ -244,7 +246,7 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
     cur, z_next, over = [], [], []
     for j in range(n):
         ij = tau[j] / c.torque_per_amp[j]
-        z_run = x[5 * n + j] + ts * (q_d[j] - qh[j]) if controller._integral else x[5 * n + j]
+        z_run = x[5 * n + j] + ts * (q_d[j] - qh[j]) if integral else x[5 * n + j]
         if limited:
             over.append(ca.fabs(ij) > lim)
             z_run = ca.if_else(over[-1], x[5 * n + j], z_run)
@@ -271,13 +273,18 @@ def _evaluate_arm(controller, beta_robot, *, n_samples, substeps, after_s, pulse
     """:func:`evaluate_ctc` for an arm's computed torque (:func:`build_arm_step_function`)."""
     if n_samples is None:
         raise ValueError("n_samples is required for an arm's controller (it has no reference table)")
-    n = int(n_samples)
+    try:
+        n, sub = int(n_samples), int(substeps)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"n_samples and substeps must be positive integers, got {n_samples!r} "
+                         f"and {substeps!r}") from None
     if n < 1 or n != n_samples:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
-    if int(substeps) < 1:
-        raise ValueError(f"substeps must be >= 1, got {substeps}")
+    if sub < 1 or sub != substeps:
+        raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
     nj, ts, c = controller.n, controller.ts, controller.c
-    step = build_arm_step_function(controller, beta_robot, substeps=int(substeps))
+    start = rig_constants(controller.rig)  # the rig's start state (the controller's c has zeros)
+    step = build_arm_step_function(controller, beta_robot, substeps=sub)
     run = step.mapaccum("arm_ctc_run", n)
     t = np.arange(n) * ts
     q, qd, _ = controller.trajectory.evaluate(t)
@@ -286,8 +293,8 @@ def _evaluate_arm(controller, beta_robot, *, n_samples, substeps, after_s, pulse
     U = np.hstack([np.asarray(v, dtype=float).reshape(n, nj) for v in (q, qd, qm, qdm, qddm)]
                   + [refc]).T
     x0 = np.zeros(6 * nj)
-    for k, (given, start) in enumerate(((q0, c.q0), (qd0, c.qd0))):
-        v = np.asarray(start if given is None else given, dtype=float).reshape(-1)
+    for k, (given, default) in enumerate(((q0, start.q0), (qd0, start.qd0))):
+        v = np.asarray(default if given is None else given, dtype=float).reshape(-1)
         if v.shape != (nj,) or not np.all(np.isfinite(v)):
             raise ValueError(f"the start state must be {nj} finite numbers per joint, got {v!r}")
         x0[k * nj:(k + 1) * nj] = v

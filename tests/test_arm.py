@@ -299,11 +299,13 @@ def test_the_compiled_flexible_arm_ctc_is_the_controllers_law(arm, limit, design
     assert r.success and (ctc.fallback_t_s is not None) == (envelope is not None)
     if link_k > 1:
         assert np.any(np.all(r.i_A == 0.0, axis=1))  # the failure path ran
-    sim = simulate_arm(flex, np.vstack([row, row]), rig, TRAJ, n, substeps=8,
+    other = row.copy()
+    other[:arm.beta().size] *= 1.1  # a 10 % heavier arm in the second lane
+    sim = simulate_arm(flex, np.vstack([row, other]), rig, TRAJ, n, substeps=8,
                        controller=ctc.logged_controller(n, plant=flex))
     assert np.all(sim.status == 0)
-    for e in sim.errors:
-        np.testing.assert_array_equal(e, r.e_pulses)
+    np.testing.assert_array_equal(sim.errors[0], r.e_pulses)
+    assert not np.array_equal(sim.errors[1], r.e_pulses)  # each lane its own robot
 
 
 def test_the_compiled_arm_ctc_refuses_what_it_cannot_run(arm):
@@ -314,24 +316,37 @@ def test_the_compiled_arm_ctc_refuses_what_it_cannot_run(arm):
     law = ctc.logged_controller(100)
     with pytest.raises(ValueError, match="cover 100 samples, the run takes 101"):
         simulate_arm(arm, arm.beta(), rig, TRAJ, 101, controller=law)
-    for bad in (0, 2.5, "x", None):
+    for bad in (0, 2.5, "x", None, float("inf")):
         with pytest.raises(ValueError, match="positive integer"):
             ctc.logged_controller(bad)
 
+    class PumaStyle:  # a controller whose compiled law is for a PUMA log, not an arm's run
+        def reset(self):
+            pass
 
-@pytest.mark.parametrize("limit, design, beta_scale", [
-    (40.0, {}, 1.0),
-    (3.0, dict(integral_bandwidth_hz=2.0), 1.0),     # saturated: the observer and the error sum
-    (40.0, dict(integral_bandwidth_hz=2.0), 1.2),    # a model 20 % off
+        def logged_controller(self, log, state=None):
+            return log.n_total
+
+    with pytest.raises(ValueError, match="an arm's controller"):
+        simulate_arm(arm, arm.beta(), rig, TRAJ, 100, controller=PumaStyle())
+
+
+@pytest.mark.parametrize("limit, design, beta_scale, q0", [
+    (40.0, {}, 1.0, (0.0, 0.0)),
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.0, (0.0, 0.0)),   # saturated: observer, error sum
+    (40.0, dict(integral_bandwidth_hz=2.0), 1.2, (0.0, 0.0)),  # a model 20 % off
+    (40.0, {}, 1.0, (0.32, -0.23)),                            # the rig starts off the reference
 ])
-def test_the_casadi_evaluation_of_the_arm_ctc_is_the_closed_loop(arm, limit, design, beta_scale):
+def test_the_casadi_evaluation_of_the_arm_ctc_is_the_closed_loop(arm, limit, design, beta_scale,
+                                                                 q0):
     """ctc.evaluate.evaluate_ctc on an arm's CTC (casadi: the robot model's function, the twin of
     the sample step) gives the pulses of plant.simulate_closed_loop with the Python controller,
-    sample for sample over 2 s at the same substeps, and its currents to rounding."""
+    sample for sample over 2 s at the same substeps, and its currents to rounding -- from the
+    rig's start state, as the closed loop."""
     from ctc.arm import ArmComputedTorque
     from ctc.evaluate import evaluate_ctc
 
-    rig = planar_rig(p_gain=(0.05, 0.05), limit=limit)
+    rig = dataclasses.replace(planar_rig(p_gain=(0.05, 0.05), limit=limit), q0_rad=q0)
     ctc = ArmComputedTorque(arm, beta_scale * arm.beta(), rig, TRAJ, **design)
     r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000,
                                    plant=arm, substeps=32)
@@ -340,6 +355,7 @@ def test_the_casadi_evaluation_of_the_arm_ctc_is_the_closed_loop(arm, limit, des
     np.testing.assert_allclose(ev.i_A, r.i_A, rtol=0, atol=1e-9 * max(1.0, np.abs(r.i_A).max()))
     assert ev.within_one_pulse == bool(np.all(r.max_abs_error(0.1) <= 1))
     assert ev.e_pulses.shape == (2000, 2) and "pulses after 100 ms" in ev.summary()
+    assert np.any(ev.e_pulses[0] != 0) == (q0 != (0.0, 0.0))
 
 
 def test_the_casadi_evaluation_of_the_arm_ctc_refuses_bad_input(arm):
@@ -353,6 +369,8 @@ def test_the_casadi_evaluation_of_the_arm_ctc_refuses_bad_input(arm):
         evaluate_ctc(ctc, arm.beta()[:-1], n_samples=10)
     with pytest.raises(ValueError, match="positive integer"):
         evaluate_ctc(ctc, arm.beta(), n_samples=0)
+    with pytest.raises(ValueError, match="substeps"):
+        evaluate_ctc(ctc, arm.beta(), n_samples=10, substeps=None)
     flex = ArmFlexibleComputedTorque.__new__(ArmFlexibleComputedTorque)
     with pytest.raises(ValueError, match="rigid arm's CTC"):
         build_arm_step_function(flex, arm.beta())

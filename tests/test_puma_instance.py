@@ -204,6 +204,10 @@ def test_identify_arm_on_the_rigid_log_and_its_ctc(paper_rigid_path, truth):
     assert np.all(arm_run.status == 0) and np.all(puma_run.status == 0)
     np.testing.assert_array_equal(arm_run.errors[0], run.e_pulses)
     np.testing.assert_array_equal(puma_run.e_pulses, arm_run.errors)
+    # its state is the controller's at t = 0: a window run from a given start state is refused
+    window = plant.load_log(paper_rigid_path).window(1.0, 2.0)
+    with pytest.raises(ValueError, match="starts from its state at sample 0"):
+        plant.simulate_batch(window, F, controller=ctl, initial_state=np.zeros(4))
 
 
 @pytest.fixture(scope="module")

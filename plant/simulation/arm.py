@@ -766,16 +766,17 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
 
     law = P_LAW if controller is None else controller
     make = getattr(law, "logged_controller", None)
-    if not isinstance(law, LoggedController) and callable(make):
+    takes = inspect.signature(make).parameters if callable(make) else {}
+    if not isinstance(law, LoggedController) and "n_samples" in takes:
         # e.g. a ctc.arm.ArmComputedTorque: its law for this run, with this plant when it takes one
-        law = (make(nt, plant=plant) if "plant" in inspect.signature(make).parameters
-               else make(nt))
+        law = make(nt, plant=plant) if "plant" in takes else make(nt)
     if not isinstance(law, LoggedController):
         raise ValueError("controller must be a plant.simulation.controllers.LoggedController "
-                         "(a compiled law), an object with logged_controller(n_samples), or None, "
-                         f"got {type(controller).__name__}")
+                         "(a compiled law), an object with logged_controller(n_samples) (an "
+                         f"arm's controller), or None, got {type(controller).__name__}")
     law.check_joints(n)
     law.check_samples(nt)
+    law.check_start(0)
     # the logged-run driver compiled for this robot, or the law's own copy (a law generated
     # per robot); its in-memory twin for a law defined outside the library, which the
     # on-disk cache must not name

@@ -233,6 +233,10 @@ class LoggedController:
     n_samples : int or None
         The samples from t = 0 the law's tables cover (e.g. its reference;
         None: any run); a driver refuses a longer run (:meth:`check_samples`).
+    state_at : int or None
+        The sample the start state belongs to (None: whichever sample the
+        run starts at, e.g. a law without state); a driver refuses a run that
+        starts elsewhere (:meth:`check_start`).
     driver : numba dispatcher or None
         A copy of the logged-run driver compiled with this law (None: the
         robot's own).  A law generated per robot
@@ -248,6 +252,7 @@ class LoggedController:
     name: str = "controller"
     n_joints: Any = None
     n_samples: Any = None
+    state_at: Any = None
     driver: Any = None
 
     def check_joints(self, n) -> None:
@@ -283,6 +288,25 @@ class LoggedController:
         if self.n_samples is not None and int(n) > int(self.n_samples):
             raise ValueError(f"the {self.name} law's tables cover {self.n_samples} samples, "
                              f"the run takes {n}")
+
+    def check_start(self, k) -> None:
+        """Refuse a run that starts at sample ``k`` when the start state belongs to another.
+
+        Parameters
+        ----------
+        k : int
+            The sample the simulation starts at (a window's first with a given
+            plant state, else 0).
+
+        Raises
+        ------
+        ValueError
+            If :attr:`state_at` is set and is not ``k``.
+        """
+        if self.state_at is not None and int(k) != int(self.state_at):
+            raise ValueError(f"the {self.name} law starts from its state at sample "
+                             f"{self.state_at}, the run at sample {k}: simulate the window "
+                             "from t = 0 (no initial_state)")
 
     @property
     def is_p_law(self) -> bool:

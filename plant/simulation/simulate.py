@@ -636,6 +636,7 @@ def simulate_batch(
     law = as_logged_controller(controller, log)
     law.check_joints(inputs.ref_counts.shape[1])
     law.check_samples(inputs.ref_counts.shape[0])
+    law.check_start(k_start)
     i_log = inputs.i_log
 
     # the driver's copy compiled with the law (a law generated per robot), else this module's
