@@ -1351,12 +1351,26 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
         if not after.any():
             return [np.inf] * n_sc
         try:
-            sim = simulate_arm(fplant, rows, rig, log.trajectory, n, substeps=sub,
-                               controller=ctrl.logged_controller(n, plant=fplant))
+            law = ctrl.logged_controller(n, plant=fplant)
         except ValueError:
             return [np.inf] * n_sc
-        return [float(np.abs(sim.errors[i][after]).max()) if sim.status[i] == 0 else np.inf
-                for i in range(n_sc)]
+
+        def run(lanes):
+            sim = simulate_arm(fplant, rows[lanes], rig, log.trajectory, n, substeps=sub,
+                               controller=law)
+            return [float(np.abs(e[after]).max()) if st == 0 else np.inf
+                    for e, st in zip(sim.errors, sim.status)]
+
+        try:
+            return run(slice(None))
+        except ValueError:  # one scenario's robot refused: each alone, as the sequential check
+            errs = []
+            for i in range(n_sc):
+                try:
+                    errs += run(slice(i, i + 1))
+                except ValueError:
+                    errs.append(np.inf)
+            return errs
 
     def check(make, bound=np.inf):
         """(controller or None, errors per scenario): nan where the sequential check would have
