@@ -387,7 +387,7 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
             rhs[m] = cur[m] * rc.torque_per_amp[m] - nvec[m] + tf[m]
         try:
             a = solve_dense(D, rhs)
-        except Exception:  # non-finite or singular: numpy's NaN, so this lane alone fails
+        except Exception:  # non-finite (numpy's solve gives NaN there) or singular: this lane fails
             a = np.full(n, np.nan)
     for m in range(n):
         CS[2 * n + m, j] = a[m]
