@@ -396,6 +396,19 @@ def test_a_generated_kind_of_another_module_runs_in_memory(arm):
     assert for_kinds(arm.kernels.logged_run, arm.kind, law.kind) is not arm.kernels.logged_run
 
 
+def test_arm_batches_split_over_threads_give_the_same_pulses(arm):
+    """12 candidates: two chunks on two threads (more than one SIMD block), the pulses and
+    output errors of one thread's single chunk."""
+    rng = np.random.default_rng(5)
+    B = arm.beta() * (1 + 0.05 * rng.standard_normal((12, arm.beta().size)))
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 600)
+    one, two = (simulate_arm(arm, B, log.rig, TRAJ, 600, e_log=log.e_pulses, workers=w)
+                for w in (1, 2))
+    np.testing.assert_array_equal(one.errors, two.errors)
+    np.testing.assert_array_equal(one.objective, two.objective)
+    np.testing.assert_array_equal(one.status, two.status)
+
+
 def test_arm_replay_prediction_errors_are_small_at_the_truth(arm):
     log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1000)
     sim = replay_arm(arm, np.vstack([arm.beta(), 1.05 * arm.beta()]), log.rig,

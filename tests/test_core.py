@@ -81,6 +81,11 @@ def test_chunks_have_enough_lanes():
     big = chunk_ranges(4 * MIN_LANES_PER_CHUNK, 2)
     assert big == [(0, 2 * MIN_LANES_PER_CHUNK), (2 * MIN_LANES_PER_CHUNK, 4 * MIN_LANES_PER_CHUNK)]
     assert chunk_ranges(5, 8) == [(0, 5)]
+    # kernels whose lanes cost per lane (a robot model's arm): split beyond one SIMD block
+    assert chunk_ranges(8, 2, block=8) == [(0, 8)]
+    assert chunk_ranges(9, 2, block=8) == [(0, 5), (5, 9)]
+    assert chunk_ranges(16, 4, block=8) == [(0, 8), (8, 16)]
+    assert chunk_ranges(76, 2, block=8) == [(0, 38), (38, 76)]
 
 
 def test_simulation_leaves_no_state_behind(paper_log):

@@ -64,7 +64,7 @@ import casadi as ca
 import numpy as np
 
 from plant.robot.codegen import function_source
-from plant.simulation.core import STATUS_MESSAGES, STATUS_OK
+from plant.simulation.core import LANE_PAD, STATUS_MESSAGES, STATUS_OK
 from plant.simulation.generated import load, module_text
 from plant.simulation.lanes import new_lanes
 from plant.simulation.controllers import P_LAW, LoggedController
@@ -796,7 +796,8 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
             compared, hi - lo, law.kind, law.parameters, law.lane_states(lanes.X.shape[1]),
             i_log, True)
 
-    run_chunks(chunk, m, workers)
+    # the arm's lanes cost per lane: two threads as soon as there is more than one SIMD block
+    run_chunks(chunk, m, workers, block=LANE_PAD)
     msgs = tuple("ok" if s == STATUS_OK else
                  f"{STATUS_MESSAGES[int(s)]} at t = {k * rig.sample_time_s:.4f} s"
                  for s, k in zip(status, compared))
