@@ -300,6 +300,27 @@ def watchdog_current(lp, k, E, CS, U, j, o):
     return tripped
 
 
+def observer_prediction(rc, Y, CS, j, m, n):
+    """Joint ``m`` of lane ``j``: the measured angle (the centre of its count's cell) and the
+    current observer's prediction ``(y, q_p, w_p)`` from the state in ``CS`` (rows ``q_hat``,
+    ``qd_hat``, previous acceleration; a kernel's template: the compiled laws' common step)."""
+    ts = rc.sample_time_s
+    spr = rc.pulses_per_rad[m]
+    y = cell_centre(float(round(Y[m, j] * spr))) / spr
+    q_p = CS[m, j] + ts * CS[n + m, j] + 0.5 * ts * ts * CS[2 * n + m, j]
+    w_p = CS[n + m, j] + ts * CS[2 * n + m, j]
+    return y, q_p, w_p
+
+
+def outer_loop(p, k, m, n, q_h, w_h, z):
+    """The outer loop's acceleration of joint ``m`` at sample ``k``: the reference's at
+    mid-sample plus the PD (and integral, error sum ``z``) terms on the estimate ``q_h, w_h``
+    (``p`` an :class:`ArmCTCParameters`; a kernel's template)."""
+    ref = p.reference
+    return (ref[k, 4 * n + m] + p.kv[m] * (ref[k, n + m] - w_h) + p.kp[m] * (ref[k, m] - q_h)
+            + p.ki[m] * z)
+
+
 def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     """The arm's computed torque as a compiled law of the logged-run driver (a kernel's template).
 
@@ -343,16 +364,12 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     v = np.empty(n)
     a = np.empty(n)
     for m in range(n):
-        spr = rc.pulses_per_rad[m]
-        y = cell_centre(float(round(Y[m, j] * spr))) / spr
-        q_p = CS[m, j] + ts * CS[n + m, j] + 0.5 * ts * ts * CS[2 * n + m, j]
-        w_p = CS[n + m, j] + ts * CS[2 * n + m, j]
+        y, q_p, w_p = observer_prediction(rc, Y, CS, j, m, n)
         r = y - q_p
         q_h = q_p + lp.lq[m] * r
         CS[m, j] = q_h
         CS[n + m, j] = w_p + lp.lw[m] * r
-        a[m] = (ref[k, 4 * n + m] + lp.kv[m] * (ref[k, n + m] - CS[n + m, j])
-                + lp.kp[m] * (ref[k, m] - q_h) + lp.ki[m] * CS[3 * n + m, j])
+        a[m] = outer_loop(lp, k, m, n, q_h, CS[n + m, j], CS[3 * n + m, j])
         q_m = q_h + (ref[k, 2 * n + m] - ref[k, m])
         sc[2 * m] = math.sin(q_m)
         sc[2 * m + 1] = math.cos(q_m)
@@ -472,10 +489,7 @@ def arm_flexible_ctc_law(lp, c, k, Y, E, CS, U, j):
     wl = np.empty(n)
     first = CS[6 * n, j] != 0.0
     for m in range(n):
-        spr = rc.pulses_per_rad[m]
-        y = cell_centre(float(round(Y[m, j] * spr))) / spr
-        q_p = CS[m, j] + ts * CS[n + m, j] + 0.5 * ts * ts * CS[2 * n + m, j]
-        w_p = CS[n + m, j] + ts * CS[2 * n + m, j]
+        y, q_p, w_p = observer_prediction(rc, Y, CS, j, m, n)
         if first:  # springs relaxed: the link where the motor is
             th[m] = y
             v[m] = ref[k, n + m]
@@ -489,8 +503,7 @@ def arm_flexible_ctc_law(lp, c, k, Y, E, CS, U, j):
             wl[m] = CS[5 * n + m, j] + lp.link_gw[m] * r
         CS[m, j] = th[m]
         CS[n + m, j] = v[m]
-        a[m] = (ref[k, 4 * n + m] + p.kv[m] * (ref[k, n + m] - v[m])
-                + p.kp[m] * (ref[k, m] - th[m]) + p.ki[m] * CS[3 * n + m, j])
+        a[m] = outer_loop(p, k, m, n, th[m], v[m], CS[3 * n + m, j])
     CS[6 * n, j] = 0.0
     if first:  # the link estimate as the Python law keeps it while its model runs
         for m in range(n):
@@ -589,7 +602,8 @@ def _build_ctc_law_module(plant, robot, other):
               "class ArmFlexibleCTCKind(NamedTuple):",
               "    \"\"\"This robot's flexible-joint computed-torque law kind.\"\"\"",
               "", "    code: int = 4", "", ""],
-        copies=[(watchdog_current, "_inline"), (arm_ctc_law, "_inline"),
+        copies=[(watchdog_current, "_inline"), (observer_prediction, "_inline"),
+                (outer_loop, "_inline"), (arm_ctc_law, "_inline"),
                 (link_rates, "_inline"), (link_sample, "_inline"),
                 (arm_flexible_ctc_law, "_inline"), (logged_run, "_kernel")],
         tail=["register_control_law(ArmCTCKind, arm_ctc_law)",
@@ -949,6 +963,27 @@ class ArmComputedTorque:
                                 n_samples=lp.reference.shape[0], state_at=0,
                                 driver=module.logged_run)
 
+    def reference_table(self, n_samples) -> np.ndarray:
+        """The reference the law reads, per sample ``k`` of a run from t = 0.
+
+        Parameters
+        ----------
+        n_samples : int
+            Samples.
+
+        Returns
+        -------
+        ndarray, shape (n_samples, 5 n)
+            ``q_d, qd_d`` at ``t_k = k Ts`` and ``q, qd, qdd`` at ``t_k + Ts/2``
+            (rad, rad/s, rad/s^2), n columns each (:class:`ArmCTCParameters`).
+        """
+        nt, n, ts = int(n_samples), self.n, self.ts
+        t = np.arange(nt) * ts
+        q, qd, _ = self.trajectory.evaluate(t)
+        qm, qdm, qddm = self.trajectory.evaluate(t + 0.5 * ts)
+        return np.ascontiguousarray(np.hstack([np.asarray(v, dtype=float).reshape(nt, n)
+                                               for v in (q, qd, qm, qdm, qddm)]))
+
     def _law_parameters(self, n_samples):
         """The compiled law's :class:`ArmCTCParameters` for ``n_samples`` samples, and the
         length of the watchdog's ring (0 without a watchdog)."""
@@ -960,11 +995,7 @@ class ArmComputedTorque:
         if nt < 1 or nt != n_samples:
             raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
         n, ts = self.n, self.ts
-        t = np.arange(nt) * ts
-        q, qd, _ = self.trajectory.evaluate(t)
-        qm, qdm, qddm = self.trajectory.evaluate(t + 0.5 * ts)
-        table = np.ascontiguousarray(np.hstack([np.asarray(v, dtype=float).reshape(nt, n)
-                                                for v in (q, qd, qm, qdm, qddm)]))
+        table = self.reference_table(nt)
         g = self.gains
         fe = self.following_error
         if fe is None:

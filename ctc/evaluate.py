@@ -287,11 +287,8 @@ def _evaluate_arm(controller, beta_robot, *, n_samples, substeps, after_s, pulse
     step = build_arm_step_function(controller, beta_robot, substeps=sub)
     run = step.mapaccum("arm_ctc_run", n)
     t = np.arange(n) * ts
-    q, qd, _ = controller.trajectory.evaluate(t)
-    qm, qdm, qddm = controller.trajectory.evaluate(t + 0.5 * ts)
     refc = np.asarray(controller.trajectory.position(t), dtype=float) * np.asarray(c.pulses_per_rad)
-    U = np.hstack([np.asarray(v, dtype=float).reshape(n, nj) for v in (q, qd, qm, qdm, qddm)]
-                  + [refc]).T
+    U = np.hstack([controller.reference_table(n), refc]).T
     x0 = np.zeros(6 * nj)
     for k, (given, default) in enumerate(((q0, start.q0), (qd0, start.qd0))):
         v = np.asarray(default if given is None else given, dtype=float).reshape(-1)
