@@ -63,6 +63,63 @@ def test_codegen_matches_casadi():
     assert np.allclose(scope["h"](v), np.asarray(f(v)).ravel(), rtol=1e-15, atol=0)
 
 
+def test_multiple_angle_form_is_the_same_function_in_canonical_form():
+    """The product-to-sum rewrite (plant.robot.codegen.multiple_angle_form): the same values
+    at random points; identities of sines and cosines cancel (s^2 + c^2 is the constant 1,
+    so is cos^2 + sin^2 of q1 + q2); operations outside sums and products, or an
+    expression that grows beyond ``max_terms``, give None."""
+    import casadi as ca
+    from plant.robot.codegen import multiple_angle_form
+
+    s, c, x = ca.SX.sym("s", 2), ca.SX.sym("c", 2), ca.SX.sym("x", 2)
+    expr = ca.vertcat(s[0] ** 2 + c[0] ** 2, s[0] * c[1] + c[0] * s[1],
+                      x[0] * (c[0] * c[1] - s[0] * s[1]) ** 2 - 3.0 * x[1] * s[1] * c[0] * x[0] + 0.5)
+    form = multiple_angle_form(expr, s, c, [x])
+    f_in = ca.Function("f", [s, c, x], [expr])
+    f_out = ca.Function("g", [s, c, x], [form])
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        q, xv = rng.uniform(-4, 4, 2), rng.normal(size=2)
+        args = (np.sin(q), np.cos(q), xv)
+        assert np.allclose(np.asarray(f_out(*args)), np.asarray(f_in(*args)), rtol=1e-14, atol=1e-14)
+    assert float(ca.evalf(form[0])) == 1.0                      # s^2 + c^2 = 1: a constant
+    # cos^2 + sin^2 of q1 + q2, each by angle addition: the constant 1 again
+    ident = multiple_angle_form((c[0] * c[1] - s[0] * s[1]) ** 2 + (s[0] * c[1] + c[0] * s[1]) ** 2,
+                                s, c, [x])
+    assert float(ca.evalf(ident)) == 1.0
+    assert multiple_angle_form(s[0] / x[0], s, c, [x]) is None   # a division
+    assert multiple_angle_form(ca.sin(x[0]) * s[0], s, c, [x]) is None
+    assert multiple_angle_form(expr, s, c, [x], max_terms=2) is None
+
+
+def test_arm_dynamics_take_the_shorter_form():
+    """A Newton-Euler model's generated dynamics are its multiple-angle form when that is
+    shorter (the planar arm: several times), the same D and n to rounding; a named basis'
+    torque (the paper's f1..f9 instance) is kept as written."""
+    import casadi as ca
+    import plant.simulation.arm as arm_module
+
+    model = planar_arm()
+    base = model.base_parameters()
+    short = arm_module._dynamics_function(model, base)
+    tau_b, sc, qd, qdd, beta = arm_module._tau_of_beta(model, base)
+    tau_ne = ca.substitute(model._tau_sc, model._symbols[3], ca.mtimes(
+        ca.DM(np.eye(len(model.standard_parameter_names))[:, list(base.independent)]), beta))
+    assert short.n_instructions() * 2 < ca.Function("t", [sc, qd, qdd, beta], [tau_ne]).n_instructions()
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q, qdv, qddv = rng.uniform(-3, 3, 2), rng.normal(size=2), rng.normal(size=2)
+        b = rng.normal(size=base.rank)
+        scv = np.ravel(np.column_stack([np.sin(q), np.cos(q)]))
+        lower, nvec = (np.asarray(v).ravel() for v in short(scv, qdv, b))
+        D = np.array([[lower[0], lower[1]], [lower[1], lower[2]]])
+        want = np.asarray(ca.Function("t", [sc, qd, qdd, beta], [tau_ne])(scv, qdv, qddv, b)).ravel()
+        assert np.allclose(D @ qddv + nvec, want, rtol=1e-12, atol=1e-12)
+    inst = RobotModel.puma560_links23()
+    f = arm_module._dynamics_function(inst, inst.base_parameters())
+    assert f.n_instructions() == 54
+
+
 def _rhs_against_the_model(robot, c, seed, n_states=5):
     """The arm plant's right-hand side and the robot model's forward dynamics at random
     states: per state (q, qd, D(q), xdot, qdd of D^-1 (k Kt i + tau_f - c - g), margin)."""

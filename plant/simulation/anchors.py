@@ -16,6 +16,7 @@ import functools
 import math
 
 import numba
+from numba import types
 from numba.extending import overload
 
 __all__ = ["SINCOS_RANGE", "REANCHOR", "A_Q2", "A_S2", "A_C2", "A_Q3", "A_S3", "A_C3",
@@ -204,27 +205,45 @@ def lane_sincos(x, a, exact):
     return tuple(sc), near
 
 
-def _lane_sincos_source(m):
-    """Source of the compiled :func:`lane_sincos` for m angles (straight-line code)."""
+def _lane_sincos_source(m, exact=True):
+    """Source of the compiled :func:`lane_sincos` for m angles (straight-line code).
+
+    With ``exact=False`` (the argument known False at compile time: the
+    core's fast stages) the libm branch is left out, so the code has no
+    branch and compiles into the SIMD lane loop.
+    """
     lines = ["def impl(x, a, exact):"]
     for r in range(m):
         lines += [f"    d{r} = x[{r}] - a[{3 * r}]",
                   f"    s{r}, c{r} = sincos_offset(d{r}, a[{3 * r + 1}], a[{3 * r + 2}])"]
     lines.append("    near = " + " & ".join(f"(abs(d{r}) <= SINCOS_RANGE)" for r in range(m)))
-    lines.append("    if exact and not near:")
-    for r in range(m):
-        lines.append(f"        s{r}, c{r} = math.sin(x[{r}]), math.cos(x[{r}])")
+    if exact:
+        lines.append("    if exact and not near:")
+        for r in range(m):
+            lines.append(f"        s{r}, c{r} = math.sin(x[{r}]), math.cos(x[{r}])")
     lines.append("    return (" + "".join(f"s{r}, c{r}, " for r in range(m)) + "), near")
     return "\n".join(lines) + "\n"
 
 
 @functools.lru_cache(maxsize=None)
-def _lane_sincos_impl(m):
+def _lane_sincos_impl(m, exact=True):
     scope = {"math": math, "sincos_offset": sincos_offset, "SINCOS_RANGE": SINCOS_RANGE}
-    exec(compile(_lane_sincos_source(m), "<plant.simulation.anchors.lane_sincos>", "exec"), scope)  # noqa: S102
+    exec(compile(_lane_sincos_source(m, exact), "<plant.simulation.anchors.lane_sincos>", "exec"),  # noqa: S102
+         scope)
     return scope["impl"]
 
 
-@overload(lane_sincos, jit_options=dict(nogil=True, error_model="numpy"))
+def _fast(exact) -> bool:
+    """Whether ``exact`` is known False at compile time (the core's fast stages)."""
+    return isinstance(exact, types.BooleanLiteral) and not exact.literal_value
+
+
+def _inline_fast(expr, caller, callee) -> bool:
+    """numba's inlining cost model: inline the branch-free fast variant (IR level)."""
+    return _fast(caller.typemap[expr.args[2].name])
+
+
+@overload(lane_sincos, prefer_literal=True, inline=_inline_fast,
+          jit_options=dict(nogil=True, error_model="numpy"))
 def _lane_sincos_overload(x, a, exact):
-    return _lane_sincos_impl(len(a) // 3)
+    return _lane_sincos_impl(len(a) // 3, not _fast(exact))

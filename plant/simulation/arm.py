@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from plant.robot.codegen import function_source
+from plant.robot.codegen import function_source, multiple_angle_form
 from plant.simulation.core import LANE_PAD, STATUS_MESSAGES, STATUS_OK
 from plant.simulation.generated import load, module_text
 from plant.simulation.lanes import new_lanes
@@ -75,7 +75,7 @@ from plant.logs.rig import rig_constants
 
 __all__ = ["ArmPlant", "arm_plant", "ArmSimulation", "simulate_arm", "replay_arm",
            "reference_counts", "ARM_SUBSTEPS", "link_mode_bound", "kernels_cached", "sin_cos",
-           "symmetric_from_lower"]
+           "symmetric_from_lower", "INLINE_MAX_INSTRUCTIONS", "TINY_PIVOT"]
 
 #: RK4 substeps per sample of the arm's logged runs by default: the exact
 #: reproduction of a log, the same rule as the PUMA 560 path's
@@ -351,7 +351,26 @@ def _tau_of_beta(model, base):
         p_beta[int(col)] = beta[k]
     tau_b = ca.substitute(model._tau_sc, p, ca.vertcat(*p_beta))
     sc = ca.vertcat(*[v for k in range(n) for v in (s[k], c[k])])
-    return tau_b, sc, qd, qdd, beta
+    return _shorter_form(model, tau_b, s, c, (qd, qdd, beta)), sc, qd, qdd, beta
+
+
+def _shorter_form(model, tau, s, c, symbols):
+    """``tau`` or its multiple-angle form (:func:`plant.robot.codegen.multiple_angle_form`),
+    whichever casadi evaluates in fewer instructions.
+
+    A named basis' torque (:class:`plant.robot.robot_model.BasisModel`, e.g.
+    the paper's f1..f9) is its author's closed form and is kept as written.
+    """
+    from plant.robot.robot_model import BasisModel
+
+    if isinstance(model, BasisModel):
+        return tau
+    syms = [s, c] + list(symbols)
+    size = ca.Function("tau", syms, [ca.cse(tau) if hasattr(ca, "cse") else tau]).n_instructions()
+    alt = multiple_angle_form(tau, s, c, symbols, max_terms=size)
+    if alt is None or ca.Function("tau", syms, [alt]).n_instructions() >= size:
+        return tau
+    return alt
 
 
 def _dynamics_function(model, base) -> ca.Function:
@@ -432,6 +451,11 @@ def _dynamics_source(code) -> str:
     return "\n".join(src) + "\n"
 
 
+#: The smallest pivot the generated right-hand side divides by (the smallest positive
+#: normal double); a pivot below it leaves the margin <= 0, and the step is not taken.
+TINY_PIVOT = 2.2250738585072014e-308
+
+
 def _rhs_source(model, base, code, lane_friction=False, flexible=False) -> str:
     """Python source of the arm's right-hand side ``rhs(p, c, x, u, sc)`` (:mod:`plant.simulation.core`).
 
@@ -482,7 +506,9 @@ def _rhs_source(model, base, code, lane_friction=False, flexible=False) -> str:
             src.append(f"    W{j}_{k} = {acc}")
             src.append(f"    L{j}_{k} = W{j}_{k} * v{k}")
         src.append(f"    d{j} = {idx[j, j]}" + "".join(f" - W{j}_{i} * L{j}_{i}" for i in range(j)))
-        src.append(f"    v{j} = 1.0 / d{j} if d{j} > 0.0 else 1.0")
+        # a pivot <= 0 is reported by the margin (the step is not taken); max, not a branch,
+        # keeps the code branch-free, so it inlines into the SIMD lane loop (module docstring)
+        src.append(f"    v{j} = 1.0 / max(d{j}, {TINY_PIVOT!r})")
     for j in range(n):
         src.append(f"    y{j} = t{j}" + "".join(f" - L{j}_{i} * y{i}" for i in range(j)))
     for j in reversed(range(n)):
@@ -501,11 +527,22 @@ def _rhs_source(model, base, code, lane_friction=False, flexible=False) -> str:
     return "\n".join(src) + "\n"
 
 
+#: A right-hand side whose dynamics take at most this many casadi instructions is
+#: inlined by numba at every RK4 stage (``_inline_always``), so the core's lane loop
+#: vectorises (SIMD over the candidates); a longer one is left to LLVM, which calls it
+#: (one lane at a time), since eight inlined copies per driver would take minutes to
+#: compile.  Measured on the development machine (``benchmarks/bench_arm_kernels.py``):
+#: the planar arm (84 instructions) and PUMA 560 joints 1-3 (316) vectorise; the
+#: six-joint PUMA 560 (6053) compiled for 204 s inlined, against about 20 s.
+INLINE_MAX_INSTRUCTIONS = 1000
+
+
 def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> str:
     """The robot's generated module (:mod:`plant.simulation.generated`): kind, kernels, drivers.
 
-    Its right-hand side and dynamics kernel, and copies of the drivers
-    :func:`plant.simulation.simulate.logged_run` and
+    Its right-hand side (inlined into the drivers' lane loops up to
+    :data:`INLINE_MAX_INSTRUCTIONS`) and dynamics kernel, and copies of the
+    drivers :func:`plant.simulation.simulate.logged_run` and
     :func:`plant.simulation.closed_loop.hold_and_advance` compiled for its kind,
     all with numba's on-disk cache.
     """
@@ -522,7 +559,7 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
         body=["class ArmKind(NamedTuple):",
               "    \"\"\"This robot's plant kind (its type selects :func:`rhs` in the core).\"\"\"",
               "", "    code: int", "", "",
-              "@_inline", rhs_source,
+              "@_inline_always" if len(code[0]) <= INLINE_MAX_INSTRUCTIONS else "@_inline", rhs_source,
               f"register_plant(ArmKind, rhs, {n_states}, {n_parameters}, n_inputs={n}, "
               f"n_angles={n})", "", "",
               "@_kernel", _dynamics_source(code), "",

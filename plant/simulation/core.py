@@ -66,9 +66,18 @@ lane: ``benchmarks/bench_versus.py``, ``docs/speed.rst``.)
 
 :func:`rk4_lane` and :func:`advance_sample` are inlined in numba's IR into
 the driver that calls them (``inline="always"``) so that the switch
-``exact`` folds away in the SIMD loop; the right-hand side stays a compiled
-function that LLVM inlines (an IR-inlined function that takes an array
-leaves reference-count updates in the loop, which stops vectorisation).
+``exact`` folds away in the SIMD loop.  So are :func:`plant_rhs` and, with
+``exact`` known False, :func:`~plant.simulation.anchors.lane_sincos` (its
+branch-free variant): a call that stays a call stops vectorisation, and
+LLVM's inliner declines functions of a few hundred operations called at
+four stages.  A right-hand side is a compiled function that LLVM inlines
+when it is small (the PUMA 560 links 2-3), or, generated for a robot model,
+one that numba inlines up to a size
+(:data:`plant.simulation.arm.INLINE_MAX_INSTRUCTIONS`).  Nothing inlined in
+numba's IR takes an array (that leaves reference-count updates in the
+loop) or branches (numba's inliner then warns).  With three joints or more
+the lane loop reads and writes more state rows than LLVM checks for
+aliasing by default; :data:`RUNTIME_MEMORY_CHECKS` raises that limit.
 
 Trigonometry
 ------------
@@ -97,6 +106,29 @@ from numba.extending import overload
 from plant.simulation.anchors import lane_sincos, update_anchors, update_anchors_impl
 from plant.simulation.plants import RIGHT_HAND_SIDES
 
+#: LLVM's limit on the run-time alias checks of a loop it vectorises
+#: (``-vectorize-memory-check-threshold``, default 128), set for the process when
+#: this module is imported.  The lane loop of an n-joint arm stores 2 n state rows
+#: (4 n flexible) of one array and reads them, its parameters, inputs and anchors
+#: from others; beyond two joints that needs more checks than the default and LLVM
+#: left the loop scalar (PUMA 560 joints 1-3, rigid: 155 against 22-27 ns per lane
+#: and RK4 step, ``benchmarks/bench_arm_kernels.py``).  The checks run once per
+#: loop, not per lane, and change no result (a lane's operations are the same in
+#: SIMD or not).
+RUNTIME_MEMORY_CHECKS = 4096
+
+
+def _allow_memory_checks():
+    try:
+        import llvmlite.binding as llvm
+
+        llvm.set_option("", f"-vectorize-memory-check-threshold={RUNTIME_MEMORY_CHECKS}")
+    except Exception:  # noqa: BLE001 - an LLVM without the option: slower, not wrong
+        pass
+
+
+_allow_memory_checks()
+
 __all__ = [
     "STATUS_OK",
     "STATUS_NOT_PD",
@@ -118,6 +150,7 @@ __all__ = [
     "advance_sample",
     "new_workspace",
     "padded_lanes",
+    "RUNTIME_MEMORY_CHECKS",
 ]
 
 STATUS_OK = 0
@@ -489,7 +522,7 @@ def plant_rhs(kind, p, c, x, u, sc):
     return RIGHT_HAND_SIDES[type(kind)].function(p, c, x, u, sc)
 
 
-@overload(plant_rhs, jit_options=dict(nogil=True, error_model="numpy"))
+@overload(plant_rhs, inline="always", jit_options=dict(nogil=True, error_model="numpy"))
 def _plant_rhs_overload(kind, p, c, x, u, sc):
     rhs = _registered(kind).function
 
@@ -497,6 +530,7 @@ def _plant_rhs_overload(kind, p, c, x, u, sc):
         return rhs(p, c, x, u, sc)
 
     return impl
+
 
 
 @numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop

@@ -246,11 +246,15 @@ def _unlink(paths) -> int:
     return n
 
 
-#: What every generated module starts with: its imports, and its two decorators
-#: (``_kernel``: compiled and cached on disk; ``_inline``: compiled into its callers).
+#: What every generated module starts with: its imports, and its three decorators
+#: (``_kernel``: compiled and cached on disk; ``_inline``: compiled into its callers,
+#: where LLVM inlines it if it finds it small; ``_inline_always``: inlined by numba at
+#: every call, whatever its size -- for the right-hand side of a small robot, which must
+#: be inlined for the lane loop to vectorise).
 _PRELUDE = ("import math", "from typing import NamedTuple", "", "import numba", "import numpy as np")
 _DECORATORS = ("_kernel = numba.njit(cache=True, nogil=True, error_model=\"numpy\")",
-               "_inline = numba.njit(nogil=True, error_model=\"numpy\")")
+               "_inline = numba.njit(nogil=True, error_model=\"numpy\")",
+               "_inline_always = numba.njit(nogil=True, error_model=\"numpy\", inline=\"always\")")
 
 
 def _bound_names(text: str) -> set:
@@ -277,7 +281,8 @@ def module_text(doc: str, *, imports=(), body=(), copies=(), tail=()) -> str:
         Import lines, after ``math``, ``NamedTuple``, ``numba`` and ``numpy as np``.
     body : sequence of str
         Source after the decorators ``_kernel`` (``numba.njit`` with
-        ``cache=True``) and ``_inline`` (without: compiled into its callers).
+        ``cache=True``), ``_inline`` (without: compiled into its callers) and
+        ``_inline_always`` (inlined by numba at every call site).
     copies : sequence of (function, str)
         Plain module-level functions copied after ``body``, each under the
         named decorator (:func:`function_copy`), with the imports their
