@@ -533,7 +533,9 @@ def _rhs_source(model, base, code, lane_friction=False, flexible=False) -> str:
 #: (one lane at a time), since eight inlined copies per driver would take minutes to
 #: compile.  Measured on the development machine (``benchmarks/bench_arm_kernels.py``):
 #: the planar arm (84 instructions) and PUMA 560 joints 1-3 (316) vectorise; the
-#: six-joint PUMA 560 (6053) compiled for 204 s inlined, against about 20 s.
+#: six-joint PUMA 560 (6053) inlined runs 6 times faster from 8 candidates on but
+#: compiles for 226 s, against 19 s.  Raise it before building a plant to trade
+#: compile time (once per robot: the disk cache keeps the kernels) for speed.
 INLINE_MAX_INSTRUCTIONS = 1000
 
 
