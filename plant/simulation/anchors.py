@@ -240,7 +240,8 @@ def _fast(exact) -> bool:
 
 def _inline_fast(expr, caller, callee) -> bool:
     """numba's inlining cost model: inline the branch-free fast variant (IR level)."""
-    return _fast(caller.typemap[expr.args[2].name])
+    args = list(expr.args) + [v for _, v in expr.kws]
+    return len(args) == 3 and _fast(caller.typemap[args[2].name])
 
 
 @overload(lane_sincos, prefer_literal=True, inline=_inline_fast,
