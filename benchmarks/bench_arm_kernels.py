@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import inspect
 import json
 import os
 import subprocess
@@ -68,19 +69,19 @@ def measure(name: str, flexible: bool, inline_limit: int | None = None) -> dict:
     if inline_limit is not None:
         arm.INLINE_MAX_INSTRUCTIONS = inline_limit
     model = RobotModel.puma560_links23() if name == "links23" else any_arm.robot(name)
-    t0 = time.perf_counter()
-    p = arm.arm_plant(model, flexible=flexible)
     rig, traj = any_arm.rig_for(model), any_arm.reference(model.n_joints)
-    beta = arm.arm_plant(model).beta()
+    beta = model.base_parameters()(model.standard_parameters())  # the robot's base parameters
     if flexible:
         beta = np.concatenate([beta, *any_arm.flexible_joints(model)])
+    t0 = time.perf_counter()
+    p = arm.arm_plant(model, flexible=flexible)
     arm.simulate_arm(p, beta[None, :], rig, traj, 20, workers=1)
     compile_s = time.perf_counter() - t0
     dyn = arm._dynamics_function(model, model.base_parameters())
+    module = sys.modules[type(p.kind).__module__]  # inlined: the generated module's decorator
     row = dict(robot=name, flexible=flexible, joints=model.n_joints, compile_s=compile_s,
                instructions=int(dyn.n_instructions()),
-               inlined=bool(dyn.n_instructions() <= getattr(arm, "INLINE_MAX_INSTRUCTIONS", -1)),
-               ns={})
+               inlined="@_inline_always\ndef rhs(" in inspect.getsource(module), ns={})
     rng = np.random.default_rng(0)
     B = beta * (1 + 0.01 * rng.standard_normal((max(LANES), beta.size)))
     pulses = {}

@@ -90,6 +90,10 @@ def test_multiple_angle_form_is_the_same_function_in_canonical_form():
     assert multiple_angle_form(s[0] / x[0], s, c, [x]) is None   # a division
     assert multiple_angle_form(ca.sin(x[0]) * s[0], s, c, [x]) is None
     assert multiple_angle_form(expr, s, c, [x], max_terms=2) is None
+    with pytest.raises(ValueError, match="as many cosines"):
+        multiple_angle_form(expr, s, c[0], [x])
+    with pytest.raises(ValueError, match="column"):
+        multiple_angle_form(ca.horzcat(expr, expr), s, c, [x])
 
 
 def test_arm_dynamics_take_the_shorter_form():

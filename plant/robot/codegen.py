@@ -150,9 +150,18 @@ def function_source(fn: ca.Function, name: str, indent: str = "    ") -> tuple:
 # ----------------------------------------------------------------------------- multiple angles
 #: Terms whose coefficient is below this fraction of the largest in the same
 #: intermediate polynomial are dropped: the rounding of the model's constants
-#: (``cos(pi / 2) = 6.1e-17``), not terms of the model (whose relative sizes are
-#: the robot's geometry, far above it).
+#: (``cos(pi / 2) = 6.1e-17`` in a DH rotation), not terms of the model.  The
+#: coefficients are compared across monomials, so this assumes they are of like
+#: size: in a robot's dynamics, whose other symbols are rates, accelerations and
+#: parameters, they are products of its lengths, gear ratios and gravity, within a
+#: few decades of one another (a term 1e-12 of its neighbours would need lengths
+#: of micrometres).  (Pruning per monomial would keep a monomial made of rounding
+#: alone: PUMA 560 joints 1-3 then grow past the Newton--Euler graph.)
 PRUNE_RELATIVE = 1e-12
+
+
+class _TooLong(Exception):
+    """An intermediate polynomial grew beyond ``max_terms``."""
 
 
 def _normalised(k):
@@ -167,10 +176,15 @@ def _accumulate(out, key, v):
     out[key] = out.get(key, 0.0) + v
 
 
-def _product(A, B):
-    """Product of two trigonometric polynomials (dicts ``(k, kind, monomial) -> coefficient``)."""
+def _product(A, B, limit=None):
+    """Product of two trigonometric polynomials (dicts ``(k, kind, monomial) -> coefficient``).
+
+    Raises :class:`_TooLong` as soon as the product holds more than ``limit`` terms.
+    """
     out = {}
     for (ka, ta, ma), va in A.items():
+        if limit is not None and len(out) > limit:
+            raise _TooLong
         for (kb, tb, mb), vb in B.items():
             v = 0.5 * va * vb
             m = tuple(sorted(ma + mb)) if ma and mb else (ma or mb)
@@ -234,14 +248,23 @@ def multiple_angle_form(expr, s, c, symbols, *, max_terms=None):
     max_terms : int, optional
         Give up (return None) as soon as an intermediate expression has more
         terms: the form is not worth it for this expression (e.g. six joints,
-        where the Newton--Euler graph shares far more than the expanded sum).
+        where the Newton--Euler graph shares far more than the expanded sum;
+        the product that crosses the bound is abandoned as it does).
 
     Returns
     -------
     casadi.SX or None
         The same expressions, shape (p, 1) (equal to rounding); None if
-        ``expr`` holds another operation (division, a function) or grows
-        beyond ``max_terms``.
+        ``expr`` holds another operation (division, a function) or a
+        non-finite constant, or grows beyond ``max_terms``.
+
+    Raises
+    ------
+    ValueError
+        If ``expr`` is not a column, or ``s`` and ``c`` differ in length.
+    RuntimeError
+        From casadi, if ``expr`` holds a symbol that is not in ``s``, ``c``
+        or ``symbols``.
 
     Notes
     -----
@@ -252,6 +275,10 @@ def multiple_angle_form(expr, s, c, symbols, *, max_terms=None):
     the trigonometric canonical form rather than by rules.
     """
     n = int(s.numel())
+    if int(c.numel()) != n:
+        raise ValueError(f"multiple_angle_form needs as many cosines as sines, got {c.numel()} and {n}")
+    if expr.shape[1] != 1:
+        raise ValueError(f"multiple_angle_form needs a column of expressions, got shape {expr.shape}")
     syms = [s, c] + list(symbols)
     fn = ca.Function("multiple_angle_form", syms, [ca.densify(expr)])
     offsets = [0]
@@ -284,10 +311,12 @@ def multiple_angle_form(expr, s, c, symbols, *, max_terms=None):
             value = {key: -v for key, v in work[ins[0]].items()}
         elif op == ca.OP_TWICE:
             value = {key: 2.0 * v for key, v in work[ins[0]].items()}
-        elif op == ca.OP_MUL:
-            value = _product(work[ins[0]], work[ins[1]])
-        elif op == ca.OP_SQ:
-            value = _product(work[ins[0]], work[ins[0]])
+        elif op in (ca.OP_MUL, ca.OP_SQ):
+            b = work[ins[1]] if op == ca.OP_MUL else work[ins[0]]
+            try:
+                value = _product(work[ins[0]], b, max_terms)
+            except _TooLong:
+                return None
         else:
             return None
         value = _pruned(value)

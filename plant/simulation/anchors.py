@@ -240,8 +240,8 @@ def _fast(exact) -> bool:
 
 def _inline_fast(expr, caller, callee) -> bool:
     """numba's inlining cost model: inline the branch-free fast variant (IR level)."""
-    args = list(expr.args) + [v for _, v in expr.kws]
-    return len(args) == 3 and _fast(caller.typemap[args[2].name])
+    exact = expr.args[2] if len(expr.args) > 2 else dict(expr.kws).get("exact")
+    return exact is not None and _fast(caller.typemap[exact.name])
 
 
 @overload(lane_sincos, prefer_literal=True, inline=_inline_fast,

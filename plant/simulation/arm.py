@@ -451,8 +451,11 @@ def _dynamics_source(code) -> str:
     return "\n".join(src) + "\n"
 
 
-#: The smallest pivot the generated right-hand side divides by (the smallest positive
-#: normal double); a pivot below it leaves the margin <= 0, and the step is not taken.
+#: The smallest pivot magnitude the generated right-hand side divides by (the smallest
+#: positive normal double): ``v = 1 / max(abs(d), TINY_PIVOT)``.  A pivot d <= 0 makes
+#: the margin <= 0 and the step is not taken; dividing by its magnitude keeps that
+#: lane's stages finite and near its anchors, so it is settled in the SIMD loop like
+#: the others instead of going the libm path of far lanes.
 TINY_PIVOT = 2.2250738585072014e-308
 
 
@@ -506,9 +509,10 @@ def _rhs_source(model, base, code, lane_friction=False, flexible=False) -> str:
             src.append(f"    W{j}_{k} = {acc}")
             src.append(f"    L{j}_{k} = W{j}_{k} * v{k}")
         src.append(f"    d{j} = {idx[j, j]}" + "".join(f" - W{j}_{i} * L{j}_{i}" for i in range(j)))
-        # a pivot <= 0 is reported by the margin (the step is not taken); max, not a branch,
-        # keeps the code branch-free, so it inlines into the SIMD lane loop (module docstring)
-        src.append(f"    v{j} = 1.0 / max(d{j}, {TINY_PIVOT!r})")
+        # a pivot <= 0 is reported by the margin (the step is not taken); max and abs, not a
+        # branch, keep the code branch-free, so it inlines into the SIMD lane loop
+        # (plant.simulation.core, "Lanes"; TINY_PIVOT)
+        src.append(f"    v{j} = 1.0 / max(abs(d{j}), {TINY_PIVOT!r})")
     for j in range(n):
         src.append(f"    y{j} = t{j}" + "".join(f" - L{j}_{i} * y{i}" for i in range(j)))
     for j in reversed(range(n)):

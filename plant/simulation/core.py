@@ -532,7 +532,6 @@ def _plant_rhs_overload(kind, p, c, x, u, sc):
     return impl
 
 
-
 @numba.njit(nogil=True, error_model="numpy", inline="always")  # IR-inlined into the lane loop
 def rk4_lane(kind, p, c, x, u, a, hh, h, h6, exact):
     """One classical RK4 step of one lane from state ``x`` with held currents ``u``.
