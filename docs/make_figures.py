@@ -171,17 +171,21 @@ it in ``optimisers``):
 ``arms_compliant``
     ``benchmarks/bench_arms.py --compliant --n 6 0 0 --seed 20261701 --jobs 2``:
     planar two-link arms with two-mass joints, half with backlash
-    (``figures/arms_compliant.rst``; 6 min on 2 cores with the flexible fit's
-    ``leader_stop``, about 25 min before it:
+    (``figures/arms_compliant.rst``; 3.5 min on 2 cores since the arm's lane
+    loop vectorises, 6 min before, with the flexible fit's ``leader_stop``,
+    about 25 min before it:
     ``figures/bench_arms_compliant_before_leader_stop.txt``; seeds 20261122 to
     20261127 were this benchmark's development draws; ``--n 0 3 0`` adds PUMA
-    joints 1-3, about 7 min a draw).
+    joints 1-3, about 1.3 min a draw).
 ``arms_compliant_puma123``
     ``benchmarks/bench_arms.py --compliant --n 0 2 0 --seed 20261801 --jobs 2``:
     PUMA 560 joints 1-3 with two-mass joints and backlash, two draws of a
     seed declared before looking (``figures/arms_compliant_puma123_20261801.txt``;
-    about 7 min a draw, the two sharing 2 cores; before the flexible fit's
-    ``leader_stop``: ``figures/arms_compliant_puma123_20261801_before_leader_stop.txt``).
+    about 1.3 min a draw with its kernels' compile, the two sharing 2 cores;
+    before the arm's lane loop vectorised, about 7 min:
+    ``figures/arms_compliant_puma123_20261801_before_vectorised.txt``; before the
+    flexible fit's ``leader_stop``:
+    ``figures/arms_compliant_puma123_20261801_before_leader_stop.txt``).
 ``arms_random``
     Robots no one wrote by hand, seeds chosen before looking:
     ``benchmarks/bench_arms.py --n 0 0 0 12 --seed 20262711 --jobs 2`` (chains of
