@@ -321,6 +321,21 @@ def outer_loop(p, k, m, n, q_h, w_h, z):
             + p.ki[m] * z)
 
 
+def limit_and_integrate(p, k, cur, CS, j, n):
+    """Whether a commanded current ``cur`` (n,) exceeds the drive's limit; the error sums of
+    the joints within it integrate ``q_ref - q_hat`` over the sample (conditional
+    integration: frozen where the limit cuts); ``p`` an :class:`ArmCTCParameters`, ``CS``
+    the law's states (estimates in rows 0..n-1, sums in 3n..4n-1; a kernel's template)."""
+    rc = p.rig
+    saturated = False
+    for m in range(n):
+        if abs(cur[m]) > rc.current_limit:
+            saturated = True
+        elif p.integral:
+            CS[3 * n + m, j] += rc.sample_time_s * (p.reference[k, m] - CS[m, j])
+    return saturated
+
+
 def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     """The arm's computed torque as a compiled law of the logged-run driver (a kernel's template).
 
@@ -356,7 +371,6 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     """
     n = U.shape[0]
     rc = lp.rig
-    ts = rc.sample_time_s
     if watchdog_current(lp, k, E, CS, U, j, 4 * n):
         return
     ref = lp.reference
@@ -384,7 +398,6 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
             o += 1
     tf = np.empty(n)
     cur = np.empty(n)
-    saturated = False
     for m in range(n):
         tf[m] = friction_torque(v[m], rc.viscous[m], rc.coulomb_pos[m], rc.coulomb_neg[m],
                                 rc.ramp_speed[m])
@@ -392,11 +405,8 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
         for i in range(n):
             tau += D[m, i] * a[i]
         cur[m] = (tau + nvec[m] - tf[m]) / rc.torque_per_amp[m]
-        if abs(cur[m]) > rc.current_limit:
-            saturated = True
-        elif lp.integral:  # conditional integration: frozen where the drive's limit cuts
-            CS[3 * n + m, j] += ts * (ref[k, m] - CS[m, j])
-    if saturated:  # the observer sees the acceleration the saturated current gives the model
+    # saturated: the observer sees the acceleration the saturated current gives the model
+    if limit_and_integrate(lp, k, cur, CS, j, n):
         lim = rc.current_limit
         rhs = np.empty(n)
         for m in range(n):
@@ -531,12 +541,7 @@ def arm_flexible_ctc_law(lp, c, k, Y, E, CS, U, j):
         for m in range(n):
             U[m, j] = 0.0
         return
-    saturated = False
-    for m in range(n):
-        if abs(cur[m]) > rc.current_limit:
-            saturated = True
-        elif p.integral:
-            CS[3 * n + m, j] += ts * (ref[k, m] - th[m])
+    saturated = limit_and_integrate(p, k, cur, CS, j, n)  # CS[m, j] is th[m]
     lim = rc.current_limit
     for m in range(n):
         if saturated:
@@ -603,7 +608,8 @@ def _build_ctc_law_module(plant, robot, other):
               "    \"\"\"This robot's flexible-joint computed-torque law kind.\"\"\"",
               "", "    code: int = 4", "", ""],
         copies=[(watchdog_current, "_inline"), (observer_prediction, "_inline"),
-                (outer_loop, "_inline"), (arm_ctc_law, "_inline"),
+                (outer_loop, "_inline"), (limit_and_integrate, "_inline"),
+                (arm_ctc_law, "_inline"),
                 (link_rates, "_inline"), (link_sample, "_inline"),
                 (arm_flexible_ctc_law, "_inline"), (logged_run, "_kernel")],
         tail=["register_control_law(ArmCTCKind, arm_ctc_law)",

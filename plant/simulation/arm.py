@@ -336,8 +336,14 @@ def _tau_of_beta(model, base):
     """casadi SX ``tau(sc, qd, qdd; beta)`` of a model's base parameters, with its symbols.
 
     Returns ``(tau, sc, qd, qdd, beta)``: ``sc = (sin q_1, cos q_1, ..., sin q_n,
-    cos q_n)``.
+    cos q_n)``.  Derived once per model and set of independent columns (kept on
+    the model: every :func:`arm_plant` call, the dynamics and the regressor
+    functions ask for it).
     """
+    cache = model.__dict__.setdefault("_arm_tau_of_beta", {})
+    key = None if base.independent is None else tuple(int(col) for col in base.independent)
+    if key in cache:  # tau depends on the base only through its independent columns
+        return cache[key]
     _, qd, qdd, p = model._symbols
     s, c = model._trig_symbols
     n = model.n_joints
@@ -351,7 +357,9 @@ def _tau_of_beta(model, base):
         p_beta[int(col)] = beta[k]
     tau_b = ca.substitute(model._tau_sc, p, ca.vertcat(*p_beta))
     sc = ca.vertcat(*[v for k in range(n) for v in (s[k], c[k])])
-    return _shorter_form(model, tau_b, s, c, (qd, qdd, beta)), sc, qd, qdd, beta
+    out = (_shorter_form(model, tau_b, s, c, (qd, qdd, beta)), sc, qd, qdd, beta)
+    cache[key] = out
+    return out
 
 
 def _shorter_form(model, tau, s, c, symbols):
