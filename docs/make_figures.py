@@ -171,7 +171,9 @@ it in ``optimisers``):
 ``arms_compliant``
     ``benchmarks/bench_arms.py --compliant --n 6 0 0 --seed 20261701 --jobs 2``:
     planar two-link arms with two-mass joints, half with backlash
-    (``figures/arms_compliant.rst``; 3.5 min on 2 cores since the arm's lane
+    (``figures/arms_compliant.rst``; before the arm path's floor rule,
+    :data:`identification.arm.ARM_FLOOR_FACTOR`:
+    ``figures/bench_arms_compliant_before_floor_rule.txt``; 3.5 min on 2 cores since the arm's lane
     loop vectorises, 6 min before, with the flexible fit's ``leader_stop``,
     about 25 min before it:
     ``figures/bench_arms_compliant_before_leader_stop.txt``; seeds 20261122 to
@@ -197,10 +199,20 @@ it in ``optimisers``):
     ``--compliant --n 0 0 0 8 --seed
     20262731 --jobs 2`` (the random DH chains with two-mass joints;
     ``figures/bench_arms_random_compliant_20262731.txt``; the same before the
+    arm path's floor rule, :data:`identification.arm.ARM_FLOOR_FACTOR`:
+    ``..._20262731_before_floor_rule.txt``, and before the
     flexible fit's ``leader_stop``:
     ``figures/bench_arms_random_compliant_20262731_before_leader_stop.txt``),
     ``--compliant --n 0 0 0 6 --seed 20262831 --jobs 2`` (a fresh seed of them;
-    ``figures/bench_arms_random_compliant_20262831.txt``) and
+    ``figures/bench_arms_random_compliant_20262831.txt``; before the floor rule:
+    ``..._20262831_before_floor_rule.txt``),
+    ``benchmarks/bench_arm_floor.py --n 6 6 0 6 6 --seed 20262901 --jobs 2`` (what
+    the rigid fit leaves on rigid arms; ``figures/bench_arm_floor_20262901.txt``),
+    ``bench_arms.py --compliant --n 6 --seed 20262921 --jobs 2`` and ``--compliant
+    --n 0 0 0 6 --seed 20262911 --jobs 2`` (fresh seeds of compliant planar arms
+    and random DH chains after the floor rule;
+    ``figures/bench_arms_compliant_20262921.txt``,
+    ``figures/bench_arms_random_compliant_20262911.txt``) and
     ``benchmarks/bench_arm_payload.py --n 0 0 6 6 --seed 20262751`` (a payload on
     both kinds; ``figures/bench_arm_payload_random_20262751.txt``; the same before
     the payload search's first-moment stage:
@@ -673,6 +685,12 @@ def arms_random(ctx):
               "20262731", "--jobs", "2"], "bench_arms_random_compliant_20262731"),
             (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "6", "--seed",
               "20262831", "--jobs", "2"], "bench_arms_random_compliant_20262831"),
+            (["benchmarks/bench_arm_floor.py", "--n", "6", "6", "0", "6", "6", "--seed", "20262901",
+              "--jobs", "2"], "bench_arm_floor_20262901"),
+            (["benchmarks/bench_arms.py", "--compliant", "--n", "6", "--seed", "20262921",
+              "--jobs", "2"], "bench_arms_compliant_20262921"),
+            (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "6", "--seed",
+              "20262911", "--jobs", "2"], "bench_arms_random_compliant_20262911"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262751"],
              "bench_arm_payload_random_20262751"),
             (["benchmarks/bench_arm_payload.py", "--n", "0", "0", "6", "6", "--seed", "20262771"],

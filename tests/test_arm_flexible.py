@@ -114,6 +114,45 @@ def test_identify_compliant_arm_with_backlash(compliant):
     assert res.elapsed_s >= sum(res.stage_times_s.values()) - 1e-6
 
 
+NEAR = "indep_arm_random2_compliant_near_floor"
+
+
+def test_a_compliant_arm_near_the_quantisation_floor_is_not_taken_for_rigid():
+    """Independent robot (benchmarks/independent_arm.py, random DH draw 20262831 with two-mass
+    joints, 3 s: springs of 2.6 and 0.64 kN m/rad, 3 mrad of backlash on joint 1).  The rigid
+    fit predicts the log to 1.6 quantisation floors -- within the PUMA path's FLOOR_FACTOR (2),
+    far above what a model of the robot leaves (0.99-1.02 floors on 25 rigid robots of the same
+    simulator) -- and the springs' bend biases its well-excited base parameters beyond 1 %.
+    model="auto" fits the springs and the backlash, which reach the floor, and every base
+    parameter the log determines is within 1 %."""
+    from identification.arm import ARM_FLOOR_FACTOR
+    from identification.flexible import FLOOR_FACTOR, quantisation_floor
+
+    log = load_arm_log(DATA / f"{NEAR}.csv")
+    truth = json.loads((DATA / f"{NEAR}.truth.json").read_text())
+    beta = np.asarray(truth["beta"])
+    floor = quantisation_floor(log.n_samples * log.n_joints)
+
+    def well_excited_errors(res):
+        well = res.x_rse[:beta.size] < 0.01 / 3
+        assert well.sum() >= 3
+        return np.abs(res.beta[well] / beta[well] - 1)
+
+    rigid = identify_arm(log, model="rigid")
+    assert ARM_FLOOR_FACTOR < rigid.fun / floor <= FLOOR_FACTOR
+    assert well_excited_errors(rigid).max() > 0.01
+    res = identify_arm(log)
+    assert res.success and res.model == "flexible"
+    choice = res.model_choice
+    assert choice["model"] == "flexible+backlash" and choice["adequate"]
+    assert choice["floor_ratio"] <= ARM_FLOOR_FACTOR < choice["held_back_cost_rigid_pulses2"] / choice["floor_pulses2"]
+    assert "quantisation floor" in choice["reason"]
+    assert well_excited_errors(res).max() <= 0.01
+    s = truth["settings"]
+    assert np.allclose(res.joint_stiffness_Nm_per_rad, s["stiffness"], rtol=0.10)
+    assert res.joint_backlash_rad[0] == pytest.approx(s["backlash"][0], rel=0.30)
+
+
 LIGHT = "indep_arm_planar2_compliant_light_motor"
 
 
