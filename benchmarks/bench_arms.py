@@ -75,15 +75,17 @@ def well_excited_check(res, beta):
     worst : int
         Index of the largest well-excited error (-1 when none is well excited).
     ok : bool
-        The identification succeeded and every well-excited error is within
-        :data:`TOLERANCE`.
+        The identification succeeded, at least one base parameter is well
+        excited, and every well-excited error is within :data:`TOLERANCE`.
     """
     beta = np.asarray(beta, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         err = np.abs(np.asarray(res.beta, dtype=float) / beta - 1.0)
     well = np.asarray(res.x_rse, dtype=float)[:len(beta)] < WELL_EXCITED_RSE
     worst = int(np.argmax(np.where(well, err, -1.0))) if np.any(well) else -1
-    return err, well, worst, bool(np.all(err[well] <= TOLERANCE)) and bool(res.success)
+    # a log that determines no base parameter to the tolerance is no success either
+    return err, well, worst, (bool(np.any(well)) and bool(np.all(err[well] <= TOLERANCE))
+                              and bool(res.success))
 
 
 def run_case(family: str, seed: int, compliant: bool = False) -> dict:
@@ -171,9 +173,11 @@ def _table(rows):
 
 def _line(c) -> str:
     """One printed line per draw."""
+    worst = ("-" if c["worst_err_pct"] is None  # no base parameter well excited
+             else f"{c['worst_param']} {c['worst_err_pct']:.3f} %")
     return (f"{c['family']:8s} seed {c['seed']}  identify {c['identify_s']:6.1f} s  "
-            f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {c['worst_param']} "
-            f"{c['worst_err_pct']:.3f} %  params {'ok' if c['params_ok'] else 'MISS'}  "
+            f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {worst}  "
+            f"params {'ok' if c['params_ok'] else 'MISS'}  "
             f"friction {'known' if c['friction_known'] else 'unknown, %.1f %% %s' % (c['friction_err_pct'], 'ok' if c['friction_ok'] else 'MISS')}  "
             f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'} "
             f"[{c['controller']}]  P max|e| {c['p_max']}"
@@ -266,6 +270,7 @@ def main(argv=None):
                      f"{sum(c['friction_ok'] for c in fu)} / {len(fu)}", *extra,
                      f"{sum(c['ctc_ok'] for c in cs)} / {len(cs)}",
                      f"{np.median(t):.1f} / {t.max():.1f}",
+                     "-" if w["worst_err_pct"] is None else
                      f"{w['worst_err_pct']:.3f} % ({w['worst_param']}, seed {w['seed']})"))
     misses = [c for c in cases if not (c["params_ok"] and c["ctc_ok"] and c["friction_ok"] is not False
                                        and (not c["joints"] or c["joints"]["K_ok"] and c["joints"]["b_ok"]))]
@@ -282,8 +287,10 @@ def main(argv=None):
         text.append("")
         fr = ("" if c["friction_known"] else
               f", unknown friction {c['friction_err_pct']:.1f} % ({'ok' if c['friction_ok'] else 'miss'})")
+        worst = ("none well excited" if c["worst_err_pct"] is None
+                 else f"{c['worst_param']} {c['worst_err_pct']:.3f} %")
         text.append(f"Miss: {c['family']} seed {c['seed']}: worst well-excited parameter "
-                    f"{c['worst_param']} {c['worst_err_pct']:.3f} %{fr}, CTC max abs(e) {c['ctc_max']} "
+                    f"{worst}{fr}, CTC max abs(e) {c['ctc_max']} "
                     f"pulses (P {c['p_max']}), settings {c['settings']}"
                     + (f", joints {c['joints']}" if c["joints"] else "") + ".")
     print()

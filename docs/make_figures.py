@@ -257,7 +257,10 @@ it in ``optimisers``):
     ``figures/bench_arm_adaptive_compliant_payload_20262101_before_start_window.txt``;
     its draw 20262103 on the version before the quiet refinement, the same script at
     commit 7fee51d with ``--only planar2:20262103``:
-    ``figures/bench_arm_adaptive_compliant_payload_20262103_at_7fee51d.txt``).
+    ``figures/bench_arm_adaptive_compliant_payload_20262103_at_7fee51d.txt``; its
+    first draw, whose prior the floor rule of :data:`identification.arm.ARM_FLOOR_FACTOR`
+    made flexible, ``--n 1 0``:
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_floor_rule.txt``).
 ``arm_excitation``
     ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
     excitation design for any arm (``design_excitation(..., model=)``) against each
@@ -741,7 +744,9 @@ def arm_adaptive_compliant(ctx):
             ("20262001", ["--n", "6", "2", "--only", "puma123:20262001"],
              "bench_arm_adaptive_compliant_20262001_rerun_puma123"),
             ("20262101", ["--kinds", "pick-up,put-down", "--n", "3", "0", "--jobs", "2"],
-             "bench_arm_adaptive_compliant_payload_20262101"))
+             "bench_arm_adaptive_compliant_payload_20262101"),
+            ("20262101", ["--kinds", "pick-up,put-down", "--n", "1", "0"],
+             "bench_arm_adaptive_compliant_payload_20262101_floor_rule"))
     for seed, args, name in runs[:1] if ctx["quick"] else runs:
         text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", *args, "--seed", seed],
                           ctx["raw"], name, timeout=3 * 3600)
