@@ -126,6 +126,13 @@ def run_case(family: str, seed: int, compliant: bool = False) -> dict:
                       floors=round(float((res.model_choice or {}).get("floor_ratio", float("nan"))), 3),
                       backlash_tried="held_back_cost_backlash_pulses2" in (res.model_choice or {}),
                       K_true=true["K"].round(1).tolist(), b_true_mrad=(1e3 * true["b"]).round(3).tolist())
+        mc = res.model_choice or {}
+        if mc.get("floor_pulses2"):  # the model choice ran: what each model left, its tests
+            joints["held_back_floors"] = {
+                k: round(float(mc[f"held_back_cost_{k}_pulses2"]) / float(mc["floor_pulses2"]), 3)
+                for k in ("rigid", "springs", "backlash") if f"held_back_cost_{k}_pulses2" in mc}
+            joints["paired_t"] = {k: round(float(mc[f"{k}_paired_t"]), 2)
+                                  for k in ("flexible", "backlash") if f"{k}_paired_t" in mc}
         if res.joint_stiffness_Nm_per_rad is not None:
             K = np.asarray(res.joint_stiffness_Nm_per_rad)
             Ia = np.asarray(res.motor_inertia_reflected_kgm2)

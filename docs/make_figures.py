@@ -198,9 +198,12 @@ it in ``optimisers``):
     --jobs 2`` (a second seed of both; ``figures/bench_arms_random_urdf_20262791.txt``),
     ``--compliant --n 0 0 0 8 --seed
     20262731 --jobs 2`` (the random DH chains with two-mass joints;
-    ``figures/bench_arms_random_compliant_20262731.txt``; the same before the
-    arm path's floor rule, :data:`identification.arm.ARM_FLOOR_FACTOR`:
-    ``..._20262731_before_floor_rule.txt``, and before the
+    ``figures/bench_arms_random_compliant_20262731.txt`` when rerun: the committed run
+    is of the version before the arm path's floor rule,
+    :data:`identification.arm.ARM_FLOOR_FACTOR`, ``..._20262731_before_floor_rule.txt``;
+    its three draws that the rule moves,
+    ``--n 0 0 0 2 --seed 20262731`` and ``--n 0 0 0 1 --seed 20262735``, after it:
+    ``..._20262731_floor_rule.txt``, ``..._20262735_floor_rule.txt``; before the
     flexible fit's ``leader_stop``:
     ``figures/bench_arms_random_compliant_20262731_before_leader_stop.txt``),
     ``--compliant --n 0 0 0 6 --seed 20262831 --jobs 2`` (a fresh seed of them;
@@ -212,7 +215,10 @@ it in ``optimisers``):
     --n 0 0 0 6 --seed 20262911 --jobs 2`` (fresh seeds of compliant planar arms
     and random DH chains after the floor rule;
     ``figures/bench_arms_compliant_20262921.txt``,
-    ``figures/bench_arms_random_compliant_20262911.txt``) and
+    ``figures/bench_arms_random_compliant_20262911.txt``), four single draws whose
+    lines print each model's held-back floors and paired t, quoted in the tutorial
+    (``figures/bench_arms_model_choice_random_20262833.txt``, ``..._random_20262731.txt``,
+    ``..._planar2_20262922.txt``, ``..._planar2_20262101.txt``) and
     ``benchmarks/bench_arm_payload.py --n 0 0 6 6 --seed 20262751`` (a payload on
     both kinds; ``figures/bench_arm_payload_random_20262751.txt``; the same before
     the payload search's first-moment stage:
@@ -688,6 +694,16 @@ def arms_random(ctx):
               "20262731", "--jobs", "2"], "bench_arms_random_compliant_20262731"),
             (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "6", "--seed",
               "20262831", "--jobs", "2"], "bench_arms_random_compliant_20262831"),
+            (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "2", "--seed",
+              "20262731", "--jobs", "2"], "bench_arms_random_compliant_20262731_floor_rule"),
+            (["benchmarks/bench_arms.py", "--compliant", "--n", "0", "0", "0", "1", "--seed",
+              "20262735"], "bench_arms_random_compliant_20262735_floor_rule"),
+            *((["benchmarks/bench_arms.py", "--compliant", "--n", *counts, "--seed", seed],
+               f"bench_arms_model_choice_{family}_{seed}")
+              for family, counts, seed in (("random", ("0", "0", "0", "1"), "20262833"),
+                                           ("random", ("0", "0", "0", "1"), "20262731"),
+                                           ("planar2", ("1",), "20262922"),
+                                           ("planar2", ("1",), "20262101"))),
             (["benchmarks/bench_arm_floor.py", "--n", "6", "6", "0", "6", "6", "--seed", "20262901",
               "--jobs", "2"], "bench_arm_floor_20262901"),
             (["benchmarks/bench_arms.py", "--compliant", "--n", "6", "--seed", "20262921",

@@ -38,12 +38,12 @@ gain's refinement ends when its start of lowest cost has converged
 creep along one flat valley toward the same point.  The model choice
 (:func:`identification.arm.identify_arm`, ``model='auto'``) compares the
 rigid and the flexible fits on held-back blocks
-(:func:`identification.refinement.held_back_mask`) by the ratios of
-:mod:`identification.flexible` (``CHOICE_RATIO``, ``INADEQUATE_FACTOR``),
-a paired t test over the blocks (:data:`identification.arm.CHOICE_T`) and
-the quantisation floor (:data:`identification.arm.ARM_FLOOR_FACTOR`), adds
-the backlash when the springs or neither model leave more than that floor,
-and says which model and why.
+(:func:`identification.refinement.held_back_mask`) by the cost ratio of
+:mod:`identification.flexible` (``CHOICE_RATIO``), a paired t test over the
+blocks (:data:`identification.arm.CHOICE_T`) and the quantisation floor
+(:data:`identification.arm.ARM_FLOOR_FACTOR`), adds the backlash when the
+model chosen so far leaves more than that floor, says which model and why,
+and flags a chosen model above ``INADEQUATE_FACTOR`` floors.
 
 Source: M. W. Spong, "Modeling and control of elastic joint robots", J. Dyn.
 Syst. Meas. Control 109 (1987); backlash as a dead zone: M. Nordin and P.-O.

@@ -168,10 +168,12 @@ def build_parser():
     p.add_argument("--model", choices=("rigid", "flexible", "auto"), default="auto",
                    help="robot model: rigid, two-mass flexible joints, or auto (default): "
                         "rigid when its prediction errors sit at the encoder's quantisation "
-                        "floor, otherwise flexible when the flexible fit halves the "
-                        "prediction-error cost on held-back samples, with gearbox backlash "
-                        "when that halves it again; a model still far above the floor is "
-                        "reported as inadequate (the result's model_choice says why)")
+                        "floor, otherwise flexible when the flexible fit predicts held-back "
+                        "samples better (the PUMA 560 log: at half the cost; a robot "
+                        "model's log: at half the cost, significantly, or at the floor), "
+                        "with gearbox backlash when that improves it again; a model still far "
+                        "above the floor is reported as inadequate (the result's model_choice "
+                        "says why)")
     p.add_argument("--consistent", action="store_true",
                    help="enforce f3 = a3 f5 and f4 = a3 f6 (eq. 3; a3 from the sidecar) and "
                         "search the 7 other base parameters (recommended for flexible "
