@@ -187,7 +187,9 @@ it in ``optimisers``):
     before the arm's lane loop vectorised, about 7 min:
     ``figures/arms_compliant_puma123_20261801_before_vectorised.txt``; before the
     flexible fit's ``leader_stop``:
-    ``figures/arms_compliant_puma123_20261801_before_leader_stop.txt``).
+    ``figures/arms_compliant_puma123_20261801_before_leader_stop.txt``; rerun after the
+    arm path's floor rule, the same table but the times:
+    ``figures/arms_compliant_puma123_20261801_floor_rule.txt``).
 ``arms_random``
     Robots no one wrote by hand, seeds chosen before looking:
     ``benchmarks/bench_arms.py --n 0 0 0 12 --seed 20262711 --jobs 2`` (chains of

@@ -849,11 +849,11 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         :data:`~identification.flexible.CHOICE_RATIO` times the rigid
         model's or lower per held-back block by more than :data:`CHOICE_T`
         standard errors (a paired t test), or reach the floor where the
-        rigid model does not.  When the better of the two leaves the
-        held-back samples above the floor, the gearbox backlash is fitted
-        too and kept by the same tests against it (:data:`BACKLASH_T`); a
-        model at the floor leaves the backlash nothing to explain, and it is
-        not tried.  A flexible
+        rigid model does not.  When the model chosen so far (the springs, or
+        the rigid model) leaves the held-back samples above the floor, the
+        gearbox backlash is fitted too and kept by the same tests against it
+        (:data:`BACKLASH_T`); a model at the floor leaves the backlash
+        nothing to explain, and it is not tried.  A flexible
         fit whose link model is no robot near the log's configurations
         (:meth:`~identification.arm_flexible.ArmFlexibleSpace.link_check`)
         or whose output error exceeds the rigid model's by more than a
@@ -1207,8 +1207,8 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
                     f"({c_best / floor_h:.3g} x {floor_h:.4g} pulses^2 <= {ARM_FLOOR_FACTOR:g})")
     else:
         # the gearbox backlash (the paper's second cause of the oscillations), from the spring
-        # fit's point at a few widths: when the better of the rigid model and the springs does
-        # not predict the held-back samples to the floor
+        # fit's point at a few widths: when the model chosen so far (the springs, or the rigid
+        # model) does not predict the held-back samples to the floor
         bspace = ArmFlexibleSpace(log, res.plant, res.beta, bounds[nb:], backlash=True)
         bbox = bspace.bounds(bounds[:nb])
         bat = problem_at(bspace, bbox)
@@ -1279,7 +1279,8 @@ CONTINUATION_BACKLASH = (0.1,)
 
 #: ``identify_arm(model="auto")`` keeps the rigid model without fitting the two-mass
 #: joints when its prediction-error cost is at most this many quantisation floors
-#: (``n / 12`` pulse^2; the springs likewise skip the backlash).  A model that describes
+#: (``n / 12`` pulse^2; a model chosen within it on the held-back blocks skips the backlash
+#: likewise).  A model that describes
 #: the robot leaves the quantisation noise alone: on 24 rigid robots of the independent
 #: simulator (``benchmarks/bench_arm_floor.py --seed 20262901``: planar, PUMA 560 joints
 #: 1-3, random DH and random URDF chains of 2-4 joints, 500-4096 ppr, friction known or
