@@ -178,12 +178,15 @@ def _table(rows):
     return "\n".join(out + [rule])
 
 
+def _worst(c, none="-") -> str:
+    """A draw's largest well-excited error and its parameter (``none`` when none is well excited)."""
+    return none if c["worst_err_pct"] is None else f"{c['worst_param']} {c['worst_err_pct']:.3f} %"
+
+
 def _line(c) -> str:
     """One printed line per draw."""
-    worst = ("-" if c["worst_err_pct"] is None  # no base parameter well excited
-             else f"{c['worst_param']} {c['worst_err_pct']:.3f} %")
     return (f"{c['family']:8s} seed {c['seed']}  identify {c['identify_s']:6.1f} s  "
-            f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {worst}  "
+            f"well-excited {c['n_well']:2d}/{c['n_base']:2d}  worst {_worst(c)}  "
             f"params {'ok' if c['params_ok'] else 'MISS'}  "
             f"friction {'known' if c['friction_known'] else 'unknown, %.1f %% %s' % (c['friction_err_pct'], 'ok' if c['friction_ok'] else 'MISS')}  "
             f"CTC max|e| {c['ctc_max']} {'ok' if c['ctc_ok'] else 'MISS'} "
@@ -294,10 +297,8 @@ def main(argv=None):
         text.append("")
         fr = ("" if c["friction_known"] else
               f", unknown friction {c['friction_err_pct']:.1f} % ({'ok' if c['friction_ok'] else 'miss'})")
-        worst = ("none well excited" if c["worst_err_pct"] is None
-                 else f"{c['worst_param']} {c['worst_err_pct']:.3f} %")
         text.append(f"Miss: {c['family']} seed {c['seed']}: worst well-excited parameter "
-                    f"{worst}{fr}, CTC max abs(e) {c['ctc_max']} "
+                    f"{_worst(c, 'none well excited')}{fr}, CTC max abs(e) {c['ctc_max']} "
                     f"pulses (P {c['p_max']}), settings {c['settings']}"
                     + (f", joints {c['joints']}" if c["joints"] else "") + ".")
     print()

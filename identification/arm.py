@@ -1323,14 +1323,12 @@ class _Improvement:
         self.t = _paired_t(r_old, r_new, log)
         ratio = c_new / c_old if c_old > 0 else 1.0
         lower = bool(np.isfinite(c_new) and c_new < c_old)
-        tests = [(lower and ratio < CHOICE_RATIO, f"cost ratio {ratio:.3g} < {CHOICE_RATIO}"),
-                 (lower and self.t > t_threshold, f"paired t {self.t:.3g} > {t_threshold:g}"),
-                 (lower and c_new <= floor_at < c_old,
+        tests = (("ratio", ratio < CHOICE_RATIO, f"cost ratio {ratio:.3g} < {CHOICE_RATIO}"),
+                 ("paired_t", self.t > t_threshold, f"paired t {self.t:.3g} > {t_threshold:g}"),
+                 ("floor", c_new <= floor_at < c_old,
                   f"at the quantisation floor ({c_new:.4g} <= {floor_at:.4g} pulses^2), the "
-                  f"simpler model not ({c_old:.4g})")]
-        passed = [(name, why) for name, (ok, why) in zip(("ratio", "paired_t", "floor"), tests)
-                  if ok]
-        self.better = bool(passed)
+                  f"simpler model not ({c_old:.4g})"))
+        passed = [(name, why) for name, ok, why in tests if lower and ok]
         #: the first test passed (``"ratio"``, ``"paired_t"``, ``"floor"``), or None
         self.test = passed[0][0] if passed else None
         self.why = (passed[0][1] if passed else
@@ -1338,6 +1336,11 @@ class _Improvement:
                     f"{t_threshold:g}, held-back cost {c_new:.4g} pulses^2 "
                     + ("above the floor" if c_new > floor_at else
                        "with the simpler model at the floor too"))
+
+    @property
+    def better(self) -> bool:
+        """Whether a test passed."""
+        return self.test is not None
 
 
 def _paired_t(ra, rb, log) -> float:
