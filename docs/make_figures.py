@@ -217,7 +217,10 @@ it in ``optimisers``):
     --n 0 0 0 6 --seed 20262911 --jobs 2`` (fresh seeds of compliant planar arms
     and random DH chains after the floor rule;
     ``figures/bench_arms_compliant_20262921.txt``,
-    ``figures/bench_arms_random_compliant_20262911.txt``), four single draws whose
+    ``figures/bench_arms_random_compliant_20262911.txt``; before the default
+    identification's search restart and the flexible fit's link-model screen at
+    ``link_check``'s configurations: ``..._20262921_before_restart.txt``,
+    ``..._20262911_before_restart.txt``), four single draws whose
     lines print each model's held-back floors and paired t, quoted in the tutorial
     (``figures/bench_arms_model_choice_random_20262833.txt``, ``..._random_20262731.txt``,
     ``..._planar2_20262922.txt``, ``..._planar2_20262101.txt``) and

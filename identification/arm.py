@@ -57,7 +57,8 @@ from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
 from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
-from .flexible import CHOICE_RATIO, CONTINUATION_FTOL, CONTINUATION_GAINS, RESTART_FRACTION
+from .flexible import (CHOICE_RATIO, CONTINUATION_FTOL, CONTINUATION_GAINS, INADEQUATE_FACTOR,
+                       MAX_RESTARTS, RESTART_FRACTION)
 from .friction import FRICTION_COMPONENTS, friction_layout, joint_friction_columns
 from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import (IDIM_FILTER_ORDER, IV_ITERATIONS, REVERSAL_GUARD, cutoff_from_counts,
@@ -71,7 +72,8 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "ARM_METHODS", "ARM_DEFAULT_METHOD", "IDIM_FALLBACK_SEED", "friction_layout",
            "output_error_substeps",
            "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction", "rig_with_friction",
-           "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T", "ARM_FLOOR_FACTOR", "CHOICE_T"]
+           "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T", "ARM_FLOOR_FACTOR", "CHOICE_T",
+           "ARM_MAX_RESTARTS"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper", "idim-ls", "idim-iv")
@@ -621,7 +623,8 @@ class ArmIdentificationResult(OptimizeResult):
     elapsed_s : float
         Wall time of the identification (every stage).
     stage_times_s : dict
-        Wall time per stage (``rigid``, ``model_choice_and_flexible_fit``).
+        Wall time per stage (``rigid``, ``model_choice_and_flexible_fit``,
+        ``search_restart``).
     model : str
         ``"rigid"`` or ``"flexible"`` (:mod:`identification.arm_flexible`).
     model_choice : dict or None
@@ -639,6 +642,16 @@ class ArmIdentificationResult(OptimizeResult):
         ``"rigid"``, the model chosen before the backlash).
     warnings : list of str
         E.g. a chosen model that does not describe the log.
+    search_restart : dict or None
+        When the default identification ended on a model that does not
+        describe the log and the rigid model was searched again from the
+        GA's start (:func:`identify_arm`, ``method``): ``floors_first`` (the
+        first search's chosen model's cost in quantisation floors),
+        ``rigid_floors`` (each GA seed's rigid fit, whole log), ``seed`` (the
+        seed whose rigid fit beat the first search's, or None),
+        ``floors_again`` (the identification from it, or None), ``kept``
+        (whether that result replaced the first), ``reason``, ``elapsed_s``.
+        None otherwise.
     joint_stiffness_Nm_per_rad, joint_damping_Nms_per_rad, motor_inertia_reflected_kgm2 : list or None
         A flexible result's joints (n each); x then holds
         ``[beta, log10 K, D, Ia, (b), friction]``, and beta is the
@@ -663,7 +676,7 @@ class ArmIdentificationResult(OptimizeResult):
             ``interrupted``, ``output_error_substeps``, ``method``, ``robot``, ``joint_names``, ``log_name``,
             ``cutoff_hz``, ``elapsed_s``, ``bounds``, ``beta``, ``friction``,
             ``friction_identified``, ``model``, ``model_choice``, ``warnings``,
-            ``stage_times_s``, ``flexible_substeps`` and the joints
+            ``stage_times_s``, ``flexible_substeps``, ``search_restart`` and the joints
             (``joint_stiffness_Nm_per_rad``, ``joint_damping_Nms_per_rad``,
             ``motor_inertia_reflected_kgm2``, ``joint_backlash_rad``; None for a
             rigid result) -- what :func:`identification.arm_payload.prior_from_file`
@@ -688,6 +701,7 @@ class ArmIdentificationResult(OptimizeResult):
                     warnings=list(self.get("warnings") or []),
                     stage_times_s=jsonable(self.get("stage_times_s")),
                     flexible_substeps=self.get("flexible_substeps"),
+                    search_restart=jsonable(self.get("search_restart")),
                     **{k: self.get(k) for k in _NO_JOINTS})
 
     def save_json(self, path, *, create_dirs=False):
@@ -808,7 +822,24 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         ring) is run again from the same starts through the predictor-gain
         continuation :data:`~identification.flexible.CONTINUATION_GAINS`
         (strongly corrected replays first); the better end is kept and
-        ``warnings`` says so.
+        ``warnings`` says so.  When the default identification
+        (``"idim+pem"``, ``model="auto"``) ends, after the model choice, on
+        a model that does not describe the log (its cost above
+        :data:`~identification.flexible.INADEQUATE_FACTOR` quantisation
+        floors: held back for a model choice, else the whole log's), the
+        rigid model is searched again with ``"ga+pem"`` from
+        :data:`ARM_MAX_RESTARTS` new seeds (``IDIM_FALLBACK_SEED + i``,
+        ``rng + i``, or drawn from the caller's Generator; stopping at one
+        at the floor); when one predicts the whole log better than the first
+        search's rigid fit, the identification runs again from it, model
+        choice included, and the result of fewer floors is kept: a
+        refinement from IDIM-LS, or from one GA, can settle in a wrong
+        basin that still explains most of a large P-loop error (measured on
+        a random four-joint chain whose P loop lags by 7255 pulses: 7.8e4
+        floors from the fallback GA of seed 0, rigid fits at 1.04 floors
+        from seeds 1 to 4 on its rigid twin).  ``search_restart`` and
+        ``warnings`` say so; a log that no search describes costs these
+        searches' time.
     plant : plant.simulation.arm.ArmPlant, optional
         The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     gain : float
@@ -1065,9 +1096,10 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         joint_names=tuple(pl.model.joint_names),
         rig=rig if not unknown else rig_with_friction(rig, friction),
         log_name=log.name, elapsed_s=0.0, model="rigid", model_choice=None, warnings=notes,
-        flexible_plant=None, plant_row=None, flexible_substeps=None,
+        flexible_plant=None, plant_row=None, flexible_substeps=None, search_restart=None,
         output_error_substeps=report_substeps, stage_times_s=dict(rigid=time.perf_counter() - t0),
         **_NO_JOINTS)
+    rigid_fun = float(res.fun) if ok else float("inf")
     if ok and model != "rigid" and not res.interrupted and not idim_only:
         t1 = time.perf_counter()
         try:
@@ -1078,8 +1110,101 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
             res.message = f"{res.message}; model choice interrupted: the rigid result is kept"
             res.model_choice = dict(model="rigid", reason="model choice interrupted")
         res.stage_times_s["model_choice_and_flexible_fit"] = time.perf_counter() - t1
+    level = _floors(res, log)
+    if (method == ARM_DEFAULT_METHOD and model == "auto" and not res.interrupted
+            and not level <= INADEQUATE_FACTOR):
+        res = _restart_search(res, level, rigid_fun, log, dict(
+            plant=pl, gain=gain, substeps=substeps, max_iter=max_iter, ftol=ftol,
+            cutoff_hz=cutoff_hz, bounds=bounds, ga_options=ga_options, workers=workers,
+            model=model, output_substeps=output_substeps, callback=callback, progress=progress),
+            rng)
     res.elapsed_s = time.perf_counter() - t0
     return res
+
+
+#: GA seeds of the rigid search run again (``"ga+pem"``, a new seed each) after a default
+#: identification that ends on a model that does not describe the log: the PUMA 560 path's
+#: :data:`identification.flexible.MAX_RESTARTS`.
+ARM_MAX_RESTARTS = MAX_RESTARTS
+
+
+def _restart_search(res, level, rigid_fun, log, options, rng):
+    """The default identification's rigid search again from the GA's start (:func:`identify_arm`).
+
+    The rigid model is searched from :data:`ARM_MAX_RESTARTS` GA seeds
+    (``"ga+pem"``, ``model="rigid"``; seeds ``IDIM_FALLBACK_SEED + i``,
+    ``rng + i`` for an int, or drawn from the caller's Generator), stopping
+    at one that predicts the log to the quantisation floor.  When the best
+    of them predicts the whole log better than the first search's rigid fit
+    (``rigid_fun``, pulses^2), the identification runs again from its seed
+    with the model choice, and the result of fewer floors (:func:`_floors`)
+    is kept; ``search_restart`` and ``warnings`` say what was run.
+    """
+    from .flexible import quantisation_floor
+
+    t1 = time.perf_counter()
+    floor = quantisation_floor(log.n_samples * log.n_joints)
+    if rng is None or isinstance(rng, (int, np.integer)):
+        base = IDIM_FALLBACK_SEED if rng is None else int(rng)
+        seeds = [base + i for i in range(1, ARM_MAX_RESTARTS + 1)]
+    else:  # a Generator: seeds from its stream (the same state gives the same seeds)
+        seeds = [int(v) for v in np.random.default_rng(rng).integers(0, 2 ** 32, ARM_MAX_RESTARTS)]
+    first, nfev, rigid, best_seed, best_fun = _chosen(res), int(res.nfev), [], None, rigid_fun
+    interrupted = False
+    for seed in seeds:
+        alt = identify_arm(log, method="ga+pem", rng=seed, **dict(options, model="rigid"))
+        nfev += int(alt.nfev)
+        if alt.interrupted:  # a stop (callback, Ctrl-C): what there is so far
+            interrupted = True
+            break
+        fun = float(alt.fun) if alt.success else float("inf")
+        rigid.append(fun / floor)
+        if fun < best_fun:
+            best_seed, best_fun = seed, fun
+        if fun / floor <= ARM_FLOOR_FACTOR:
+            break
+    best, again, name = res, None, None
+    if best_seed is not None and not interrupted:
+        alt = identify_arm(log, method="ga+pem", rng=best_seed, **options)
+        nfev += int(alt.nfev)
+        interrupted = bool(alt.interrupted)
+        again, name = _floors(alt, log), _chosen(alt)
+        if not interrupted and alt.success and again < level:
+            best = alt
+    reason = (f"the IDIM-started search left the {first} model at {level:.4g} quantisation "
+              f"floors (> {INADEQUATE_FACTOR:g}; its rigid fit {rigid_fun / floor:.4g} floors over "
+              f"the log); the rigid model searched again from the GA's start (method 'ga+pem', "
+              f"{len(rigid)} seed(s)): " + ", ".join(f"{v:.4g}" for v in rigid) + " floors"
+              + ("; no better rigid fit" if best_seed is None else
+                 f"; identified again from seed {best_seed}: the {name} model at {again:.4g} floors")
+              + ("; interrupted" if interrupted else "")
+              + ("; kept" if best is not res else "; the first search kept"))
+    best.search_restart = dict(floors_first=level, rigid_floors=rigid, seed=best_seed,
+                               floors_again=again, kept=best is not res, reason=reason,
+                               elapsed_s=time.perf_counter() - t1)
+    best.warnings = list(best.warnings) + [reason]
+    best.method = ARM_DEFAULT_METHOD
+    best.nfev = nfev
+    best.interrupted = bool(best.interrupted or interrupted)
+    best.stage_times_s = dict(best.stage_times_s, search_restart=time.perf_counter() - t1)
+    return best
+
+def _floors(res, log) -> float:
+    """A result's cost in quantisation floors: its chosen model's held-back cost when the model
+    choice compared models on held-back blocks, else its whole-log prediction-error cost."""
+    from .flexible import quantisation_floor
+
+    mc = res.get("model_choice") or {}
+    if "floor_ratio" in mc and np.isfinite(mc["floor_ratio"]):
+        return float(mc["floor_ratio"])
+    if not res.success:
+        return float("inf")
+    return float(res.fun) / quantisation_floor(log.n_samples * log.n_joints)
+
+
+def _chosen(res) -> str:
+    """The model a result chose (its model choice's name, with the backlash)."""
+    return (res.get("model_choice") or {}).get("model") or res.get("model", "rigid")
 
 
 #: Models of :func:`identify_arm`.
@@ -1365,8 +1490,6 @@ def _paired_t(ra, rb, log) -> float:
 
 def _judge_arm(res, choice, cost, floor_h):
     """Flag a chosen model whose held-back cost stays far above the quantisation floor."""
-    from .flexible import INADEQUATE_FACTOR
-
     level = float(cost) / float(floor_h)
     choice["floor_ratio"] = level
     choice["adequate"] = bool(level <= INADEQUATE_FACTOR)

@@ -764,6 +764,39 @@ def test_an_idim_start_that_does_not_simulate_falls_back_to_the_ga(arm, monkeypa
     np.testing.assert_array_equal(a.x, b.x)
 
 
+def test_a_default_search_that_ends_inadequate_is_searched_again_from_the_ga(arm, monkeypatch):
+    """When the default identification ends on a model that does not describe the log (here
+    forced: a limit of 0.5 quantisation floors, which no search reaches), the rigid model is
+    searched again from the GA's start with a new seed, stopping at a fit at the floor; from a
+    seed whose rigid fit beats the first, the identification runs again and the result of
+    fewer floors is kept; ``search_restart``, ``warnings`` and the JSON say so; the same call
+    repeats bit for bit; a model chosen by the caller is not searched again."""
+    import identification.arm as ida
+    from identification.flexible import quantisation_floor
+
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 1500)
+    floor = quantisation_floor(log.n_samples * log.n_joints)
+    monkeypatch.setattr(ida, "INADEQUATE_FACTOR", 0.5)
+    small = dict(n_subpops=2, n_ind=10, n_gen=8)
+    a = ida.identify_arm(log, ga_options=small)
+    b = ida.identify_arm(log, ga_options=small)
+    sr = a.search_restart
+    assert sr is not None and a.method == "idim+pem" and a.success and sr["reason"] in a.warnings
+    assert len(sr["rigid_floors"]) == 1 and sr["rigid_floors"][0] <= ida.ARM_FLOOR_FACTOR
+    assert sr["floors_first"] > 0.5
+    if sr["seed"] is None:  # no rigid fit better than the first: the first search kept
+        assert not sr["kept"] and sr["floors_again"] is None and a.ga is None
+    else:
+        assert sr["seed"] == ida.IDIM_FALLBACK_SEED + 1 and sr["floors_again"] is not None
+        assert sr["kept"] == (sr["floors_again"] < sr["floors_first"])
+    kept = sr["floors_again"] if sr["kept"] else sr["floors_first"]
+    assert a.fun / floor == pytest.approx(kept, rel=1e-12)  # the rigid model, kept at the floor
+    assert json.loads(json.dumps(a.to_dict()))["search_restart"]["rigid_floors"] == sr["rigid_floors"]
+    np.testing.assert_array_equal(a.x, b.x)
+    assert b.search_restart["rigid_floors"] == sr["rigid_floors"]
+    assert ida.identify_arm(log, model="rigid").search_restart is None
+
+
 def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
     """``python -m identification LOG.csv`` takes a robot-model log; PUMA-only options say so."""
     from ctc.arm import ArmComputedTorque

@@ -441,6 +441,34 @@ def test_inertia_matrices_batch_is_the_model_inertia_matrix():
     assert link_mode_bound(log10_k, D[0]) == math.sqrt(max(per_q))
 
 
+def test_the_fit_screens_the_link_model_where_link_check_judges_it():
+    """The flexible fit's feasibility screen (ArmFlexibleSpace.feasible) judges a candidate's
+    link model at link_check's configurations (the log's and the widened box's), with the
+    inertia matrices of the affine basis (check_inertias) equal to the casadi ones to
+    rounding: the two agree on every candidate, so a fit cannot end on a link model that
+    link_check rejects."""
+    from identification.arm_flexible import ArmFlexibleSpace, inertia_matrices
+
+    log = load_arm_log(DATA / f"{STEM}.csv")
+    truth = json.loads((DATA / f"{STEM}.truth.json").read_text())
+    rigid = arm_plant(log.model)
+    beta = np.asarray(truth["beta"], dtype=float)
+    space = ArmFlexibleSpace(log, rigid, beta, np.empty((0, 2)))
+    rng = np.random.default_rng(5)
+    B = beta + rng.standard_normal((6, beta.size)) * np.abs(beta)
+    qs = space.check_points()
+    assert qs.shape == (64 + 256, log.n_joints)
+    D = inertia_matrices(rigid, B, qs)
+    assert np.allclose(space.check_inertias(B), D, rtol=0, atol=1e-12 * np.abs(D).max())
+    pool = space.pool(beta, np.empty(0))
+    X = np.vstack([pool, pool[:6]])
+    X[-6:, :beta.size] = B  # base parameters far off: some link models that are no robot
+    sub = space.substeps(space.bounds(np.column_stack([beta - np.abs(beta), beta + np.abs(beta)])))
+    screened = space.feasible(X, sub)
+    judged = np.array([space.link_check(x, sub)[0] for x in X])
+    assert np.array_equal(screened, judged) and screened.any() and not screened.all()
+
+
 def _python_link_sample(c, th, v, a, q, w):
     """The flexible CTC's link model over one sample written out in numpy (RK4 of
     ``D_link(q) q'' + n_link(q, q') = tau_s``, the spring torque's RK4 mean): the reference
