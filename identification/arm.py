@@ -651,7 +651,8 @@ class ArmIdentificationResult(OptimizeResult):
         seed whose rigid fit beat the first search's, or None),
         ``floors_again`` (the identification from it, or None), ``kept``
         (whether that result replaced the first), ``reason``, ``elapsed_s``.
-        None otherwise.
+        None otherwise.  ``stage_times_s`` then has ``search_restart`` (and,
+        when the second identification is kept, ``first_search``).
     joint_stiffness_Nm_per_rad, joint_damping_Nms_per_rad, motor_inertia_reflected_kgm2 : list or None
         A flexible result's joints (n each); x then holds
         ``[beta, log10 K, D, Ia, (b), friction]``, and beta is the
@@ -835,11 +836,13 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         choice included, and the result of fewer floors is kept: a
         refinement from IDIM-LS, or from one GA, can settle in a wrong
         basin that still explains most of a large P-loop error (measured on
-        a random four-joint chain whose P loop lags by 7255 pulses: 7.8e4
-        floors from the fallback GA of seed 0, rigid fits at 1.04 floors
-        from seeds 1 to 4 on its rigid twin).  ``search_restart`` and
-        ``warnings`` say so; a log that no search describes costs these
-        searches' time.
+        a random four-joint chain whose P loop lags by 7255 pulses: the
+        rigid model kept at 7.8e4 floors after the fallback GA of seed 0;
+        on its rigid twin, rigid fits at 2.8e5 floors from seed 0 and 1.04
+        from seeds 1 to 4).  ``search_restart`` and ``warnings`` say so; a
+        stop (callback, Ctrl-C) during these searches keeps the best result
+        so far, marked ``interrupted``; a log that no search describes costs
+        these searches' time.
     plant : plant.simulation.arm.ArmPlant, optional
         The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     gain : float
@@ -864,8 +867,9 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         motor inertias) -> the box of beta by interval arithmetic, the
         paper's section 3.6 (:meth:`plant.robot.robot_model.RobotModel.parameter_ranges`).
     rng : numpy.random.Generator or int, optional
-        The GA's random numbers (methods with a GA); the same seed gives
-        the same result.
+        The GA's random numbers (methods with a GA, and the default
+        method's GA fallback and search restarts); the same seed gives the
+        same result.
     ga_options : dict, optional
         Settings of :func:`identification.ga.run_ga` overriding the paper's
         (and ``gray``, ``early_stop`` above).
@@ -1117,7 +1121,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
             plant=pl, gain=gain, substeps=substeps, max_iter=max_iter, ftol=ftol,
             cutoff_hz=cutoff_hz, bounds=bounds, ga_options=ga_options, workers=workers,
             model=model, output_substeps=output_substeps, callback=callback, progress=progress),
-            rng)
+            rng, t0)
     res.elapsed_s = time.perf_counter() - t0
     return res
 
@@ -1128,7 +1132,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
 ARM_MAX_RESTARTS = MAX_RESTARTS
 
 
-def _restart_search(res, level, rigid_fun, log, options, rng):
+def _restart_search(res, level, rigid_fun, log, options, rng, t0):
     """The default identification's rigid search again from the GA's start (:func:`identify_arm`).
 
     The rigid model is searched from :data:`ARM_MAX_RESTARTS` GA seeds
@@ -1171,11 +1175,13 @@ def _restart_search(res, level, rigid_fun, log, options, rng):
         again, name = _floors(alt, log), _chosen(alt)
         if not interrupted and alt.success and again < level:
             best = alt
-    reason = (f"the IDIM-started search left the {first} model at {level:.4g} quantisation "
-              f"floors (> {INADEQUATE_FACTOR:g}; its rigid fit {rigid_fun / floor:.4g} floors over "
-              f"the log); the rigid model searched again from the GA's start (method 'ga+pem', "
-              f"{len(rigid)} seed(s)): " + ", ".join(f"{v:.4g}" for v in rigid) + " floors"
+    start = "the GA that replaced its IDIM-LS start" if res.get("ga") is not None else "IDIM-LS"
+    reason = (f"the first search (from {start}) left the {first} model at {level:.4g} "
+              f"quantisation floors (> {INADEQUATE_FACTOR:g}; its rigid fit {rigid_fun / floor:.4g} "
+              f"floors over the log); the rigid model searched again from the GA's start (method "
+              f"'ga+pem', {len(rigid)} seed(s)): " + ", ".join(f"{v:.4g}" for v in rigid) + " floors"
               + ("; no better rigid fit" if best_seed is None else
+                 f"; seed {best_seed}'s rigid fit better" if again is None else
                  f"; identified again from seed {best_seed}: the {name} model at {again:.4g} floors")
               + ("; interrupted" if interrupted else "")
               + ("; kept" if best is not res else "; the first search kept"))
@@ -1186,12 +1192,17 @@ def _restart_search(res, level, rigid_fun, log, options, rng):
     best.method = ARM_DEFAULT_METHOD
     best.nfev = nfev
     best.interrupted = bool(best.interrupted or interrupted)
-    best.stage_times_s = dict(best.stage_times_s, search_restart=time.perf_counter() - t1)
+    # the stages of the result kept; a kept second identification's first search before them
+    best.stage_times_s = dict(best.stage_times_s, search_restart=time.perf_counter() - t1,
+                              **({} if best is res else dict(first_search=t1 - t0)))
     return best
+
 
 def _floors(res, log) -> float:
     """A result's cost in quantisation floors: its chosen model's held-back cost when the model
-    choice compared models on held-back blocks, else its whole-log prediction-error cost."""
+    choice compared models on held-back blocks, else its whole-log prediction-error cost
+    (a rigid fit at the floor, or no flexible fit possible: both kinds are about 1 at the
+    floor, so the restart compares them as they are)."""
     from .flexible import quantisation_floor
 
     mc = res.get("model_choice") or {}

@@ -366,9 +366,9 @@ class ArmFlexibleSpace:
         return True, ""
 
     def check_points(self, margin_rad=0.2, n_points=256) -> np.ndarray:
-        """Configurations of :meth:`link_check` and :meth:`feasible`, shape (64 + n_points, n).
+        """Configurations of :meth:`link_check` and :meth:`feasible`, shape (p + n_points, n).
 
-        The log's reference configurations (64 along it) and
+        The log's reference configurations (p = min(64, samples) along it) and
         ``n_points`` drawn uniformly (fixed seed) in the box of its ranges
         widened by ``margin_rad``.
 
@@ -417,7 +417,8 @@ class ArmFlexibleSpace:
         never simulates a link model that is not positive definite near the
         log's configurations or whose fastest mode its RK4 steps cannot
         follow there, so that it cannot end on a link model that
-        :meth:`link_check` rejects.  (It screened 16 of the log's own
+        :meth:`link_check` rejects (but for one within rounding of a limit:
+        the batch's matrices come from :meth:`check_inertias`).  (It screened 16 of the log's own
         configurations: a fit of a random four-joint chain whose reflected
         motor inertias are 91-93 % of its diagonal inertias predicted the
         held-back samples to 1.03 floors with a link model that

@@ -746,6 +746,9 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
     grid_s : float, optional
         Time step of the limit checks and the regressor criterion (s);
         default 2 ms, ``max(2 ms, duration_s / 500)`` with a robot model.
+        The design returned is checked again at the rig's sample time
+        (and scaled down to the limits there if a peak between grid points
+        passed one); ``info['limits']`` is of that check.
     friction_prior : array_like, shape (n, 3), optional
         Joint-side friction (viscous N m s/rad, Coulomb + and - N m) for
         the components the rig leaves unknown (``null``): in the current
@@ -894,14 +897,26 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
             message = "designed; ranked by the prediction-error criterion"
     else:
         message = "designed; the regressor criterion's best (rerank=0)"
-    traj = fam.trajectory(best, repair(best))
+    # the limits were checked on the design's grid; the reference runs at the rig's samples,
+    # where a peak between grid points can pass a limit (a planar arm's design by 4.5e-5 rad
+    # at 4 ms): the chosen candidate's factors are found again on the rig's sample grid
+    t_fine = np.arange(0.0, float(duration_s) + 1e-12, min(grid, float(rig.sample_time_s)))
+
+    def feasible_fine(x, s):
+        qf, qdf, qddf = fam.trajectory(x, s).evaluate(t_fine)
+        return _limits(robot, qf, qdf, qddf, f_prior, lim, vmax, imax)["violation"] == 0.0
+
+    factors = repair(best)
+    if not feasible_fine(best, factors):
+        factors = _repair(fam, feasible_fine, best)
+    traj = fam.trajectory(best, factors)
     q, qd, qdd = traj.evaluate(t)
     info = dict(
         names=robot.names, f_scale=scale,
         predicted_f_std=best_std,
         predicted_f_rse=None if best_std is None else best_std / scale,
         regressor_rse=_rse_from_states(robot, q, qd, qdd, scale),
-        limits=_limits(robot, q, qd, qdd, f_prior, lim, vmax, imax),
+        limits=_limits(robot, *traj.evaluate(t_fine), f_prior, lim, vmax, imax),
         f_prior=f_prior, nfev=nfev[0], generations=int(generations), candidates=len(cands),
         polished=polished, message=message)
     return (traj, info) if full_output else traj

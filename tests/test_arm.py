@@ -797,6 +797,37 @@ def test_a_default_search_that_ends_inadequate_is_searched_again_from_the_ga(arm
     assert ida.identify_arm(log, model="rigid").search_restart is None
 
 
+def test_a_stop_during_the_search_restart_keeps_the_first_result(arm, monkeypatch):
+    """A stop (callback, Ctrl-C) during the restart's second GA seed, after the first found a
+    better rigid fit: the first search's result is kept, marked interrupted, and the reason
+    says which seed's rigid fit was better and that the restart was interrupted (no second
+    identification ran)."""
+    import identification.arm as ida
+    from identification.flexible import quantisation_floor
+
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 600)
+    floor = quantisation_floor(log.n_samples * log.n_joints)
+    first = ida.ArmIdentificationResult(
+        fun=50.0 * floor, success=True, interrupted=False, nfev=10, model="rigid", ga=None,
+        model_choice=dict(model="rigid", floor_ratio=40.0), warnings=[], stage_times_s={},
+        method="idim+pem")
+    calls = []
+
+    def fake(log_, *, method, rng, **options):
+        calls.append((method, rng, options["model"]))
+        stop = len(calls) == 2
+        return ida.ArmIdentificationResult(fun=2.0 * floor, success=True, interrupted=stop,
+                                           nfev=5, model="rigid", model_choice=None)
+
+    monkeypatch.setattr(ida, "identify_arm", fake)
+    out = ida._restart_search(first, 40.0, first.fun, log, dict(model="auto"), None, 0.0)
+    assert calls == [("ga+pem", 1, "rigid"), ("ga+pem", 2, "rigid")]
+    sr = out.search_restart
+    assert out is first and out.interrupted and not sr["kept"] and sr["floors_again"] is None
+    assert sr["seed"] == 1 and sr["rigid_floors"] == [2.0]
+    assert "seed 1's rigid fit better; interrupted" in sr["reason"] and out.nfev == 20
+
+
 def test_cli_on_a_robot_model_log(arm, tmp_path, capsys):
     """``python -m identification LOG.csv`` takes a robot-model log; PUMA-only options say so."""
     from ctc.arm import ArmComputedTorque
