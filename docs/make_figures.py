@@ -220,7 +220,9 @@ it in ``optimisers``):
     ``figures/bench_arms_random_compliant_20262911.txt``; before the default
     identification's search restart and the flexible fit's link-model screen at
     ``link_check``'s configurations: ``..._20262921_before_restart.txt``,
-    ``..._20262911_before_restart.txt``), four single draws whose
+    ``..._20262911_before_restart.txt``; draw 20262923 alone, ``--compliant --n 1
+    --seed 20262923``, of both versions: ``..._20262923_restart.txt``,
+    ``..._20262923_before_restart.txt``), four single draws whose
     lines print each model's held-back floors and paired t, quoted in the tutorial
     (``figures/bench_arms_model_choice_random_20262833.txt``, ``..._random_20262731.txt``,
     ``..._planar2_20262922.txt``, ``..._planar2_20262101.txt``) and

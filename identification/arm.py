@@ -836,13 +836,14 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         choice included, and the result of fewer floors is kept: a
         refinement from IDIM-LS, or from one GA, can settle in a wrong
         basin that still explains most of a large P-loop error (measured on
-        a random four-joint chain whose P loop lags by 7255 pulses: the
-        rigid model kept at 7.8e4 floors after the fallback GA of seed 0;
-        on its rigid twin, rigid fits at 2.8e5 floors from seed 0 and 1.04
-        from seeds 1 to 4).  ``search_restart`` and ``warnings`` say so; a
-        stop (callback, Ctrl-C) during these searches keeps the best result
-        so far, marked ``interrupted``; a log that no search describes costs
-        these searches' time.
+        a random compliant four-joint chain of ``benchmarks/bench_arms.py``
+        whose P loop lags by 7255 pulses: the rigid model kept at 7.8e4
+        floors after the fallback GA of seed 0; after the restart, the
+        springs at 1.02 floors and every well-excited base parameter within
+        1 %, ``docs/tutorial_your_robot.rst``).  ``search_restart`` and
+        ``warnings`` say so; a stop (callback, Ctrl-C) during these searches
+        keeps the best result so far, marked ``interrupted``; a log that no
+        search describes costs these searches' time.
     plant : plant.simulation.arm.ArmPlant, optional
         The arm (default :func:`plant.simulation.arm.arm_plant` of the log's robot).
     gain : float

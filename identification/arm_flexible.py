@@ -417,13 +417,12 @@ class ArmFlexibleSpace:
         never simulates a link model that is not positive definite near the
         log's configurations or whose fastest mode its RK4 steps cannot
         follow there, so that it cannot end on a link model that
-        :meth:`link_check` rejects (but for one within rounding of a limit:
-        the batch's matrices come from :meth:`check_inertias`).  (It screened 16 of the log's own
-        configurations: a fit of a random four-joint chain whose reflected
-        motor inertias are 91-93 % of its diagonal inertias predicted the
-        held-back samples to 1.03 floors with a link model that
-        :meth:`link_check` then rejected, and the rigid model was kept at 72
-        floors.)
+        :meth:`link_check` rejects (but for one within rounding of a
+        limit: the batch's matrices come from :meth:`check_inertias`).  It
+        screened 16 of the log's own configurations: on the random compliant
+        draw 20262912 of ``benchmarks/bench_arms.py``, a two-mass fit that
+        predicted the held-back samples to the floor was then rejected by
+        :meth:`link_check` for its link model, and the rigid model was kept.
 
         Parameters
         ----------
