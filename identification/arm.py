@@ -58,7 +58,7 @@ from plant.robot.model import friction_torque
 from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
 from .flexible import (CHOICE_RATIO, CONTINUATION_FTOL, CONTINUATION_GAINS, INADEQUATE_FACTOR,
-                       MAX_RESTARTS, RESTART_FRACTION)
+                       MAX_RESTARTS, RESTART_FRACTION, quantisation_floor)
 from .friction import FRICTION_COMPONENTS, friction_layout, joint_friction_columns
 from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import (IDIM_FILTER_ORDER, IV_ITERATIONS, REVERSAL_GUARD, cutoff_from_counts,
@@ -1145,8 +1145,6 @@ def _restart_search(res, level, rigid_fun, log, options, rng, t0):
     with the model choice, and the result of fewer floors (:func:`_floors`)
     is kept; ``search_restart`` and ``warnings`` say what was run.
     """
-    from .flexible import quantisation_floor
-
     t1 = time.perf_counter()
     floor = quantisation_floor(log.n_samples * log.n_joints)
     if rng is None or isinstance(rng, (int, np.integer)):
@@ -1204,8 +1202,6 @@ def _floors(res, log) -> float:
     choice compared models on held-back blocks, else its whole-log prediction-error cost
     (a rigid fit at the floor, or no flexible fit possible: both kinds are about 1 at the
     floor, so the restart compares them as they are)."""
-    from .flexible import quantisation_floor
-
     mc = res.get("model_choice") or {}
     if "floor_ratio" in mc and np.isfinite(mc["floor_ratio"]):
         return float(mc["floor_ratio"])
@@ -1253,7 +1249,6 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     ``report`` is :func:`_reporter`'s; a stop raises :class:`_Stopped`.
     """
     from .arm_flexible import ARM_BACKLASH_GRID, N_STARTS, ArmFlexibleSpace, fit_flexible_arm
-    from .flexible import quantisation_floor
     from .refinement import MaskedProblem, held_back_mask
 
     n, nb = log.n_joints, res.plant.base.rank

@@ -830,11 +830,11 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
     t = np.arange(0.0, float(duration_s) + 1e-12, grid)
     nfev = [0]
 
-    def states(x, s):
-        return fam.trajectory(x, s).evaluate(t)
+    def states(x, s, at=t):
+        return fam.trajectory(x, s).evaluate(at)
 
-    def feasible(x, s):
-        q, qd, qdd = states(x, s)
+    def feasible(x, s, at=t):
+        q, qd, qdd = states(x, s, at)
         return _limits(robot, q, qd, qdd, f_prior, lim, vmax, imax)["violation"] == 0.0
 
     def repair(x):
@@ -901,14 +901,9 @@ def design_excitation(rig, duration_s, *, joint_limits_rad=None, max_velocity_ra
     # where a peak between grid points can pass a limit (a planar arm's design by 4.5e-5 rad
     # at 4 ms): the chosen candidate's factors are found again on the rig's sample grid
     t_fine = np.arange(0.0, float(duration_s) + 1e-12, min(grid, float(rig.sample_time_s)))
-
-    def feasible_fine(x, s):
-        qf, qdf, qddf = fam.trajectory(x, s).evaluate(t_fine)
-        return _limits(robot, qf, qdf, qddf, f_prior, lim, vmax, imax)["violation"] == 0.0
-
     factors = repair(best)
-    if not feasible_fine(best, factors):
-        factors = _repair(fam, feasible_fine, best)
+    if not feasible(best, factors, t_fine):
+        factors = _repair(fam, lambda x, s: feasible(x, s, t_fine), best)
     traj = fam.trajectory(best, factors)
     q, qd, qdd = traj.evaluate(t)
     info = dict(
