@@ -220,7 +220,11 @@ it in ``optimisers``):
     ``figures/bench_arms_random_compliant_20262911.txt``; before the default
     identification's search restart and the flexible fit's link-model screen at
     ``link_check``'s configurations: ``..._20262921_before_restart.txt``,
-    ``..._20262911_before_restart.txt``; draw 20262923 alone, ``--compliant --n 1
+    ``..._20262911_before_restart.txt``; before the guessed box's widening, the
+    two-mass fit's refit at ``IA_FRACTION_MAX`` and the check's following-error
+    limit: ``..._20262911_before_widening.txt``; with the two-mass box at 99.9 % from
+    the start, a version not kept: ``..._20262911_wide_first_box.txt``; of the
+    planar arms after them: ``figures/bench_arms_compliant_20262921_widening.txt``; draw 20262923 alone, ``--compliant --n 1
     --seed 20262923``, of both versions: ``..._20262923_restart.txt``,
     ``..._20262923_before_restart.txt``), four single draws whose
     lines print each model's held-back floors and paired t, quoted in the tutorial

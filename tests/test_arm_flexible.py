@@ -267,6 +267,31 @@ def test_a_stop_in_the_model_choice_keeps_the_rigid_result(compliant, how):
                        for s, st, start in seen)
 
 
+def test_a_check_run_beyond_the_following_error_limit_has_lost_the_arm(compliant, monkeypatch):
+    """The model-error check counts a run beyond the following-error limit on some joint as
+    lost (infinite), as a failed one: with the limit forced to 1.5 pulses the rigid-equivalent
+    CTC's 2-pulse scenarios are lost and the flexible CTC, which holds them all within +-1,
+    is returned; with 0.5 pulses every run is lost, no scenario counts, and the
+    rigid-equivalent CTC is returned with a warning."""
+    import ctc.arm as ca
+
+    log, truth, res = compliant
+    base = ca.ArmComputedTorque.from_result(res, log).selection
+    assert max(base["flexible"]) <= 1 and max(base["rigid_equivalent"]) >= 2
+    monkeypatch.setattr(ca, "lost_bound", lambda e: np.full(np.shape(e)[1], 1.5))
+    ctrl = ca.ArmComputedTorque.from_result(res, log)
+    sel = ctrl.selection
+    assert isinstance(ctrl, ArmFlexibleComputedTorque)
+    for r, f in zip(sel["rigid_equivalent"], base["rigid_equivalent"]):
+        assert r == (np.inf if f > 1.5 else f)
+    assert sel["worst_rigid_equivalent"] == np.inf and sel["worst_flexible"] <= 1
+    monkeypatch.setattr(ca, "lost_bound", lambda e: np.full(np.shape(e)[1], 0.5))
+    with pytest.warns(RuntimeWarning, match="model-error set"):
+        ctrl = ca.ArmComputedTorque.from_result(res, log)
+    assert not isinstance(ctrl, ArmFlexibleComputedTorque)
+    assert not any(ctrl.selection["counted"])
+
+
 def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
     """A flexible result: the flexible-joint CTC tracks its identified robot within +-1 pulse;
     ``from_result`` returns whichever of it and the rigid-equivalent CTC holds the model-error
