@@ -162,7 +162,10 @@ it in ``optimisers``):
     fifth draw's (``..._wald_pool_run.txt``, ``..._run.txt``,
     ``..._before_dwell_run.txt``; the version before was given the fifth
     run's logs and priors by ``--robust-out`` and ``--out``: the
-    identification does not involve the limit).
+    identification does not involve the limit).  Four of its cases run again on
+    another machine with the same code (``--cases 33,52`` and ``--cases 20,21``,
+    fresh folders): ``figures/changes_20261327_cases_33_52_rerun.txt``,
+    ``..._cases_20_21_rerun.txt``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the

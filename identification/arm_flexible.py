@@ -91,13 +91,13 @@ IA_FRACTION_BOUNDS = (0.02, 0.95)
 #: The upper bound of ``Ia`` (fraction of the smallest diagonal inertia) when a fit ends on
 #: :data:`IA_FRACTION_BOUNDS`' (:meth:`ArmFlexibleSpace.at_motor_inertia_bound`).  Heavy
 #: motors behind high ratios reflect nearly all of a joint's inertia (a wrist's motor, or
-#: the random chain 20262916 of ``benchmarks/bench_arms.py``, joint 3 at 97 %); the bound
+#: joint 3 of the random chain 20262916 of ``benchmarks/bench_arms.py``); the bound
 #: stops short of 1, where the link model's inertia vanishes, and
 #: :meth:`ArmFlexibleSpace.feasible` rejects every candidate whose link model is not
 #: positive definite or too fast for the fit's RK4 steps.  Not the first box: the fits'
 #: Levenberg-Marquardt steps scale with it, and on the committed near-floor compliant log of
 #: ``tests/test_arm_flexible.py`` the wider first box left the springs' fit above the
-#: rigid model's held-back cost (1.884 against 1.872 floors).
+#: rigid model's held-back cost.
 IA_FRACTION_MAX = 0.999
 
 #: ``|lambda| h`` of RK4 on the fast real pole of a heavily damped light motor (a decaying

@@ -292,6 +292,29 @@ def test_a_check_run_beyond_the_following_error_limit_has_lost_the_arm(compliant
     assert not any(ctrl.selection["counted"])
 
 
+def test_the_two_mass_box_widens_only_its_motor_inertia_bound(compliant):
+    """``ArmFlexibleSpace.bounds(..., ia_max=IA_FRACTION_MAX)`` moves only the upper bounds of
+    ``Ia`` (to that fraction of the smallest diagonal inertia), so the fit's RK4 steps stay;
+    ``at_motor_inertia_bound`` says when a point sits on them."""
+    from identification.arm_flexible import IA_FRACTION_BOUNDS, IA_FRACTION_MAX, ArmFlexibleSpace
+
+    log, truth, res = compliant
+    rigid = identify_arm(log, model="rigid")
+    nb = rigid.plant.base.rank
+    B = np.asarray(rigid.bounds, dtype=float)
+    sp = ArmFlexibleSpace(log, rigid.plant, rigid.beta, B[nb:])
+    box, wide = sp.bounds(B[:nb]), sp.bounds(B[:nb], ia_max=IA_FRACTION_MAX)
+    ia = np.arange(nb + 2 * sp.n, nb + 3 * sp.n)
+    assert np.array_equal(np.flatnonzero(np.any(box != wide, axis=1)), ia)
+    np.testing.assert_allclose(box[ia, 1], IA_FRACTION_BOUNDS[1] * sp.m_min)
+    np.testing.assert_allclose(wide[ia, 1], IA_FRACTION_MAX * sp.m_min)
+    assert sp.substeps(box) == sp.substeps(wide)
+    x = box.mean(axis=1)
+    assert not sp.at_motor_inertia_bound(box, x)
+    x[ia[-1]] = box[ia[-1], 1]
+    assert sp.at_motor_inertia_bound(box, x) and not sp.at_motor_inertia_bound(wide, x)
+
+
 def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
     """A flexible result: the flexible-joint CTC tracks its identified robot within +-1 pulse;
     ``from_result`` returns whichever of it and the rigid-equivalent CTC holds the model-error
