@@ -1367,6 +1367,67 @@ def _flexible_candidates(result, log, design):
         result, log, **extra, **design)) for name, extra in out]
 
 
+def _minimax_choice(flexible, rigid, n_scenarios):
+    """The rule of :func:`_checked_flexible`: which controller its scenario errors pick.
+
+    A scenario *counts* where at least one controller ran it finitely (a
+    robot no controller holds is beyond what the check resolves); a
+    controller's worst case is its largest error over the counted
+    scenarios, infinite when it failed or lost one (a skipped scenario,
+    nan, is no failure).  The flexible design with the smallest worst case
+    (the first on a tie) is compared with the rigid-equivalent CTC
+    (minimax, the flexible one on a tie); when every flexible design loses
+    a counted scenario, the first that holds the nominal robot is the one
+    compared, and it is chosen when the rigid-equivalent CTC loses a
+    counted scenario and the nominal robot too.
+
+    Parameters
+    ----------
+    flexible : list of list of float
+        Per flexible design, its max abs(e) (pulses) per scenario of
+        :data:`FLEXIBLE_CHECK_SCENARIOS`: inf for a failed or lost run, nan
+        for a skipped one; empty for a design that could not be built.
+    rigid : list of float
+        The rigid-equivalent CTC's, the same way.
+    n_scenarios : int
+        Number of scenarios.
+
+    Returns
+    -------
+    best : int
+        Index of the flexible design compared.
+    choice : str
+        ``"flexible"`` (the minimax choice), ``"nominal"`` (every
+        controller loses a counted scenario; the flexible design is the one
+        that holds the nominal robot) or ``"rigid"``.
+    worst : list of float
+        Worst case per flexible design, then the rigid-equivalent CTC's.
+    counted : ndarray of bool, shape (n_scenarios,)
+        The scenarios that count.
+    """
+    nominal = [i for i, sc in enumerate(FLEXIBLE_CHECK_SCENARIOS) if sc[0] == "nominal"][0]
+    rows = [e if len(e) else [np.inf] * n_scenarios for e in list(flexible) + [rigid]]
+    E = np.array(rows, dtype=float)
+    counted = np.isfinite(E).any(axis=0)
+    worst = [float(np.nanmax(np.where(counted, row, -np.inf))) if counted.any() else np.inf
+             for row in E]
+
+    def holds_nominal(errs):
+        return len(errs) > nominal and np.isfinite(errs[nominal])
+
+    best = int(np.argmin(worst[:-1]))
+    if not np.isfinite(worst[best]):
+        best = next((i for i, e in enumerate(flexible) if holds_nominal(e)), best)
+    w_f, w_r = worst[best], worst[-1]
+    if np.isfinite(w_f) and w_f <= w_r:
+        choice = "flexible"
+    elif not np.isfinite(w_r) and holds_nominal(flexible[best]) and not holds_nominal(rigid):
+        choice = "nominal"
+    else:
+        choice = "rigid"
+    return best, choice, worst, counted
+
+
 def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     """The flexible CTC of a flexible result with the smallest worst case over the model-error
     set, or the rigid-equivalent one when that holds the set better (minimax;
@@ -1485,24 +1546,9 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     # beyond what the check's integration resolves); a controller that fails a counted
     # scenario has an infinite worst case; a skipped scenario is no failure (the candidate
     # already exceeded a finite worst case elsewhere)
-    rows = [e if len(e) else [np.inf] * n_sc for e in [r[2] for r in runs] + [err_r]]
-    E = np.array(rows, dtype=float)
-    counted = np.isfinite(E).any(axis=0)
-    worst = [float(np.nanmax(np.where(counted, row, -np.inf))) if counted.any() else np.inf
-             for row in E]
-    w_r = worst[-1]
-    nominal = [i for i, sc in enumerate(FLEXIBLE_CHECK_SCENARIOS) if sc[0] == "nominal"][0]
-
-    def holds_nominal(errs):
-        return len(errs) > nominal and np.isfinite(errs[nominal])
-
-    # the flexible candidate with the smallest worst case (the first on a tie); when each loses
-    # a scenario that counts, the first that holds the nominal robot
-    best = int(np.argmin(worst[:-1]))
-    if not np.isfinite(worst[best]):
-        best = next((i for i, r in enumerate(runs) if holds_nominal(r[2])), best)
+    best, choice, worst, counted = _minimax_choice([r[2] for r in runs], err_r, n_sc)
     name, flex, err_f = runs[best]
-    w_f = worst[best]
+    w_f, w_r = worst[best], worst[-1]
 
     def listed(errs):
         return [None if np.isnan(e) else e for e in errs]
@@ -1516,11 +1562,10 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
                      held_back=held_back, current_per_pulse_limit_A=step_limit)
     selection.update(counted=[bool(c) for c in counted], worst_flexible=w_f,
                      worst_rigid_equivalent=w_r)
-    if flex is not None and np.isfinite(w_f) and w_f <= w_r:
+    if choice == "flexible":
         flex.selection = selection  # the minimax choice
         return flex
-    if (flex is not None and not np.isfinite(w_r) and holds_nominal(err_f)
-            and not holds_nominal(err_r)):
+    if choice == "nominal":
         # each loses a scenario that counts: the one that holds the nominal robot, said
         warnings.warn(f"no controller holds the whole model-error set "
                       f"({', '.join(selection['scenarios'])}): the flexible-joint CTC ({name}) "

@@ -33,8 +33,8 @@ beyond the limit for 10 ms, and the true model switched in at the pick-up
 samples at full scale 0.8 s later; the first sample beyond the limit handed
 both to the P law, which then held the arm at 88 / 40 and 92 / 40
 pulses from 0.5 s after the put-down, where the same controllers, left in
-charge, track within 1 / 1 (``docs/figures/changes_20261327_run.txt``, this
-rule's run, against ``..._before_dwell_run.txt``).
+charge, track within 1 / 1 (``docs/figures/changes_20261327_before_model_choice_run.txt``,
+this rule's run, against ``..._before_dwell_run.txt``).
 
 The limit of each joint is twice the largest pulse error of the log the
 controller was built from -- the P law's own following error along the

@@ -148,8 +148,14 @@ it in ``optimisers``):
 ``changes_sixth``
     ``benchmarks/bench_changes.py --n 58 --seed 20261327 --jobs 2`` with fresh
     output and robustness folders: a sixth draw, on a seed chosen before its
-    first run (``figures/changes_20261327.rst``,
-    ``figures/changes_20261327_run.txt``; 31-34 min on 2 cores).  Its first run,
+    first run (``figures/changes_20261327.rst``, its report
+    ``figures/changes_20261327.txt``: its sixth run, on the version whose PUMA
+    model choice uses every robot's rule (:class:`identification.arm.ModelImprovement`),
+    with the robustness suite's logs in ``benchmarks/out/robustness`` and every
+    prior made anew, ``--out`` fresh; 37 min on 2 cores; its stdout's progress
+    lines were not kept.  The version before's, the fifth run below:
+    ``figures/changes_20261327_before_model_choice.txt`` (its report)
+    and ``..._before_model_choice_run.txt``).  Its first run,
     on the version that diagnosed the P law's windows after a fallback with
     summed Vuong terms and before every estimate was tested against the
     empty gripper: ``figures/changes_20261327_before_empty_gripper_run.txt``;
@@ -159,13 +165,17 @@ it in ``optimisers``):
     are one payload with its own (Wald's test, step 3):
     ``figures/changes_20261327_before_wald_pool_run.txt``.  Its fourth and
     fifth runs, and the version before the fifth beside it, are named as the
-    fifth draw's (``..._wald_pool_run.txt``, ``..._run.txt``,
+    fifth draw's (``..._wald_pool_run.txt``, ``..._before_model_choice_run.txt``,
     ``..._before_dwell_run.txt``; the version before was given the fifth
     run's logs and priors by ``--robust-out`` and ``--out``: the
     identification does not involve the limit).  Four of its cases run again on
     another machine with the same code (``--cases 33,52`` and ``--cases 20,21``,
     fresh folders): ``figures/changes_20261327_cases_33_52_rerun.txt``,
-    ``..._cases_20_21_rerun.txt``.
+    ``..._cases_20_21_rerun.txt``.  The model choice's excess test
+    (:class:`identification.arm.ModelImprovement`, now the PUMA path's rule
+    too) on one of its logs, ``tests/data/independent/indep_20261327_0046.csv``:
+    ``python -m identification tests/data/independent/indep_20261327_0046.csv``
+    (``figures/model_choice_indep_20261327_0046.txt``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -215,7 +225,9 @@ it in ``optimisers``):
     ``figures/bench_arms_random_compliant_20262831.txt``; before the floor rule:
     ``..._20262831_before_floor_rule.txt``),
     ``benchmarks/bench_arm_floor.py --n 6 6 0 6 6 --seed 20262901 --jobs 2`` (what
-    the rigid fit leaves on rigid arms; ``figures/bench_arm_floor_20262901.txt``),
+    the rigid fit leaves on rigid arms; ``figures/bench_arm_floor_20262901.txt``;
+    again, with ``--jobs 1``, after the guessed box's widening:
+    ``..._20262901_widening.txt``, the same lines but the times),
     ``bench_arms.py --compliant --n 6 --seed 20262921 --jobs 2`` and ``--compliant
     --n 0 0 0 6 --seed 20262911 --jobs 2`` (fresh seeds of compliant planar arms
     and random DH chains after the floor rule;

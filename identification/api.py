@@ -226,9 +226,10 @@ def identify(
         flexible-joint model (friction included when the sidecar does not
         know it) with every fourth 0.1 s block held back, chooses it when it
         halves the rigid model's held-back prediction-error cost, and adds
-        gearbox backlash when the spring alone stays above
-        :data:`~identification.flexible.INADEQUATE_FACTOR` floors and the
-        backlash halves the cost again (``model_choice`` says which and why).
+        gearbox backlash when the model chosen so far stays above the
+        quantisation floor and the backlash predicts the held-back samples
+        better by the tests of :class:`identification.arm.ModelImprovement`
+        (``model_choice`` says which and why).
         A chosen model still far above the floor raises a
         :class:`ModelInadequacyWarning`; one that leaves more than
         :data:`~identification.flexible.RESTART_FRACTION` of the held-back

@@ -73,7 +73,8 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "output_error_substeps",
            "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction", "rig_with_friction",
            "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T", "ARM_FLOOR_FACTOR", "CHOICE_T",
-           "ARM_MAX_RESTARTS", "BOX_WIDENINGS", "BOX_EDGE"]
+           "ARM_MAX_RESTARTS", "BOX_WIDENINGS", "BOX_EDGE", "ModelImprovement",
+           "held_back_paired_t"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper", "idim-ls", "idim-iv")
@@ -652,7 +653,8 @@ class ArmIdentificationResult(OptimizeResult):
         chosen model's held-back cost in floors), ``adequate``; the tests of
         :func:`identify_arm`'s rule: ``flexible_paired_t`` and
         ``flexible_test`` (springs against the rigid model; the test passed:
-        ``"ratio"``, ``"paired_t"``, ``"floor"`` or None), ``backlash_paired_t``,
+        ``"ratio"``, ``"paired_t"``, ``"floor"``, ``"excess"`` or None;
+        :class:`ModelImprovement`), ``backlash_paired_t``,
         ``backlash_test`` and ``backlash_against`` (``"springs"`` or
         ``"rigid"``, the model chosen before the backlash).
     warnings : list of str
@@ -903,7 +905,8 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         :data:`~identification.flexible.CHOICE_RATIO` times the rigid
         model's or lower per held-back block by more than :data:`CHOICE_T`
         standard errors (a paired t test), or reach the floor where the
-        rigid model does not.  When the model chosen so far (the springs, or
+        rigid model does not, or leave less than ``CHOICE_RATIO`` of its
+        excess over the floor (:class:`ModelImprovement`).  When the model chosen so far (the springs, or
         the rigid model) leaves the held-back samples above the floor, the
         gearbox backlash is fitted too and kept by the same tests against it
         (:data:`BACKLASH_T`); a model at the floor leaves the backlash
@@ -1433,11 +1436,12 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     if not np.isfinite(c_flex):
         c_flex = np.inf
     floor_at = ARM_FLOOR_FACTOR * floor_h
-    spring = _Improvement(c_flex, r_flex, c_rigid, r_rigid, floor_at, log, CHOICE_T)
+    spring = ModelImprovement(c_flex, r_flex, c_rigid, r_rigid, floor_h, log, CHOICE_T)
     choice = dict(rule=(f"a richer model if its held-back cost is below {CHOICE_RATIO} x the "
                         f"simpler's, lower per held-back block by paired t > {CHOICE_T:g}, or "
                         f"at the quantisation floor (<= {ARM_FLOOR_FACTOR:g} floors) where the "
-                        "simpler is not"),
+                        f"simpler is not, or its excess over the floor below {CHOICE_RATIO} x the "
+                        "simpler's (ModelImprovement)"),
                   held_back_cost_rigid_pulses2=c_rigid, held_back_cost_flexible_pulses2=c_flex,
                   held_back_cost_springs_pulses2=c_flex, floor_pulses2=floor_h,
                   flexible_paired_t=spring.t, flexible_test=spring.test)
@@ -1476,7 +1480,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
         c_bl, r_bl = _held_cost(bat(DEFAULT_GAIN), bl["x"], held, residuals=True)
         if not np.isfinite(c_bl):
             c_bl = np.inf
-        backlash = _Improvement(c_bl, r_bl, c_best, r_best, floor_at, log, BACKLASH_T)
+        backlash = ModelImprovement(c_bl, r_bl, c_best, r_best, floor_h, log, BACKLASH_T)
         choice["backlash_test"] = backlash.test
         choice["held_back_cost_backlash_pulses2"] = c_bl
         choice["backlash_paired_t"] = backlash.t
@@ -1559,32 +1563,75 @@ CHOICE_T = 3.0
 BACKLASH_T = 3.0
 
 
-class _Improvement:
+class ModelImprovement:
     """Whether a richer model's held-back prediction beats a simpler one's, and why (a sentence).
 
-    Better: a lower cost that is below :data:`~identification.flexible.CHOICE_RATIO` times the
-    simpler's, or lower per held-back block by more than ``t_threshold`` standard errors
-    (:func:`_paired_t`), or at the quantisation floor (``floor_at`` pulses^2) where the
-    simpler's is not.
+    The model choice's rule, for every robot (:func:`identify_arm` and the
+    PUMA 560 path's :func:`identification.flexible.apply_model`): the
+    richer model is *better* when its held-back prediction-error cost is
+    lower and one of these holds:
+
+    * ``"ratio"``: below :data:`~identification.flexible.CHOICE_RATIO` times
+      the simpler's;
+    * ``"paired_t"``: lower per held-back block by more than ``t_threshold``
+      standard errors (:func:`held_back_paired_t`);
+    * ``"floor"``: at the quantisation floor (within :data:`ARM_FLOOR_FACTOR`
+      floors) where the simpler's is not;
+    * ``"excess"``: the simpler's is above the floor's allowance, and the
+      richer model leaves less than ``CHOICE_RATIO`` of its *excess* over
+      the floor (``c - floor``, the model error's share of the cost): the
+      ratio test on what a model can explain.  Near the floor the raw
+      ratio cannot reach one half even for the true model (springs at 2.1
+      floors against the truth's 1.1 is a ratio of 0.54), while a
+      model error halved is the same evidence at any distance from it.
+
+    Parameters
+    ----------
+    c_new, c_old : float
+        Held-back costs (pulses^2) of the richer and of the simpler model.
+    r_new, r_old : array_like, shape (n_samples * n_joints,)
+        Their prediction residuals (pulses), sample-major, the whole log.
+    floor : float
+        The quantisation floor (pulses^2) of the held-back samples (their
+        count / 12, :func:`identification.flexible.quantisation_floor`).
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+        The log (its joints and sample time place the held-back blocks).
+    t_threshold : float
+        The paired t test's threshold (:data:`CHOICE_T`, :data:`BACKLASH_T`).
+
+    Attributes
+    ----------
+    t : float
+        The paired t statistic (> 0: the richer model better).
+    test : str or None
+        The first test passed (``"ratio"``, ``"paired_t"``, ``"floor"``,
+        ``"excess"``), or None.
+    why : str
+        The sentence the model choice's ``reason`` quotes.
     """
 
-    def __init__(self, c_new, r_new, c_old, r_old, floor_at, log, t_threshold):
-        self.t = _paired_t(r_old, r_new, log)
+    def __init__(self, c_new, r_new, c_old, r_old, floor, log, t_threshold):
+        self.t = held_back_paired_t(r_old, r_new, log)
+        floor_at = ARM_FLOOR_FACTOR * floor
         ratio = c_new / c_old if c_old > 0 else 1.0
+        excess = (c_new - floor) / (c_old - floor) if c_old > floor_at else 1.0
         lower = bool(np.isfinite(c_new) and c_new < c_old)
         tests = (("ratio", ratio < CHOICE_RATIO, f"cost ratio {ratio:.3g} < {CHOICE_RATIO}"),
                  ("paired_t", self.t > t_threshold, f"paired t {self.t:.3g} > {t_threshold:g}"),
                  ("floor", c_new <= floor_at < c_old,
                   f"at the quantisation floor ({c_new:.4g} <= {floor_at:.4g} pulses^2), the "
-                  f"simpler model not ({c_old:.4g})"))
+                  f"simpler model not ({c_old:.4g})"),
+                 ("excess", excess < CHOICE_RATIO,
+                  f"excess over the quantisation floor {floor:.4g} pulses^2 ratio {excess:.3g} "
+                  f"< {CHOICE_RATIO} ({c_new - floor:.4g} / {c_old - floor:.4g})"))
         passed = [(name, why) for name, ok, why in tests if lower and ok]
-        #: the first test passed (``"ratio"``, ``"paired_t"``, ``"floor"``), or None
+        #: the first test passed (``"ratio"``, ``"paired_t"``, ``"floor"``, ``"excess"``), or None
         self.test = passed[0][0] if passed else None
         self.why = (passed[0][1] if passed else
                     f"cost ratio {ratio:.3g} >= {CHOICE_RATIO}, paired t {self.t:.3g} <= "
                     f"{t_threshold:g}, held-back cost {c_new:.4g} pulses^2 "
-                    + ("above the floor" if c_new > floor_at else
-                       "with the simpler model at the floor too"))
+                    + (f"above the floor, excess ratio {excess:.3g} >= {CHOICE_RATIO}"
+                       if c_new > floor_at else "with the simpler model at the floor too"))
 
     @property
     def better(self) -> bool:
@@ -1592,11 +1639,31 @@ class _Improvement:
         return self.test is not None
 
 
-def _paired_t(ra, rb, log) -> float:
-    """Paired t statistic of the held-back block costs of residuals ra minus rb (> 0: b better)."""
+def held_back_paired_t(ra, rb, log) -> float:
+    """Paired t statistic of the held-back block costs of residuals ``ra`` minus ``rb``.
+
+    Per held-back block (every :data:`~identification.refinement.HOLD_EVERY`-th
+    block of :data:`~identification.refinement.HOLD_BLOCK_S` s) the cost
+    difference ``sum ra^2 - sum rb^2``; their mean over the standard error
+    of the mean (Student's paired t; blocks 0.3 s apart are nearly
+    independent, unlike the quantisation errors of neighbouring samples).
+
+    Parameters
+    ----------
+    ra, rb : array_like, shape (n_samples * n_joints,)
+        Prediction residuals (pulses), sample-major.
+    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
+        The log (its joints: the columns of ``e_pulses``; ``rig.sample_time_s``).
+
+    Returns
+    -------
+    float
+        > 0 when ``rb`` predicts the held-back blocks better; 0 with fewer
+        than three blocks or a failed prediction (no evidence).
+    """
     from .refinement import HOLD_BLOCK_S, HOLD_EVERY
 
-    n = log.n_joints
+    n = int(np.shape(log.e_pulses)[1])
     ra = np.asarray(ra, dtype=float).reshape(-1, n)
     rb = np.asarray(rb, dtype=float).reshape(-1, n)
     block = max(1, int(round(HOLD_BLOCK_S / log.rig.sample_time_s)))

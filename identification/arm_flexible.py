@@ -196,7 +196,7 @@ class ArmFlexibleSpace:
         rows.append(self.friction_bounds)
         return np.vstack(rows)
 
-    def at_motor_inertia_bound(self, box, x) -> bool:
+    def at_motor_inertia_bound(self, box, x, edge=None) -> bool:
         """Whether x's motor inertia ``Ia`` of some joint sits on the box's upper bound.
 
         Parameters
@@ -204,11 +204,17 @@ class ArmFlexibleSpace:
         box : ndarray, shape (k, 2)
             The box of x (:meth:`bounds`).
         x : array_like, shape (k,)
+        edge : float or None
+            "On the bound": within this fraction of the bound's width; None:
+            :data:`identification.arm.BOX_EDGE`, the rule the guessed box's
+            widening uses.
         """
+        if edge is None:
+            from .arm import BOX_EDGE as edge
         cols = slice(self.r + 2 * self.n, self.r + 3 * self.n)
         hi = np.asarray(box, dtype=float)[cols, 1]
         width = hi - np.asarray(box, dtype=float)[cols, 0]
-        return bool(np.any(np.asarray(x, dtype=float)[cols] >= hi - 1e-6 * width))
+        return bool(np.any(np.asarray(x, dtype=float)[cols] >= hi - edge * width))
 
     def substeps(self, box) -> int:
         """RK4 substeps per sample for every candidate of the box (fastest motor mode).

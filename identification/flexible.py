@@ -31,17 +31,27 @@ Procedure (:func:`apply_model`, called by ``identify(model=...)``):
    log-spaced) at the rigid f, light damping and r = 1/2, evaluated as one
    batch of logged-input prediction errors, then the batched
    Levenberg-Marquardt refinement of :mod:`identification.refinement` from
-   the grid's best points.  The flexible model is chosen when its
-   held-back prediction-error cost is below :data:`CHOICE_RATIO` times the
-   rigid model's;
-4. backlash: when the spring alone leaves the held-back cost above
-   :data:`INADEQUATE_FACTOR` quantisation floors, the fit is repeated with
+   the grid's best points.  The flexible model is chosen when it predicts
+   the held-back samples better than the rigid model by one of the tests
+   of :class:`identification.arm.ModelImprovement`, the rule of every
+   robot's model choice: its held-back prediction-error cost below
+   :data:`CHOICE_RATIO` times the rigid model's, lower per held-back block
+   by a paired t above :data:`identification.arm.CHOICE_T`, at the
+   quantisation floor where the rigid model is not, or half the rigid
+   model's excess over the floor;
+4. backlash, by the rule of every robot (:func:`identification.arm.identify_arm`'s):
+   when the model chosen so far (the springs, or the rigid model) leaves
+   the held-back cost above :data:`identification.arm.ARM_FLOOR_FACTOR`
+   quantisation floors, the fit is repeated with
    the backlash widths (:func:`fit_backlash`: a stiffness x width grid
    from 0, 1 and 2.5 mrad, three gain schedules :data:`BACKLASH_SCHEDULES`,
    the best end point polished by basin hopping, deterministic moves of one
    joint parameter, then random moves of all of them at once from a stream
-   spawned from ``identify``'s ``rng``) and kept when it lowers the
-   held-back cost below :data:`CHOICE_RATIO` times the spring's; a width
+   spawned from ``identify``'s ``rng``) and kept when it predicts the
+   held-back samples better than that model by one of the tests of
+   :class:`identification.arm.ModelImprovement` (half the cost, a paired t
+   per held-back block above :data:`identification.arm.BACKLASH_T`, the
+   floor reached, or half the cost's excess over the floor); a width
    reported in ``joint_backlash_rad`` exceeds :data:`BACKLASH_SIGNIFICANCE`
    standard errors;
 5. the full fit starts from the held-back fit's point;
@@ -109,7 +119,7 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "BACKLASH_GRID", "BACKLASH_MAX_ITER", "H_OMEGA", "CHOICE_RATIO", "FLOOR_FACTOR", "MODELS",
            "FlexiblePayloadParameters", "DriveChangeParameters", "DRIVE_CHANGE_BOUNDS",
            "RESTART_FRACTION", "MAX_RESTARTS", "unexplained_fraction",
-           "fit_backlash", "BACKLASH_SCHEDULES", "HOP_ROUNDS", "HOP_TOLERANCE",
+           "fit_backlash", "held_back_residuals", "BACKLASH_SCHEDULES", "HOP_ROUNDS", "HOP_TOLERANCE",
            "RANDOM_HOP_ROUNDS", "RANDOM_HOP_POINTS", "RANDOM_HOP_STARTS", "RANDOM_HOP_ITER",
            "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR"]
 
@@ -781,20 +791,46 @@ def held_back_cost(log, x, space, substeps, workers=None, gain=DEFAULT_GAIN):
 
     Parameters
     ----------
-    log : plant.ExperimentLog
-    x : ndarray, shape (k,)
-    space : Parameterisation
-    substeps : int
-    workers : int, optional
-    gain : float
+    log, x, space, substeps, workers, gain
+        As :func:`held_back_residuals`.
 
     Returns
     -------
     float
     """
-    r = _problem(log, space, substeps, workers, gain).residuals(np.atleast_2d(x))[0]
+    r = held_back_residuals(log, x, space, substeps, workers, gain)
     held = _hold_mask(log)[1]
     return float(r[held] @ r[held])
+
+
+def held_back_residuals(log, x, space, substeps, workers=None, gain=DEFAULT_GAIN):
+    """Prediction residuals (pulses) of x over the whole log, sample-major.
+
+    The held-back blocks' share is the cost of :func:`held_back_cost`; the
+    model choice's paired t test
+    (:func:`identification.arm.held_back_paired_t`) compares two models
+    block by block on them.
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+        The log whose logged inputs are replayed.
+    x : ndarray, shape (k,)
+        A point of ``space``.
+    space : Parameterisation
+        The model's parameterisation (rigid, two-mass joints, with backlash).
+    substeps : int
+        RK4 substeps per sample.
+    workers : int, optional
+        Threads.
+    gain : float
+        The prediction-error replay's gain (:mod:`identification.refinement`).
+
+    Returns
+    -------
+    ndarray, shape (2 n_samples,)
+    """
+    return _problem(log, space, substeps, workers, gain).residuals(np.atleast_2d(x))[0]
 
 
 def _rigid_problem(log, space, rigid, workers, gain):
@@ -871,7 +907,9 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
     (str, dict, dict)
         The chosen model, ``model_choice`` (``rule``,
         ``held_back_cost_rigid_pulses2``, ``held_back_cost_flexible_pulses2``,
-        ``ratio``, ``floor_pulses2``, ``mode_hz`` and ``mode_prominence_dec``
+        ``ratio``, ``flexible_paired_t`` and ``flexible_test`` (the test of
+        :class:`identification.arm.ModelImprovement` passed, or None),
+        ``floor_pulses2``, ``mode_hz`` and ``mode_prominence_dec``
         of the error spectrum, ``reason``) and the held-back flexible fit
         (:func:`identify_flexible`'s dict; its x starts the full fit).
     """
@@ -887,9 +925,12 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
     r_rigid = rp.residuals(ref_r.x)
     c_rigid = float(r_rigid[held] @ r_rigid[held])
     flex = identify_flexible(log, rigid, workers=workers, gain=gain, hold_back=True)
-    c_flex = held_back_cost(log, flex["x"], flex["space"], flex["substeps"], workers, gain)
+    r_flex = held_back_residuals(log, flex["x"], flex["space"], flex["substeps"], workers, gain)
+    c_flex = float(r_flex[held] @ r_flex[held])
     if not np.isfinite(c_flex):
         c_flex = np.inf
+    # both models' residuals, for the paired test of a richer model against them (backlash)
+    flex = dict(flex, held_back_residuals=r_flex, rigid_held_back_residuals=r_rigid)
     ratio = c_flex / c_rigid if c_rigid > 0 else 1.0
     floor = quantisation_floor(int(held.sum()))
     try:
@@ -898,15 +939,26 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
         prom = [None if not np.isfinite(v) else float(v) for v in spec.mode_prominence_dec]
     except ValueError:
         mode, prom = [None, None], [None, None]
-    chosen = "flexible" if ratio < CHOICE_RATIO else "rigid"
+    # the springs by the rule of every robot's model choice (identify_arm's)
+    from .arm import ARM_FLOOR_FACTOR, CHOICE_T, ModelImprovement
+
+    spring = ModelImprovement(c_flex, r_flex, c_rigid, r_rigid, floor, log, CHOICE_T)
+    chosen = "flexible" if spring.better else "rigid"
     reason = (f"held-back prediction-error cost flexible/rigid = {ratio:.3g} "
-              f"({c_flex:.4g} / {c_rigid:.4g} pulses^2) "
-              f"{'<' if chosen == 'flexible' else '>='} {CHOICE_RATIO}; error spectrum mode "
+              f"({c_flex:.4g} / {c_rigid:.4g} pulses^2): "
+              + ("springs, " if spring.better else "no springs: ") + spring.why
+              + "; error spectrum mode "
               + ", ".join(f"e{j + 2} {'none' if m is None else f'{m:.1f} Hz'}"
                           for j, m in enumerate(mode)))
-    return chosen, dict(rule=f"flexible if held-back cost ratio < {CHOICE_RATIO}",
+    return chosen, dict(rule=(f"a richer model (springs, then backlash) if its held-back cost is "
+                              f"below {CHOICE_RATIO} x the simpler's, lower per held-back block "
+                              f"by paired t > {CHOICE_T:g}, at the quantisation floor (<= "
+                              f"{ARM_FLOOR_FACTOR:g} floors) where the simpler is not, or its "
+                              f"excess over the floor below {CHOICE_RATIO} x the simpler's "
+                              "(identification.arm.ModelImprovement)"),
                         held_back_cost_rigid_pulses2=c_rigid,
                         held_back_cost_flexible_pulses2=c_flex, ratio=ratio,
+                        flexible_paired_t=spring.t, flexible_test=spring.test,
                         floor_pulses2=floor, mode_hz=mode,
                         mode_prominence_dec=prom, reason=reason, model=chosen), flex
 
@@ -1111,28 +1163,50 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
     fspace = held["space"]
     c_flex = choice["held_back_cost_flexible_pulses2"]
     c_rigid = choice["held_back_cost_rigid_pulses2"]
-    limit = INADEQUATE_FACTOR * choice["floor_pulses2"]
-    if not (c_flex <= limit or c_rigid <= limit):
-        # neither the rigid model nor the spring alone predicts the held-back samples
-        # to the floor: try the gearbox backlash (the paper's second cause of the
-        # oscillations), from the spring fit and a stiffness x backlash grid at its f
+    # the backlash, by the arm path's rule (one rule for every robot): tried when the model
+    # chosen so far (the springs, or the rigid model) does not predict the held-back samples
+    # to the quantisation floor, kept when it predicts them better than that model by the
+    # same tests (half the cost, a paired t per held-back block, the floor, or half the excess)
+    from .arm import ARM_FLOOR_FACTOR, BACKLASH_T, ModelImprovement
+
+    floor_h = choice["floor_pulses2"]
+    floor_at = ARM_FLOOR_FACTOR * floor_h
+    choice["held_back_cost_springs_pulses2"] = c_flex  # the spring alone (as identify_arm's)
+    spring_chosen = chosen == "flexible" or model == "flexible"
+    c_best, r_best = ((c_flex, held["held_back_residuals"]) if spring_chosen
+                      else (c_rigid, held["rigid_held_back_residuals"]))
+    side = "springs" if spring_chosen else "rigid model"
+    if c_best <= floor_at:
+        verb = "predict" if spring_chosen else "predicts"
+        choice["reason"] += (f"; backlash not tried: the {side} {verb} the held-back samples "
+                             f"to the quantisation floor ({c_best / floor_h:.3g} x "
+                             f"{floor_h:.4g} pulses^2 <= {ARM_FLOOR_FACTOR:g})")
+    else:
+        # the gearbox backlash (the paper's second cause of the oscillations), from the
+        # spring fit and a stiffness x backlash grid at its f
         bspace = FlexibleParameters(backlash=True)
         bl = fit_backlash(log, rigid, held["x"], workers=workers, rng=_child_rng(rng))
-        c_bl = held_back_cost(log, bl["x"], bspace, bl["substeps"], workers)
-        choice["held_back_cost_backlash_pulses2"] = c_bl
-        choice["backlash_search"] = bl["search"]
-        if np.isfinite(c_bl) and c_bl < CHOICE_RATIO * min(c_flex, c_rigid):
-            fspace, held, c_flex = bspace, bl, c_bl
+        r_bl = held_back_residuals(log, bl["x"], bspace, bl["substeps"], workers)
+        held_mask = _hold_mask(log)[1]
+        c_bl = float(r_bl[held_mask] @ r_bl[held_mask])
+        if not np.isfinite(c_bl):
+            c_bl = np.inf
+        test = ModelImprovement(c_bl, r_bl, c_best, r_best, floor_h, log, BACKLASH_T)
+        choice.update(held_back_cost_backlash_pulses2=c_bl, backlash_search=bl["search"],
+                      backlash_paired_t=test.t, backlash_test=test.test,
+                      backlash_against="springs" if spring_chosen else "rigid")
+        if test.better:
+            fspace, held, c_flex = bspace, dict(bl, held_back_residuals=r_bl), c_bl
             ratio = c_bl / c_rigid if c_rigid > 0 else 1.0
-            chosen = "flexible" if ratio < CHOICE_RATIO else "rigid"
-            choice.update(model="flexible+backlash" if chosen == "flexible" else "rigid",
-                          held_back_cost_flexible_pulses2=c_bl, ratio=ratio,
-                          reason=choice["reason"] + f"; with backlash the held-back cost is "
-                          f"{c_bl:.4g} pulses^2 ({ratio:.3g} x the rigid model's)")
+            chosen = "flexible"
+            choice.update(model="flexible+backlash", held_back_cost_flexible_pulses2=c_bl,
+                          ratio=ratio,
+                          reason=choice["reason"] + f"; with backlash, against the {side}: "
+                          f"{test.why} (held-back cost {c_bl:.4g} pulses^2, {ratio:.3g} x "
+                          "the rigid model's)")
         else:
-            choice["reason"] += (f"; backlash tried, held-back cost {c_bl:.4g} pulses^2 "
-                                 f"(not < {CHOICE_RATIO} x the better of the others): no "
-                                 "backlash")
+            choice["reason"] += (f"; backlash tried, against the {side}: {test.why}: "
+                                 "no backlash")
     if model == "flexible":
         choice = dict(choice, model="flexible+backlash" if fspace.backlash else "flexible",
                       reason="model='flexible' requested; " + choice["reason"])

@@ -292,6 +292,76 @@ def test_a_check_run_beyond_the_following_error_limit_has_lost_the_arm(compliant
     assert not any(ctrl.selection["counted"])
 
 
+def test_a_richer_model_that_halves_the_excess_over_the_quantisation_floor_is_better():
+    """The model choice's tests (every robot's: identify_arm and the PUMA path's backlash): a
+    richer model whose held-back cost is 1.13 floors against the simpler's 2.09 halves neither
+    the cost (ratio 0.54) nor, with no per-block evidence, passes the paired t, nor reaches
+    the floor allowance -- but it leaves 14 % of the simpler's excess over the floor, so it is
+    better ("excess"); near the floor (the simpler within ARM_FLOOR_FACTOR floors) the excess
+    is quantisation noise and decides nothing; a richer model that removes less than half
+    the excess is not better; a higher cost never is."""
+    from types import SimpleNamespace
+
+    from identification.arm import ARM_FLOOR_FACTOR, BACKLASH_T, ModelImprovement
+    from identification.flexible import CHOICE_RATIO
+
+    n, nj = 4000, 2
+    log = SimpleNamespace(e_pulses=np.zeros((n, nj)), rig=SimpleNamespace(sample_time_s=1e-3))
+    r = np.zeros(n * nj)  # the same residuals: no per-block evidence (paired t 0)
+    floor = 135.0
+
+    def test(c_new, c_old):
+        return ModelImprovement(c_new * floor, r, c_old * floor, r, floor, log, BACKLASH_T)
+
+    t = test(1.13, 2.09)
+    assert t.t == 0.0 and 1.13 / 2.09 >= CHOICE_RATIO and 1.13 > ARM_FLOOR_FACTOR
+    assert t.better and t.test == "excess" and "excess" in t.why
+    assert test(1.05, 2.09).test == "floor"  # the floor reached is named first
+    assert test(0.9, 2.09).test == "ratio"
+    # the simpler model within the floor's allowance: its excess is noise
+    assert not test(1.0, ARM_FLOOR_FACTOR).better
+    assert not test(1.01, 1.09).better
+    # less than half of the excess removed; a higher cost
+    assert not test(1.6, 2.09).better and "excess ratio" in test(1.6, 2.09).why
+    assert not test(2.2, 2.09).better
+
+
+def test_the_model_error_checks_choice_is_minimax_and_holds_the_nominal_robot_first():
+    """The rule of the arm CTC's model-error check, on tables of scenario errors (scenarios:
+    nominal, stiffness x0.7, x1.3, damping x0.5, x2): the flexible design with the smallest
+    worst case is compared with the rigid-equivalent CTC, the flexible one kept on a tie; a
+    scenario no controller holds does not count; a skipped scenario (nan) is no failure; when
+    every controller loses a counted scenario, the first flexible design that holds the
+    nominal robot is chosen if the rigid-equivalent CTC loses that robot too, and otherwise
+    the rigid-equivalent CTC is."""
+    from ctc.arm import FLEXIBLE_CHECK_SCENARIOS, _minimax_choice
+
+    inf, nan = np.inf, np.nan
+    n = len(FLEXIBLE_CHECK_SCENARIOS)
+    assert [s[0] for s in FLEXIBLE_CHECK_SCENARIOS][0] == "nominal" and n == 5
+    # minimax: the second design (worst 2) against the rigid CTC's 3; on a tie the flexible
+    best, choice, worst, counted = _minimax_choice([[1, 3, 1, 1, 1], [1, 2, 2, 1, 1]],
+                                                   [1, 3, 1, 1, 1], n)
+    assert (best, choice, worst) == (1, "flexible", [3, 2, 3]) and counted.all()
+    assert _minimax_choice([[1, 3, 1, 1, 1]], [1, 3, 1, 1, 1], n)[1] == "flexible"
+    assert _minimax_choice([[1, 4, 1, 1, 1]], [1, 3, 1, 1, 1], n)[1] == "rigid"
+    # stiffness x0.7 lost by every controller: it does not count; a skipped run is no failure
+    best, choice, worst, counted = _minimax_choice([[1, inf, 2, 1, nan]], [1, inf, 3, 1, 1], n)
+    assert choice == "flexible" and worst == [2, 3] and counted.tolist() == [1, 0, 1, 1, 1]
+    # a design that was not built is never chosen
+    assert _minimax_choice([[], [1, 1, 1, 1, 1]], [2, 2, 2, 2, 2], n)[:2] == (1, "flexible")
+    assert _minimax_choice([[]], [2, 2, 2, 2, 2], n)[1] == "rigid"
+    # each loses a counted scenario: the first flexible design that holds the nominal robot
+    # (the second here), chosen when the rigid CTC loses the nominal robot
+    flexible = [[inf, 1, 1, 1, 1], [1, inf, 1, 1, 1], [1, 1, inf, 1, 1]]
+    best, choice, worst, _ = _minimax_choice(flexible, [inf, 1, 1, inf, 1], n)
+    assert (best, choice) == (1, "nominal") and worst == [inf] * 4
+    # ... and not when the rigid CTC holds the nominal robot
+    assert _minimax_choice(flexible, [1, 1, 1, inf, 1], n)[1] == "rigid"
+    # ... nor when no flexible design holds it
+    assert _minimax_choice([[inf, 1, 1, 1, inf]], [inf, 1, 1, inf, 1], n)[1] == "rigid"
+
+
 def test_the_two_mass_box_widens_only_its_motor_inertia_bound(compliant):
     """``ArmFlexibleSpace.bounds(..., ia_max=IA_FRACTION_MAX)`` moves only the upper bounds of
     ``Ia`` (to that fraction of the smallest diagonal inertia), so the fit's RK4 steps stay;

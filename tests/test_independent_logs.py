@@ -21,6 +21,13 @@ log                                    set-up
                                        index 13): rigid, heavy unknown Coulomb
                                        friction, 1 kg; the GA's starts all end in a
                                        wrong basin, the IDIM-LS start does not
+``indep_20261327_0046``                a draw of the robustness suite (seed 20261327,
+                                       index 46, the changes benchmark's): K 1.1e4 /
+                                       4.8e4, backlash 0.69 / 0.93 mrad, 250 ppr,
+                                       friction unknown; the springs alone leave the
+                                       held-back samples at 2.1 floors, the backlash
+                                       at 1.13 (kept by the excess test of
+                                       ``identification.arm.ModelImprovement``)
 =====================================  =============================================
 
 These tests need no roboticstoolbox (the logs are committed).  The
@@ -48,6 +55,7 @@ STEMS = (
     "indep_d_flex_backlash_2mrad",
     "indep_e_stiff_4kg_250ppr",
     "indep_20261205_0013",
+    "indep_20261327_0046",
 )
 F_MAIN = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
@@ -107,8 +115,9 @@ def _identify(stem):
     return _RESULTS[stem]
 
 
-# the two flexible logs with unknown friction or backlash take 15-17 s each on 2 busy cores
-_SLOW = ("indep_c_flex_friction_unknown_noise", "indep_d_flex_backlash_2mrad")
+# the flexible logs with unknown friction or backlash take 15-30 s each on 2 busy cores
+_SLOW = ("indep_c_flex_friction_unknown_noise", "indep_d_flex_backlash_2mrad",
+         "indep_20261327_0046")
 
 
 @pytest.mark.parametrize("stem", [pytest.param(s, marks=pytest.mark.slow) if s in _SLOW else s
@@ -155,6 +164,10 @@ def test_identify_meets_the_issue_targets(stem):
         assert b is not None
         big = b_true >= 1e-3
         assert np.all(np.abs(np.asarray(b)[big] / b_true[big] - 1) <= 0.30), b
+    elif np.any(b_true > 0):  # a smaller backlash: a width reported is within 30 % of it
+        if b is not None:
+            some = (b_true > 0) & (np.asarray(b) > 0)
+            assert np.all(np.abs(np.asarray(b)[some] / b_true[some] - 1) <= 0.30), b
     elif b is not None:  # a width reported where the robot has none: at most a pulse's
         assert np.all(np.asarray(b) <= 2 * np.pi / (abs(np.asarray(truth["settings"]["gear_ratio"]))
                                                     * np.asarray(truth["settings"]["encoder_ppr"])))
@@ -165,6 +178,21 @@ def test_identify_meets_the_issue_targets(stem):
         c = np.asarray(res["coulomb_friction_Nm"])
         assert np.all(np.abs(v / np.asarray(fr["viscous_friction_Nms_per_rad"]) - 1) <= 0.15), v
         assert np.all(np.abs(c / np.asarray(fr["coulomb_friction_Nm"]) - 1) <= 0.15), c
+
+
+@pytest.mark.slow
+def test_a_backlash_the_springs_leave_above_the_floor_is_kept():
+    """The PUMA path's model choice tries the backlash whenever the springs leave the held-back
+    samples above the quantisation floor, and keeps it by the tests every robot's model choice
+    uses (identification.arm.ModelImprovement): on the 0.7-0.9 mrad draw the springs sit at
+    2.1 floors, which the former rule (backlash only above INADEQUATE_FACTOR = 4 floors, kept
+    at half the cost) left without backlash, and f7 beyond the 2 % target."""
+    res, _ = _identify("indep_20261327_0046")
+    mc = res["model_choice"]
+    assert mc["model"] == "flexible+backlash" and mc["backlash_against"] == "springs"
+    assert mc["backlash_test"] in ("ratio", "paired_t", "floor", "excess")
+    assert mc["held_back_cost_backlash_pulses2"] < mc["held_back_cost_springs_pulses2"]
+    assert mc["floor_ratio"] < 1.5 and mc["adequate"]
 
 
 @pytest.mark.slow
