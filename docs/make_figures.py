@@ -152,8 +152,8 @@ it in ``optimisers``):
     ``figures/changes_20261327.txt``: its sixth run, on the version whose PUMA
     model choice uses every robot's rule (:class:`identification.arm.ModelImprovement`),
     with the robustness suite's logs in ``benchmarks/out/robustness`` and every
-    prior made anew, ``--out`` fresh; 37 min on 2 cores; its stdout's progress
-    lines were not kept.  The version before's, the fifth run below:
+    prior made anew, ``--out`` fresh; its stdout's progress lines were not kept.
+    The version before's, the fifth run below:
     ``figures/changes_20261327_before_model_choice.txt`` (its report)
     and ``..._before_model_choice_run.txt``).  Its first run,
     on the version that diagnosed the P law's windows after a fallback with
@@ -175,7 +175,9 @@ it in ``optimisers``):
     (:class:`identification.arm.ModelImprovement`, now the PUMA path's rule
     too) on one of its logs, ``tests/data/independent/indep_20261327_0046.csv``:
     ``python -m identification tests/data/independent/indep_20261327_0046.csv``
-    (``figures/model_choice_indep_20261327_0046.txt``).
+    (``figures/model_choice_indep_20261327_0046.txt``); the friction box widened
+    on another, ``python -m identification tests/data/independent/indep_20261327_0054.csv``
+    (``figures/friction_box_indep_20261327_0054.txt``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the

@@ -38,10 +38,11 @@ gain's refinement ends when its start of lowest cost has converged
 creep along one flat valley toward the same point.  The model choice
 (:func:`identification.arm.identify_arm`, ``model='auto'``) compares the
 rigid and the flexible fits on held-back blocks
-(:func:`identification.refinement.held_back_mask`) by the cost ratio of
-:mod:`identification.flexible` (``CHOICE_RATIO``), a paired t test over the
-blocks (:data:`identification.arm.CHOICE_T`) and the quantisation floor
-(:data:`identification.arm.ARM_FLOOR_FACTOR`), adds the backlash when the
+(:func:`identification.refinement.held_back_mask`) by the tests of
+:class:`identification.arm.ModelImprovement` (the cost ratio of
+:mod:`identification.flexible`, ``CHOICE_RATIO``, a paired t test over the
+blocks, :data:`identification.arm.CHOICE_T`, the quantisation floor,
+:data:`identification.arm.ARM_FLOOR_FACTOR`, and the excess over it), adds the backlash when the
 model chosen so far leaves more than that floor, says which model and why,
 and flags a chosen model above ``INADEQUATE_FACTOR`` floors.
 
@@ -204,10 +205,15 @@ class ArmFlexibleSpace:
         box : ndarray, shape (k, 2)
             The box of x (:meth:`bounds`).
         x : array_like, shape (k,)
+            A point of the two-mass fit (beta, K, D, Ia, ...).
         edge : float or None
             "On the bound": within this fraction of the bound's width; None:
             :data:`identification.arm.BOX_EDGE`, the rule the guessed box's
             widening uses.
+
+        Returns
+        -------
+        bool
         """
         if edge is None:
             from .arm import BOX_EDGE as edge

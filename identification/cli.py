@@ -169,9 +169,9 @@ def build_parser():
                    help="robot model: rigid, two-mass flexible joints, or auto (default): "
                         "rigid when its prediction errors sit at the encoder's quantisation "
                         "floor, otherwise flexible when the flexible fit predicts held-back "
-                        "samples better (the PUMA 560 log: at half the cost; a robot "
-                        "model's log: at half the cost, significantly, or at the floor), "
-                        "with gearbox backlash when that improves it again; a model still far "
+                        "samples better (at half the cost, significantly, at the floor, or "
+                        "with half the excess over it: one rule for every robot), with "
+                        "gearbox backlash when that improves it again; a model still far "
                         "above the floor is reported as inadequate (the result's model_choice "
                         "says why)")
     p.add_argument("--consistent", action="store_true",

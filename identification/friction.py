@@ -13,10 +13,16 @@ refinement search them with f: the output error and the prediction errors
 depend on the friction through the same simulation.
 
 The search box of the friction comes from the log itself, not from a guess
-about the drive: no friction torque can exceed the largest motor torque the
-log applied, ``T = max |Kt i|`` (per joint), so ``0 <= Tc <= T`` and
-``0 <= B <= T / w`` with ``w`` the largest motor speed of the reference
-(``|k| max |qd_ref|``).  The Coulomb ramp speed is the rig's (from
+about the drive: the largest motor torque the log applied, ``T = max |Kt
+i|`` (per joint), gives ``0 <= Tc <= T`` and ``0 <= B <= T / w`` with ``w``
+the largest motor speed of the reference (``|k| max |qd_ref|``).  That is a
+scale, not a bound: gravity and inertia supply torque too, and an arm whose
+weight drives a joint dissipates more than the drive applied.  So
+:func:`identification.identify` widens this box where the refined fit ends
+on its upper bound (as :func:`identification.arm.identify_arm` widens its
+guessed box; the result's ``refinement['friction_box_widened']`` says
+what), and a box given as ``friction_bounds`` is kept as it is.  The Coulomb
+ramp speed is the rig's (from
 ``coulomb_ramp_speed_rad_per_s``, the ``coulomb_friction_note`` or a
 documented default, :func:`plant.logs.sidecar.rig_from_sidecar`).
 """
@@ -66,7 +72,8 @@ def default_friction_bounds(log) -> np.ndarray:
     ndarray, shape (6, 2)
         ``[0, T / w]`` for B2, B3 and ``[0, T]`` for the four Coulomb levels,
         with T the largest motor torque ``|Kt i|`` and w the largest motor
-        speed ``|k qd_ref|`` of the log, per joint.
+        speed ``|k qd_ref|`` of the log, per joint (a scale, not a bound:
+        see the module docstring).
 
     Raises
     ------
@@ -160,6 +167,24 @@ class FrictionParameters(Parameterisation):
 
     def _k(self, log):
         return len(self.base.names(log))
+
+    @property
+    def friction_bounds(self):
+        """The caller's friction box (6, 2), or None for the log's guess."""
+        return None if self._fb is None else np.array(self._fb, dtype=float)
+
+    def guessed(self, log) -> bool:
+        """Whether the friction box is the log's guess (:func:`default_friction_bounds`).
+
+        True when some friction component is unknown and no
+        ``friction_bounds`` were given: :func:`identification.identify`
+        then widens it where the fit ends on it.
+
+        Parameters
+        ----------
+        log : plant.ExperimentLog
+        """
+        return self._fb is None and bool(unknown_friction_indices(log.rig))
 
     def names(self, log) -> list:
         """The wrapped names, then the unknown friction components.
@@ -278,8 +303,8 @@ class FrictionChangeParameters(HeldModelChange):
     robot with per-lane friction, :data:`plant.simulation.friction.RIGID_FRICTION`,
     or the wrapped space's two-mass plant with its joints) with each
     candidate's friction.  The box keeps every total friction within the
-    log's bounds (:func:`default_friction_bounds`: no friction torque beyond
-    the largest motor torque the window applied) and non-negative.
+    log's box (:func:`default_friction_bounds`: the scale of the largest
+    motor torque the window applied) and non-negative.
 
     Parameters
     ----------

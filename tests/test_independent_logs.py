@@ -28,6 +28,12 @@ log                                    set-up
                                        held-back samples at 2.1 floors, the backlash
                                        at 1.13 (kept by the excess test of
                                        ``identification.arm.ModelImprovement``)
+``indep_20261327_0054``                a draw of the robustness suite (seed 20261327,
+                                       index 54): rigid, 3.4 kg payload, friction
+                                       unknown; the true viscous friction of joint 2
+                                       lies 3 % above the log's friction box (its
+                                       weight drives the joint), widened by
+                                       ``identify`` where the fit ends on it
 =====================================  =============================================
 
 These tests need no roboticstoolbox (the logs are committed).  The
@@ -56,6 +62,7 @@ STEMS = (
     "indep_e_stiff_4kg_250ppr",
     "indep_20261205_0013",
     "indep_20261327_0046",
+    "indep_20261327_0054",
 )
 F_MAIN = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
@@ -186,13 +193,43 @@ def test_a_backlash_the_springs_leave_above_the_floor_is_kept():
     samples above the quantisation floor, and keeps it by the tests every robot's model choice
     uses (identification.arm.ModelImprovement): on the 0.7-0.9 mrad draw the springs sit at
     2.1 floors, which the former rule (backlash only above INADEQUATE_FACTOR = 4 floors, kept
-    at half the cost) left without backlash, and f7 beyond the 2 % target."""
+    at half the cost) left without backlash."""
     res, _ = _identify("indep_20261327_0046")
     mc = res["model_choice"]
     assert mc["model"] == "flexible+backlash" and mc["backlash_against"] == "springs"
     assert mc["backlash_test"] in ("ratio", "paired_t", "floor", "excess")
     assert mc["held_back_cost_backlash_pulses2"] < mc["held_back_cost_springs_pulses2"]
     assert mc["floor_ratio"] < 1.5 and mc["adequate"]
+
+
+def test_a_friction_box_the_fit_ends_on_is_widened():
+    """The unknown friction's box is the log's guess (B <= T / w): on the rigid arm whose
+    weight drives joint 2, the true B2 lies above it, and the refined fit ended on that bound
+    far above the quantisation floor.  ``identify`` widens the guessed box where the fit ends
+    on it (as identify_arm its guessed box): the fit then reaches the floor, the result's
+    bounds are the widened box, the refinement record and the message say so; a caller's
+    friction box is kept as given (and the fit stays on it)."""
+    import identification
+    from identification.flexible import FLOOR_FACTOR, quantisation_floor
+    from identification.friction import FrictionParameters, default_friction_bounds
+
+    res, caught = _identify("indep_20261327_0054")
+    log = plant.load_log(DATA / "indep_20261327_0054.csv")
+    wide = res["refinement"]["friction_box_widened"]
+    assert "B2_Nms_per_rad" in wide["names"] and wide["rounds"] >= 1
+    assert "friction box" in res["message"]
+    guess = default_friction_bounds(log)
+    i = res["x_names"].index("B2_Nms_per_rad")
+    assert res["bounds"][i][1] > guess[0, 1] and res["x"][i] > guess[0, 1]
+    assert res["model_choice"]["floor_ratio"] <= FLOOR_FACTOR
+    assert not any("SearchBoundWarning" in c for c in caught), caught
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        kept = identification.identify(log, rng=0, progress=False, model="rigid",
+                                       parameters=FrictionParameters(friction_bounds=guess))
+    assert "friction_box_widened" not in kept["refinement"]
+    assert kept["x"][i] >= guess[0, 1] * (1 - 1e-6)
+    assert kept["refinement"]["fun"] > FLOOR_FACTOR * quantisation_floor(2 * log.n_samples)
 
 
 @pytest.mark.slow
