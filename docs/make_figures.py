@@ -177,7 +177,10 @@ it in ``optimisers``):
     ``python -m identification tests/data/independent/indep_20261327_0046.csv``
     (``figures/model_choice_indep_20261327_0046.txt``); the friction box widened
     on another, ``python -m identification tests/data/independent/indep_20261327_0054.csv``
-    (``figures/friction_box_indep_20261327_0054.txt``).
+    (``figures/friction_box_indep_20261327_0054.txt``), and that draw's case of the
+    changes benchmark rerun alone on the version that widens it
+    (``--n 58 --seed 20261327 --cases 54 --jobs 1`` with fresh ``--out``:
+    ``figures/changes_20261327_case_54_friction_box_run.txt``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
