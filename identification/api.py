@@ -486,21 +486,19 @@ def _default_space(space) -> bool:
 
 
 def _widen_friction_box(problem, ref, bounds, space, log, ropts):
-    """Widen the guessed friction box where the refined fit ends on its upper bound.
+    """Widen the guessed friction box where the refined fit ends on it.
 
     The unknown friction's box comes from the log
     (:func:`identification.friction.default_friction_bounds`: ``B <= T / w``,
     ``Tc <= T``), a guess: gravity and inertia supply torque too, so a
     robot whose weight drives a joint can dissipate more than the drive
-    applied (a rigid arm carrying 3.4 kg with unknown friction, the changes
-    benchmark's draw ``tests/data/independent/indep_20261327_0054``: its true
-    B2 above the box, the fit on that bound far above the quantisation
-    floor; ``tests/test_independent_logs.py``).  As
-    :func:`identification.arm.identify_arm` does with its guessed box
-    (:data:`~identification.arm.BOX_WIDENINGS` rounds, a component within
-    :data:`~identification.arm.BOX_EDGE` of the box's width of its upper
-    bound): that bound is moved out by the box's width and the fit is
-    refined again from its point; a round that lowers no cost is undone.
+    applied (a rigid arm carrying 3.4 kg with unknown friction,
+    ``tests/data/independent/indep_20261327_0054``: its true B2 above the
+    box, the fit on that bound far above the quantisation floor;
+    ``tests/test_independent_logs.py``).  Its rows are widened as
+    :func:`identification.arm.identify_arm` widens its guessed box
+    (:func:`identification.arm.widen_guessed_box`); the f box (the
+    sidecar's or a caller's) is kept.
 
     Parameters
     ----------
@@ -520,40 +518,29 @@ def _widen_friction_box(problem, ref, bounds, space, log, ropts):
     -------
     (RefineResult, ndarray, dict or None)
         The refinement kept, its box, and what was widened (``names``,
-        ``upper`` bounds, ``rounds``, the whole widened friction box
+        ``upper`` bounds, the whole widened friction box
         ``friction_bounds`` (6, 2) for the model choice, ``message``; None
         when nothing was on the box).
     """
-    from .arm import BOX_EDGE, BOX_WIDENINGS
+    from .arm import widen_guessed_box
 
-    k = len(space.names(log))
-    rows = np.arange(k - len(unknown_friction_indices(log.rig)), k)
     names = space.names(log)
-    box = np.array(bounds, dtype=float)
-    on, rounds = set(), 0
-    for _ in range(BOX_WIDENINGS):
-        width = box[rows, 1] - box[rows, 0]
-        at = rows[ref.x[rows] >= box[rows, 1] - BOX_EDGE * width]
-        if at.size == 0:
-            break
-        wide = box.copy()
-        wide[at, 1] += wide[at, 1] - wide[at, 0]
-        nxt = refine(problem, ref.x[None], wide, max_iter=int(ropts["max_iter"]),
-                     ftol=float(ropts["ftol"]))
-        if nxt.interrupted or not nxt.fun < ref.fun:
-            break
-        ref, box, rounds = nxt, wide, rounds + 1
-        on.update(int(i) for i in at)
-    if not rounds:
+    k = len(names)
+    rows = np.arange(k - len(unknown_friction_indices(log.rig)), k)
+    friction = np.isin(np.arange(len(bounds)), rows)
+    ref, box, on = widen_guessed_box(problem, ref, bounds, guessed=friction,
+                                     nonnegative=friction, max_iter=int(ropts["max_iter"]),
+                                     ftol=float(ropts["ftol"]))
+    if not on:
         return ref, np.asarray(bounds, dtype=float), None
     listed = [names[i] for i in sorted(on)]
     fb = default_friction_bounds(log)
     fb[unknown_friction_indices(log.rig)] = box[rows]
     return ref, box, dict(
-        names=listed, upper=[float(box[i, 1]) for i in sorted(on)], rounds=rounds,
+        names=listed, upper=[float(box[i, 1]) for i in sorted(on)],
         friction_bounds=fb.tolist(),
         message=(f"the friction box (the log's guess) widened where the fit ended on it: "
-                 f"{', '.join(listed)} ({rounds} round(s))"))
+                 f"{', '.join(listed)}"))
 
 
 def _idim_restart(log, problem, ref, bounds, state, ropts, callback=None):

@@ -74,6 +74,7 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction", "rig_with_friction",
            "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T", "ARM_FLOOR_FACTOR", "CHOICE_T",
            "ARM_MAX_RESTARTS", "BOX_WIDENINGS", "BOX_EDGE", "ModelImprovement", "EXCESS_T",
+           "widen_guessed_box",
            "held_back_paired_t"]
 
 #: Methods of :func:`identify_arm`; the default.
@@ -1093,8 +1094,9 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
             else:
                 ref.nfev = int(ref.nfev) + int(cont.nfev)
         if guessed_box and not ref.interrupted:
-            ref, bounds, widened = _widen_at_edges(problem, ref, bounds, nb, max_iter=max_iter,
-                                                   ftol=ftol, callback=refine_cb)
+            ref, bounds, widened = widen_guessed_box(
+                problem, ref, bounds, nonnegative=np.arange(len(bounds)) >= nb,
+                max_iter=max_iter, ftol=ftol, callback=refine_cb)
             if widened:
                 notes.append(f"the refinement ended on the bound of the box around the IDIM "
                              f"estimate for {', '.join(names[i] for i in widened)}; the box "
@@ -1265,29 +1267,34 @@ _NO_JOINTS = dict(joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=Non
                   motor_inertia_reflected_kgm2=None, joint_backlash_rad=None)
 
 
-def _widen_at_edges(problem, ref, bounds, nb, *, max_iter, ftol, callback):
+def widen_guessed_box(problem, ref, bounds, *, guessed=None, nonnegative=None, max_iter, ftol,
+                      callback=None):
     """Widen a guessed box where the refinement ended on a bound; refine again from there.
 
-    The box around the IDIM estimate (:func:`identify_arm`'s default) is a
-    guess: a fit that ends on one of its bounds says the data want the
-    parameter beyond it.  Each round moves every such bound out by the
-    box's whole width in that parameter (friction stays non-negative) and refines
-    again from the fit's point, up to :data:`BOX_WIDENINGS` rounds; a round
-    that does not lower the cost is undone and ends the widening.  The
-    same treatment as a trust region's, for a box that is no constraint of
-    the robot's (a caller's box, the sidecar's or physical ranges are kept
-    as they are).
+    A box that is a guess (:func:`identify_arm`'s around the IDIM estimate;
+    the unknown friction's box that :func:`identification.identify` takes
+    from the log, :func:`identification.friction.default_friction_bounds`)
+    is no constraint of the robot's: a fit that ends on one of its bounds
+    says the data want the parameter beyond it.  Each round moves every
+    such bound of a guessed row out by the box's whole width in that
+    parameter (a non-negative row stays so) and refines again from the
+    fit's point, up to :data:`BOX_WIDENINGS` rounds; a round that does not
+    lower the cost is undone and ends the widening.  The same treatment as a
+    trust region's; a caller's box, the sidecar's or physical ranges are
+    not guesses and are kept as they are.
 
     Parameters
     ----------
-    problem : ArmPredictionErrorProblem
+    problem : object
+        The refinement's problem (``residuals``; its bounds do not enter it).
     ref : scipy.optimize.OptimizeResult
         The refinement's result (``x``, ``fun``, ``nfev``, ``nit``).
     bounds : ndarray, shape (k, 2)
         The box of x.
-    nb : int
-        Base parameters in x (the rest is unknown friction, whose lower
-        bound 0 is physical).
+    guessed : array_like of bool, shape (k,), optional
+        The rows whose box is a guess (default every row).
+    nonnegative : array_like of bool, shape (k,), optional
+        The rows whose lower bound 0 is physical (a friction constant).
     max_iter, ftol : int, float
         The refinement's.
     callback : callable or None
@@ -1302,16 +1309,20 @@ def _widen_at_edges(problem, ref, bounds, nb, *, max_iter, ftol, callback):
     widened : list of int
         Indices of x whose box was widened (in the kept rounds).
     """
+    bounds = np.asarray(bounds, dtype=float)
+    k = bounds.shape[0]
+    guessed = np.ones(k, bool) if guessed is None else np.asarray(guessed, bool)
+    nonnegative = np.zeros(k, bool) if nonnegative is None else np.asarray(nonnegative, bool)
     widened = []
     for _ in range(BOX_WIDENINGS):
         x = np.asarray(ref.x, dtype=float)
         width = bounds[:, 1] - bounds[:, 0]
-        low = x <= bounds[:, 0] + BOX_EDGE * width
-        high = x >= bounds[:, 1] - BOX_EDGE * width
+        low = guessed & (x <= bounds[:, 0] + BOX_EDGE * width)
+        high = guessed & (x >= bounds[:, 1] - BOX_EDGE * width)
         box = bounds.copy()
         box[low, 0] -= width[low]
         box[high, 1] += width[high]
-        box[nb:, 0] = np.maximum(box[nb:, 0], 0.0)
+        box[nonnegative, 0] = np.maximum(box[nonnegative, 0], 0.0)
         moved = np.flatnonzero(np.any(box != bounds, axis=1))
         if moved.size == 0:
             break
