@@ -22,8 +22,9 @@ Procedure (:func:`apply_model`, called by ``identify(model=...)``):
    unknown -- start the fit, and the rigid result is kept bit for bit when
    the rigid model is chosen);
 2. ``auto``: a log that the rigid fit already predicts to the quantisation
-   floor (prediction-error cost at most :data:`FLOOR_FACTOR` times ``n /
-   12`` pulse^2, the variance of a count known to a unit cell) keeps the
+   floor (prediction-error cost at most
+   :data:`identification.arm.ARM_FLOOR_FACTOR` times ``n / 12`` pulse^2, the
+   variance of a count known to a unit cell; every robot's rule) keeps the
    rigid result without a flexible fit;
 3. otherwise both models are fit with every fourth 0.1 s block *held back*
    (its residuals are not fitted; the replay still runs through it): the
@@ -149,9 +150,12 @@ H_OMEGA = 0.5
 #: (or by the other tests of :class:`identification.arm.ModelImprovement`).
 CHOICE_RATIO = 0.5
 
-#: ``auto`` keeps the rigid result without fitting the flexible model when the
-#: rigid prediction-error cost is at most this many times the quantisation floor
-#: (``1/12`` pulse^2 per residual: a count known to a unit cell).
+#: A rigid fit whose prediction-error cost exceeds this many quantisation floors (``1/12``
+#: pulse^2 per residual: a count known to a unit cell) has its search restarted from the
+#: IDIM-LS estimate too (:func:`identification.identify`, ``refinement['idim_start']``).
+#: It was also ``auto``'s gate for the flexible fit until the PUMA 560 path took every
+#: robot's rule, :data:`identification.arm.ARM_FLOOR_FACTOR` (1.1): a model of the robot
+#: leaves the quantisation noise, not twice it.
 FLOOR_FACTOR = 2.0
 
 
@@ -1203,11 +1207,15 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
     ref = rigid.get("refinement") or {}
     floor = quantisation_floor(2 * log.n_samples)
     level = float(ref.get("fun", np.inf)) / floor
-    if model == "auto" and level <= FLOOR_FACTOR:
+    from .arm import ARM_FLOOR_FACTOR
+
+    if model == "auto" and level <= ARM_FLOOR_FACTOR:
+        # the floor rule of every robot's model choice (identify_arm's): a model of the robot
+        # leaves the quantisation noise, not twice it
         rigid["model_choice"] = dict(
             model="rigid", floor_ratio=level, adequate=True,
             reason=f"the rigid model predicts the log to the quantisation floor "
-                   f"(prediction-error cost {level:.3g} x n/12 <= {FLOOR_FACTOR})")
+                   f"(prediction-error cost {level:.3g} x n/12 <= {ARM_FLOOR_FACTOR})")
         return rigid
     chosen, choice, held = choose_model(log, rigid, space=space, workers=workers)
     fspace = held["space"]

@@ -120,7 +120,8 @@ NEAR = "indep_arm_random2_compliant_near_floor"
 def test_a_compliant_arm_near_the_quantisation_floor_is_not_taken_for_rigid():
     """Independent robot (benchmarks/independent_arm.py, random DH draw 20262831 with two-mass
     joints, 3 s: springs of 2.6 and 0.64 kN m/rad, 3 mrad of backlash on joint 1).  The rigid
-    fit predicts this log to 1.6 quantisation floors -- within the PUMA path's FLOOR_FACTOR (2),
+    fit predicts this log to 1.6 quantisation floors -- within FLOOR_FACTOR (2), the PUMA path's
+    former gate,
     far above what a model of the robot leaves (0.990-1.033 floors on 24 rigid robots of the
     same simulator, benchmarks/bench_arm_floor.py) -- and the springs' bend biases its
     well-excited base parameters beyond 1 %.

@@ -210,6 +210,7 @@ def test_a_friction_box_the_fit_ends_on_is_widened():
     bounds are the widened box, the refinement record and the message say so; a caller's
     friction box is kept as given (and the fit stays on it)."""
     import identification
+    from identification.arm import ARM_FLOOR_FACTOR
     from identification.flexible import FLOOR_FACTOR, quantisation_floor
     from identification.friction import FrictionParameters, default_friction_bounds
 
@@ -221,7 +222,7 @@ def test_a_friction_box_the_fit_ends_on_is_widened():
     assert "friction box" in res["message"]
     i = res["x_names"].index("B2_Nms_per_rad")
     assert res["bounds"][i][1] > guess[0, 1] and res["x"][i] > guess[0, 1]
-    assert res["model_choice"]["floor_ratio"] <= FLOOR_FACTOR
+    assert res["model_choice"]["floor_ratio"] <= ARM_FLOOR_FACTOR
     assert not any("SearchBoundWarning" in c for c in caught), caught
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
