@@ -1207,7 +1207,8 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
     ref = rigid.get("refinement") or {}
     floor = quantisation_floor(2 * log.n_samples)
     level = float(ref.get("fun", np.inf)) / floor
-    from .arm import ARM_FLOOR_FACTOR
+    # every robot's rule (identify_arm's): its floor gate, then its tests of a richer model
+    from .arm import ARM_FLOOR_FACTOR, BACKLASH_T, ModelImprovement
 
     if model == "auto" and level <= ARM_FLOOR_FACTOR:
         # the floor rule of every robot's model choice (identify_arm's): a model of the robot
@@ -1225,8 +1226,6 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
     # chosen so far (the springs, or the rigid model) does not predict the held-back samples
     # to the quantisation floor, kept when it predicts them better than that model by the
     # same tests (half the cost, a paired t per held-back block, the floor, or half the excess)
-    from .arm import ARM_FLOOR_FACTOR, BACKLASH_T, ModelImprovement
-
     floor_h = choice["floor_pulses2"]
     floor_at = ARM_FLOOR_FACTOR * floor_h
     choice["held_back_cost_springs_pulses2"] = c_flex  # the spring alone (as identify_arm's)
