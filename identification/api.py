@@ -517,10 +517,9 @@ def _widen_friction_box(problem, ref, bounds, space, log, ropts):
     Returns
     -------
     (RefineResult, ndarray, dict or None)
-        The refinement kept, its box, and what was widened (``names``,
-        ``upper`` bounds, the whole widened friction box
-        ``friction_bounds`` (6, 2) for the model choice, ``message``; None
-        when nothing was on the box).
+        The refinement kept, its box, and what was widened (``names``, the
+        whole widened friction box ``friction_bounds`` (6, 2) for the model
+        choice, ``message``; None when nothing was on the box).
     """
     from .arm import widen_guessed_box
 
@@ -537,8 +536,7 @@ def _widen_friction_box(problem, ref, bounds, space, log, ropts):
     fb = default_friction_bounds(log)
     fb[unknown_friction_indices(log.rig)] = box[rows]
     return ref, box, dict(
-        names=listed, upper=[float(box[i, 1]) for i in sorted(on)],
-        friction_bounds=fb.tolist(),
+        names=listed, friction_bounds=fb.tolist(),
         message=(f"the friction box (the log's guess) widened where the fit ended on it: "
                  f"{', '.join(listed)}"))
 

@@ -218,7 +218,7 @@ def test_a_friction_box_the_fit_ends_on_is_widened():
     log = plant.load_log(DATA / "indep_20261327_0054.csv")
     wide = res["refinement"]["friction_box_widened"]
     guess = default_friction_bounds(log)
-    assert "B2_Nms_per_rad" in wide["names"] and wide["upper"][0] > guess[0, 1]
+    assert "B2_Nms_per_rad" in wide["names"] and wide["friction_bounds"][0][1] > guess[0, 1]
     assert "friction box" in res["message"]
     i = res["x_names"].index("B2_Nms_per_rad")
     assert res["bounds"][i][1] > guess[0, 1] and res["x"][i] > guess[0, 1]
