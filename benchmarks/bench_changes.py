@@ -266,7 +266,7 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, repeat: bool = 
         if ch["kind"] in PAYLOAD_KINDS:
             controllers["oracle"] = oracle_of(
                 ctc.ComputedTorqueController.from_result(prior, log, **design), s, ch, changes)
-    row["build_warnings"] = [str(w.message)[:160] for w in caught]
+    row["build_warnings"] = [str(w.message)[:400] for w in caught]
     for name, c in controllers.items():
         rob = ir.IndependentRobot(s)
         t0 = time.perf_counter()
@@ -453,6 +453,8 @@ def print_report(rows, s, file=sys.stdout):
               f"P {r['P']['max_e_after']}, static {r['static']['max_e_after']}, adaptive "
               f"{r['adaptive']['max_e_after']}; updates {r['adaptive']['payload_history']}; events "
               f"{[_event_text(e) for e in r['adaptive']['events']]}", file=file)
+        for w in dict.fromkeys(r.get("build_warnings") or ()):  # once each (static, adaptive)
+            print(f"    built with the warning: {w}", file=file)
 
 
 def _event_text(ev) -> str:

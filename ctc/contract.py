@@ -19,7 +19,7 @@ The keys read are the result schema's (:mod:`identification.result_schema`;
 ``motor_inertia_reflected_kgm2``, ``joint_backlash_rad``,
 ``friction_identified`` with ``viscous_friction_Nms_per_rad`` and
 ``coulomb_friction_Nm`` (at the top level, or in an arm result's
-``friction``), and ``model_choice['adequate']``.
+``friction``), ``model_choice['adequate']`` and ``joint_intervals``.
 """
 from __future__ import annotations
 
@@ -64,6 +64,13 @@ class IdentifiedModel:
     adequate : bool or None
         ``model_choice['adequate']``: False when the identification found
         that its model does not describe the log.
+    joint_ranges : ndarray, shape (3, n, 2) or None
+        A flexible result's ``joint_intervals``
+        (:func:`identification.flexible.joint_intervals`) as factors of the
+        identified values: ``[low / value, high / value]`` of the stiffness,
+        the damping and the reflected motor inertia of each joint, the range
+        that predicts the log within the quantisation floor's allowance; None
+        when the result has none.
 
     Notes
     -----
@@ -81,6 +88,7 @@ class IdentifiedModel:
     viscous_friction_Nms_per_rad: Optional[np.ndarray] = None
     coulomb_friction_Nm: Optional[np.ndarray] = None
     adequate: Optional[bool] = None
+    joint_ranges: Optional[np.ndarray] = None
 
     @property
     def flexible(self) -> bool:
@@ -212,5 +220,22 @@ class IdentifiedModel:
                 raise ValueError(f"the {what}'s identified friction is not finite")
         choice = d.get("model_choice") or {}
         adequate = choice.get("adequate") if hasattr(choice, "get") else None
+        if model == "flexible":
+            fields["joint_ranges"] = _joint_ranges(d.get("joint_intervals"), n)
         return cls(f=f, model=model, adequate=None if adequate is None else bool(adequate),
                    **fields)
+
+
+def _joint_ranges(intervals, n):
+    """``joint_intervals`` as factors (3, n, 2) of the identified values; None when absent or malformed."""
+    if not isinstance(intervals, dict):
+        return None
+    try:
+        v = np.asarray(intervals["value"], dtype=float).reshape(3, n)
+        lo = np.asarray(intervals["low"], dtype=float).reshape(3, n)
+        hi = np.asarray(intervals["high"], dtype=float).reshape(3, n)
+    except (KeyError, TypeError, ValueError):
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.stack([np.where(v > 0, lo / v, 1.0), np.where(v > 0, hi / v, 1.0)], axis=-1)
+    return out if np.all(np.isfinite(out)) and np.all(out > 0) else None

@@ -85,6 +85,7 @@ Kokotovic, IEEE J. Robot. Autom. 3 (1987)).
 """
 from __future__ import annotations
 
+import itertools
 import math
 from typing import NamedTuple
 
@@ -118,6 +119,7 @@ from .computed_torque import (
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
+           "log_range_scenarios", "LOG_RANGE_FACTOR",
            "robust_design_gains", "robust_design_options", "select_robust_design",
            "MAX_BANDWIDTH_FRACTION", "current_step_limit", "INTEGRAL_FRACTION",
            "MAX_ESTIMATOR_FRACTION", "DESIGN_KEYS",
@@ -823,6 +825,22 @@ def controller_from_result(result, log, **options):
     return ctrl
 
 
+def _warn_log_ranges(report, model):
+    """Warn when the log leaves a joint open: the design's worst case over those ranges."""
+    import warnings
+
+    names = {sc["name"] for sc in log_range_scenarios(model)}
+    rows = [sc for sc in report["scenarios"] if sc["name"] in names]
+    if not rows:
+        return
+    worst = np.max([sc["max_abs_e"] for sc in rows], axis=0)
+    warnings.warn("the log does not determine every joint parameter this controller uses "
+                  f"(the result's joint_intervals: {len(rows)} scenarios at the ends of its "
+                  f"ranges checked): over them the design tracks within {worst.tolist()} pulses "
+                  "at worst (see .robustness); a richer experiment determines them",
+                  RuntimeWarning, stacklevel=4)
+
+
 def _build_from_result(result, log, **options):
     """:func:`controller_from_result` without its following-error limit (the checks run the bare law)."""
     robust = options.pop("robust", "fallback")  # flexible results only; a rigid CTC needs no check
@@ -849,11 +867,13 @@ def _build_from_result(result, log, **options):
         return ctrl
     import warnings
 
+
     if robust == "fallback" and not (DESIGN_KEYS & set(options)):
         ctrl, report = select_robust_design(ctrl, d, target, max_current_per_pulse=cap, **options)
     else:
         report = robustness_check(ctrl, d, target)
         ctrl.robustness = report
+    _warn_log_ranges(report, d)
     if report["robust"]:
         return ctrl
     if robust == "check":
@@ -1136,8 +1156,73 @@ ROBUSTNESS_SCENARIOS = (
 )
 
 
-def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, substeps=8,
-                     duration_s=1.0):
+#: A joint's stiffness or reflected motor inertia whose range in the result's
+#: ``joint_intervals`` (:func:`identification.flexible.joint_intervals`: the values
+#: that predict the log within the quantisation floor's allowance) reaches this factor
+#: of the identified value, up or down, is not determined by the log: the ends of its
+#: range join the robustness scenarios (:func:`log_range_scenarios`).  The standard
+#: set's stiffness x0.7 / x1.3 stays within it.
+LOG_RANGE_FACTOR = 2.0
+
+
+def log_range_scenarios(model):
+    """Robustness scenarios at the ends of the joint ranges the log leaves open.
+
+    A log can leave a joint's spring or its motor inertia undetermined (a
+    stiff joint under a slow P loop moves motor and link together): the
+    result's ``joint_intervals`` then spans a factor of
+    :data:`LOG_RANGE_FACTOR` or more, and the identified value is one of
+    many that fit.  A controller built on it must hold the arm at any of
+    them: for each joint whose spring or motor inertia is open, every
+    combination of the open ends of its stiffness, damping and motor-inertia
+    ranges (the log confuses a softer, less damped spring with a heavier
+    motor) becomes a scenario of :func:`robustness_check` (that joint alone
+    changed), beside :data:`ROBUSTNESS_SCENARIOS`.  A joint whose damping
+    alone is open is left to the standard set (x0.5 / x2): a log rarely
+    determines a damping better.
+
+    Parameters
+    ----------
+    model : ctc.contract.IdentifiedModel, result, dict or path
+        The flexible identification.
+
+    Returns
+    -------
+    tuple of dict
+        Scenarios with ``name`` (e.g. ``"joint 3 K x0.5 and Jm k^2 x4 (log
+        range)"``; PUMA 560 joint numbers, the first joint 2) and per-joint
+        ``stiffness``, ``damping`` and ``motor_inertia`` factors; empty
+        when the result has no ``joint_intervals`` or no joint's spring or
+        motor inertia range reaches :data:`LOG_RANGE_FACTOR`.
+    """
+    d = IdentifiedModel.from_result(model)
+    r = d.joint_ranges
+    if r is None:
+        return ()
+    n = r.shape[1]
+    out = []
+    for j in range(n):
+        # the open ends of this joint's stiffness, damping and motor-inertia ranges (1: the fit's)
+        ends = [[1.0] + [float(r[q, j, e]) for e in (0, 1)
+                         if max(r[q, j, e], 1.0 / r[q, j, e]) >= LOG_RANGE_FACTOR]
+                for q in range(3)]
+        if len(ends[0]) == 1 and len(ends[2]) == 1:
+            continue  # spring and motor determined: the standard set covers the damping
+        for corner in itertools.product(*ends):
+            if all(v == 1.0 for v in corner):
+                continue
+            sc = {}
+            for key, v in zip(("stiffness", "damping", "motor_inertia"), corner):
+                a = np.ones(n)
+                a[j] = v
+                sc[key] = a.tolist()
+            what = " and ".join(f"{w} x{v:.3g}" for w, v in zip(("K", "D", "Jm k^2"), corner)
+                                if v != 1.0)
+            out.append(dict(name=f"joint {j + 2} {what} (log range)", **sc))
+    return tuple(out)
+
+
+def robustness_check(ctrl, result, log, *, scenarios=None, substeps=8, duration_s=1.0):
     """Stability of a flexible-joint CTC over a set of model errors (scenario check).
 
     The controller runs, on the library's two-mass plant (:class:`plant.simulation.plants.FlexibleJoints`)
@@ -1157,8 +1242,11 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
         The flexible identification (joints, backlash, f).
     log : plant.ExperimentLog
         Rig and reference.
-    scenarios : sequence of dict
-        ``stiffness``, ``damping`` factors and ``payload_kg`` per scenario.
+    scenarios : sequence of dict, optional
+        ``stiffness``, ``damping`` and ``motor_inertia`` factors (a number,
+        or one per joint) and ``payload_kg`` per scenario; default
+        :data:`ROBUSTNESS_SCENARIOS` and the result's
+        :func:`log_range_scenarios`.
     substeps : int
         RK4 substeps per sample of the simulated robot.
     duration_s : float
@@ -1176,6 +1264,8 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
     model = IdentifiedModel.from_result(result)
     if not model.flexible:
         raise ValueError("robustness_check needs a flexible result (model 'flexible')")
+    if scenarios is None:
+        scenarios = ROBUSTNESS_SCENARIOS + log_range_scenarios(model)
     f = model.f
     K, D = model.stiffness_Nm_per_rad, model.damping_Nms_per_rad
     jk2 = model.motor_inertia_reflected_kgm2
@@ -1193,8 +1283,10 @@ def robustness_check(ctrl, result, log, *, scenarios=ROBUSTNESS_SCENARIOS, subst
             # at the wrist: 0.43 m along the forearm (link 3's -y, as f6 = m3 y3 < 0)
             fr = plant.add_payload(f, plant.Payload(sc["payload_kg"], (0.0, -0.4318), 0.0),
                                    log.rig.a3_m)
-        flex = plant.FlexibleJoints(K * sc.get("stiffness", 1.0), D * sc.get("damping", 1.0),
-                                    jk2 / (k * k), backlash_rad=b)
+        factor = {q: np.asarray(sc.get(q, 1.0), dtype=float)
+                  for q in ("stiffness", "damping", "motor_inertia")}
+        flex = plant.FlexibleJoints(K * factor["stiffness"], D * factor["damping"],
+                                    jk2 * factor["motor_inertia"] / (k * k), backlash_rad=b)
         try:
             r = plant.simulate_closed_loop(log, fr, ctrl, flexible=flex, substeps=substeps,
                                            n_samples=n)

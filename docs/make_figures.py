@@ -180,7 +180,17 @@ it in ``optimisers``):
     (``figures/friction_box_indep_20261327_0054.txt``), and that draw's case of the
     changes benchmark rerun alone on the version that widens it
     (``--n 58 --seed 20261327 --cases 54 --jobs 1`` with fresh ``--out``:
-    ``figures/changes_20261327_case_54_friction_box_run.txt``).
+    ``figures/changes_20261327_case_54_friction_box_run.txt``).  The ranges of
+    the joint parameters a log leaves open
+    (:func:`identification.flexible.joint_intervals`) against the truth and the
+    standard errors on that draw's compliant robots:
+    ``benchmarks/bench_joint_intervals.py --n 58 --seed 20261327 --jobs 2 --txt
+    docs/figures/joint_intervals_20261327.txt``; on its log 0021,
+    ``python -m identification tests/data/independent/indep_20261327_0021.csv``
+    (``figures/joint_intervals_indep_20261327_0021.txt``), and that draw's case 21
+    of the changes benchmark rerun alone on the version whose CTC checks those
+    ranges (``--cases 21 --jobs 1``, fresh ``--out``, stdout:
+    ``figures/changes_20261327_case_21_joint_ranges_run.txt``).
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the

@@ -677,6 +677,11 @@ class ArmIdentificationResult(OptimizeResult):
         rigid-equivalent (link plus ``Ia``).
     joint_backlash_rad : list or None
         Its backlash widths (n), None without backlash.
+    joint_intervals : dict or None
+        A flexible result's ranges of each joint's K, D and ``Ia`` that
+        predict the log within the floor allowance
+        (:func:`identification.arm_flexible.arm_joint_intervals`); None for a
+        rigid result.
     flexible_plant : plant.simulation.arm.ArmPlant or None
         A flexible result's two-mass arm, ``plant_row`` its lane
         parameters (:meth:`plant.simulation.arm.ArmPlant.lane_parameters`) and
@@ -697,8 +702,8 @@ class ArmIdentificationResult(OptimizeResult):
             ``friction_identified``, ``model``, ``model_choice``, ``warnings``,
             ``stage_times_s``, ``flexible_substeps``, ``search_restart`` and the joints
             (``joint_stiffness_Nm_per_rad``, ``joint_damping_Nms_per_rad``,
-            ``motor_inertia_reflected_kgm2``, ``joint_backlash_rad``; None for a
-            rigid result) -- what :func:`identification.arm_payload.prior_from_file`
+            ``motor_inertia_reflected_kgm2``, ``joint_backlash_rad``,
+            ``joint_intervals``; None for a rigid result) -- what :func:`identification.arm_payload.prior_from_file`
             reads back as a payload's prior.
         """
         def floats(v):
@@ -1264,7 +1269,8 @@ def _reporter(callback):
     return report
 
 _NO_JOINTS = dict(joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=None,
-                  motor_inertia_reflected_kgm2=None, joint_backlash_rad=None)
+                  motor_inertia_reflected_kgm2=None, joint_backlash_rad=None,
+                  joint_intervals=None)
 
 
 def widen_guessed_box(problem, ref, bounds, *, guessed=None, nonnegative=None, max_iter, ftol,
@@ -1517,7 +1523,8 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
     full = fit_flexible_arm(fspace, fat, fbox, starts=fx[None], max_iter=max_iter, ftol=ftol,
                             continuation=(), callback=cb, poll=poll)
     checked(full["refine"])
-    flex_res = _flexible_arm_result(res, log, fspace, fbox, full, workers)
+    flex_res = _flexible_arm_result(res, log, fspace, fbox, full, workers,
+                                    residuals=fat(DEFAULT_GAIN).residuals)
     # every simulated candidate of the model choice and the fits (the rigid ones included)
     flex_res.nfev = int(problem.nfev) + sum(int(p.nfev) for p in problems.values())
     allowance = floor
@@ -1719,8 +1726,9 @@ def _judge_arm(res, choice, cost, floor_h):
     return res
 
 
-def _flexible_arm_result(rigid, log, space, box, fit, workers):
-    """The ArmIdentificationResult of a flexible fit (the rigid result's bookkeeping kept)."""
+def _flexible_arm_result(rigid, log, space, box, fit, workers, residuals=None):
+    """The ArmIdentificationResult of a flexible fit (the rigid result's bookkeeping kept;
+    with the fit problem's ``residuals``, its ``joint_intervals``)."""
     x = np.asarray(fit["x"], dtype=float)
     ref = fit["refine"]
     nb, n = space.r, space.n
@@ -1761,4 +1769,15 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers):
                flexible_substeps=space.substeps(box),
                warnings=list(rigid.warnings), stage_times_s=dict(rigid.stage_times_s),
                **space.joints(x))
+    if residuals is not None and ok:
+        # the joint parameters the log leaves open (identification.flexible.joint_intervals)
+        from .arm_flexible import arm_joint_intervals
+
+        ji = arm_joint_intervals(log, x, space, box, residuals)
+        out["joint_intervals"] = ji
+        open_ = [n for n in ji["undetermined"] if not n.startswith("D_")]
+        if open_:
+            out["warnings"].append(f"the log does not determine {', '.join(open_)} (within the "
+                                   "quantisation floor's allowance over x2 or more: "
+                                   "joint_intervals)")
     return out

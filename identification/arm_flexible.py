@@ -59,13 +59,14 @@ import numpy as np
 
 from plant.simulation.arm import arm_plant, link_mode_bound, symmetric_from_lower
 
-from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA
+from .flexible import (CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA, floor_ranges,
+                       quantisation_floor, range_record)
 from .friction import FRICTION_COMPONENTS, friction_layout
 from .refinement import DEFAULT_GAIN, MaskedProblem, refine_through_gains
 
 __all__ = ["ArmFlexibleSpace", "fit_flexible_arm", "MAX_MODE_HZ", "N_STARTS", "ARM_BACKLASH_GRID",
            "IA_FRACTION_BOUNDS", "IA_FRACTION_MAX", "H_REAL",
-           "inertia_matrices", "diagonal_inertias"]
+           "inertia_matrices", "diagonal_inertias", "arm_joint_intervals"]
 
 #: Highest link mode ``sqrt(K / M_jj) / 2 pi`` (Hz) of the search box: industrial
 #: gearboxes give 10-40 Hz (the paper's PUMA: 27-32 Hz); 60 Hz keeps a margin and
@@ -616,3 +617,63 @@ def fit_flexible_arm(space, problem_at, box, *, starts=None, pool=None, mask=Non
                                poll=poll, leader_stop=leader_stop)
     x = np.asarray(ref.x, dtype=float)
     return dict(x=x, cost=float(ref.fun), refine=ref, nfev=nfev + int(ref.nfev))
+
+
+def arm_joint_intervals(log, x, space, box, residuals, *, allowance=None):
+    """Ranges of each joint's K, D and ``Ia`` that predict an arm's log as well as its fit.
+
+    The n-joint form of :func:`identification.flexible.joint_intervals` (its
+    rationale and source): each joint's stiffness, damping and reflected motor
+    inertia is scanned by :func:`identification.flexible.floor_ranges` with
+    the others held (beta is rigid-equivalent, so a heavier motor is a
+    lighter link), and the values whose prediction-error cost stays within
+    ``allowance`` of the fit's -- by default the model choice's
+    ``(ARM_FLOOR_FACTOR - 1)`` quantisation floors -- are the range.
+
+    Parameters
+    ----------
+    log : plant.logs.arm.ArmLog
+        The identified log.
+    x : array_like, shape (k,)
+        The flexible fit (``[beta, log10 K, D, Ia, (b), friction]``).
+    space : ArmFlexibleSpace
+        Its space.
+    box : ndarray, shape (k, 2)
+        Its box.
+    residuals : callable
+        ``residuals(X) -> (m, n_res)`` of the fit's prediction-error problem
+        (whole log, the final gain).
+    allowance : float, optional
+        Cost allowance (pulses^2).
+
+    Returns
+    -------
+    dict
+        As :func:`identification.flexible.joint_intervals`: ``names``
+        (``K_<joint>_Nm_per_rad``, ``D_<joint>_Nms_per_rad``,
+        ``Ia_<joint>_kgm2``), ``value``, ``low``, ``high``, ``low_factor``,
+        ``high_factor``, ``at_box``, ``undetermined``, ``cost_pulses2``,
+        ``allowance_pulses2`` and ``rule`` (3 n values each, K, then D, then
+        Ia).
+    """
+    from .arm import ARM_FLOOR_FACTOR
+
+    x = np.asarray(x, dtype=float)
+    r, n = space.r, space.n
+    allow = ((ARM_FLOOR_FACTOR - 1.0) * quantisation_floor(n * log.n_samples)
+             if allowance is None else float(allowance))
+    cols = list(range(r, r + 3 * n))
+    scan = floor_ranges(residuals, x, cols, [True] * n + [False] * (2 * n), box, allow)
+
+    def physical(v, c):
+        return 10.0 ** v[c] if c < r + n else v[c]
+
+    value = np.array([physical(x, c) for c in cols])
+    low = np.array([physical(scan["low_x"][i], c) for i, c in enumerate(cols)])
+    high = np.array([physical(scan["high_x"][i], c) for i, c in enumerate(cols)])
+    names = ([f"K_{j}_Nm_per_rad" for j in log.joint_names]
+             + [f"D_{j}_Nms_per_rad" for j in log.joint_names]
+             + [f"Ia_{j}_kgm2" for j in log.joint_names])
+    return range_record(names, value, low, high, scan, allow,
+                        "each joint's K, D and Ia scanned one at a time, the others held "
+                        "(identification.arm_flexible.arm_joint_intervals)")

@@ -76,6 +76,18 @@ cost stays above :data:`INADEQUATE_FACTOR` floors is reported as inadequate
 its ``f_std`` then includes the difference to the other model's f
 (model-form error added in quadrature).
 
+What the log leaves open: a stiff joint under a slow P loop moves its motor
+and its link together, and its log may then predict to the quantisation
+floor with a spring twice as stiff and a motor a quarter as heavy as the
+robot's, while the Gauss-Newton standard errors stay small (they read the
+curvature at the fit, not how far the floor extends).
+:func:`joint_intervals` scans each joint's K, D and ``Jm k^2`` one at a
+time and reports the range within the model choice's floor allowance
+(``result['joint_intervals']``; a range reaching x2 makes the parameter
+*undetermined*, and the result's message names the springs and motors that
+are); the flexible-joint CTC checks its design at the ends of those ranges
+(:func:`ctc.flexible.log_range_scenarios`) and warns with the worst case.
+
 Rationale of the ratios, not tuned thresholds: on a log the rigid model
 describes, both models sit at the quantisation floor (ratio ~1; a spring adds
 nothing the held-back samples can confirm), while an unmodelled compliance
@@ -124,7 +136,9 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "fit_backlash", "held_back_residuals", "BACKLASH_SCHEDULES", "HOP_ROUNDS",
            "HOP_TOLERANCE",
            "RANDOM_HOP_ROUNDS", "RANDOM_HOP_POINTS", "RANDOM_HOP_STARTS", "RANDOM_HOP_ITER",
-           "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR"]
+           "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR",
+           "joint_intervals", "floor_ranges", "range_record", "INTERVAL_FACTORS", "UNDETERMINED_FACTOR",
+           "JOINT_PARAMETER_NAMES"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
 MODELS = ("rigid", "flexible", "auto")
@@ -884,6 +898,231 @@ def held_back_residuals(log, x, space, substeps, workers=None, gain=DEFAULT_GAIN
     return _problem(log, space, substeps, workers, gain).residuals(np.atleast_2d(x))[0]
 
 
+#: Factors of the one-at-a-time scan of :func:`joint_intervals` (each joint's
+#: stiffness, damping and reflected motor inertia times these, the others held).
+INTERVAL_FACTORS = (1.25, 1.6, 2.0, 3.0, 4.0, 6.0, 8.0)
+
+#: A joint parameter is *undetermined* by its log when :func:`joint_intervals` finds
+#: values this factor (or more) above or below the fit's within the allowance.
+UNDETERMINED_FACTOR = 2.0
+
+#: Names of the joint parameters of :func:`joint_intervals`, in the order of
+#: :meth:`FlexibleParameters.joints`.
+JOINT_PARAMETER_NAMES = ("K2_Nm_per_rad", "K3_Nm_per_rad", "D2_Nms_per_rad", "D3_Nms_per_rad",
+                         "Jm2k2^2_kgm2", "Jm3k3^2_kgm2")
+
+
+def joint_intervals(log, x, space, substeps, *, workers=None, gain=DEFAULT_GAIN,
+                    factors=INTERVAL_FACTORS, allowance=None):
+    """Ranges of each joint parameter that predict the log as well as the fit does.
+
+    Standard errors from the Gauss-Newton curvature (:mod:`.uncertainty`)
+    treat the prediction errors as independent noise of the quantisation's
+    variance, and a log can leave a joint's spring, damping or motor inertia
+    undetermined while those errors look tight: on the changes benchmark's
+    log ``indep_20261327_0021`` (joint 3 stiff, 75 kN m/rad) the fit's K3 is
+    twice the truth and its ``Jm3 k3^2`` 0.28 times the truth, both outside their
+    2-sigma intervals and inside the ranges of this scan; over the 20
+    flexible fits at the floor of that draw the ranges held every true K and
+    ``Jm k^2`` (40 of 40 each), the 2-sigma intervals 33 of 40
+    (``benchmarks/bench_joint_intervals.py``,
+    ``docs/figures/joint_intervals_20261327.txt``).  The scan:
+    each joint parameter (K, D, ``Jm k^2`` of each joint) is multiplied by
+    each of ``factors`` and its inverse, the others held at the fit, and the
+    prediction-error cost of the whole log (:func:`held_back_residuals`) is
+    compared with the fit's; the range is the values, walking out from the
+    fit, whose cost exceeds the fit's by at most ``allowance`` -- by default
+    the model choice's own allowance, ``(ARM_FLOOR_FACTOR - 1)`` quantisation
+    floors (:data:`identification.arm.ARM_FLOOR_FACTOR`): a model within it
+    is "at the floor" to the model choice, so the log cannot prefer the fit
+    to these values.  Holding the others makes the ranges *inner* bounds of
+    the indifference set (a profile that refits them can only widen it).
+    The idea is the profile likelihood's (S. A. Murphy and A. W. van der
+    Vaart, JASA 95 (2000) 449; A. Raue et al., Bioinformatics 25 (2009)
+    1923), with the quantisation floor's allowance in place of a chi-square
+    quantile.
+
+    Parameters
+    ----------
+    log : plant.ExperimentLog
+        The identified log.
+    x : array_like, shape (k,)
+        The fit's point of ``space``.
+    space : FlexibleParameters
+        The fit's parameterisation.
+    substeps : int
+        RK4 substeps per sample (the fit's).
+    workers : int, optional
+        Threads.
+    gain : float
+        The replay's output-injection gain (the fit's).
+    factors : sequence of float
+        Factors > 1, increasing; each is scanned up and down.
+    allowance : float, optional
+        Cost allowance (pulses^2); default ``(ARM_FLOOR_FACTOR - 1)`` floors
+        of the log's residuals.
+
+    Returns
+    -------
+    dict
+        ``names`` (:data:`JOINT_PARAMETER_NAMES`), ``value``, ``low`` and
+        ``high`` (6 each, the units of the names), ``low_factor`` and
+        ``high_factor`` (the fit's value over ``low``, ``high`` over it),
+        ``at_box`` (the range reached the search box: 6 bools),
+        ``undetermined`` (the names whose range reaches
+        :data:`UNDETERMINED_FACTOR` on a side), ``cost_pulses2`` (the
+        fit's), ``allowance_pulses2`` and ``rule``.
+
+    Raises
+    ------
+    ValueError
+        If ``factors`` are not increasing numbers > 1.
+    """
+    from .arm import ARM_FLOOR_FACTOR
+
+    x = np.asarray(x, dtype=float)
+    allow = ((ARM_FLOOR_FACTOR - 1.0) * quantisation_floor(2 * log.n_samples)
+             if allowance is None else float(allowance))
+    cols = list(range(9, 15))  # log10 K2, log10 K3, D2, D3, r2, r3 (Jm k^2 = r f: linear in r)
+    problem = _problem(log, space, substeps, workers, gain)
+    scan = floor_ranges(problem.residuals, x, cols, [True, True, False, False, False, False],
+                        space.bounds(log), allow, factors)
+    value = space.joints(x)
+    low = np.array([space.joints(scan["low_x"][p])[p] for p in range(6)])
+    high = np.array([space.joints(scan["high_x"][p])[p] for p in range(6)])
+    fac = np.asarray(factors, dtype=float)
+    return range_record(
+        list(JOINT_PARAMETER_NAMES), value, low, high, scan, allow,
+        f"each joint parameter scanned by x{', x'.join(f'{f:g}' for f in fac)} and their "
+        "inverses, the others held at the fit (identification.flexible.joint_intervals)")
+
+
+def range_record(names, value, low, high, scan, allowance, how) -> dict:
+    """The JSON record of a range scan (:func:`joint_intervals`, and an arm's).
+
+    Parameters
+    ----------
+    names : list of str
+        The quantities, e.g. ``"K2_Nm_per_rad"``.
+    value, low, high : ndarray, shape (p,)
+        The fit's values and the ranges' ends (the names' units).
+    scan : dict
+        :func:`floor_ranges`' (``cost``, ``at_box``).
+    allowance : float
+        The cost allowance (pulses^2).
+    how : str
+        How the ranges were scanned (the start of ``rule``).
+
+    Returns
+    -------
+    dict
+        ``names``, ``value``, ``low``, ``high``, ``low_factor`` and
+        ``high_factor`` (value over low, high over value; None where the
+        value is 0), ``at_box``, ``undetermined`` (the names whose range
+        reaches :data:`UNDETERMINED_FACTOR` on a side), ``cost_pulses2``,
+        ``allowance_pulses2`` and ``rule``.
+    """
+    value, low, high = (np.asarray(a, dtype=float) for a in (value, low, high))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo_f = np.where(low > 0, value / low, np.inf)
+        hi_f = np.where(value > 0, high / value, np.inf)
+
+    def finite(v):
+        return [float(a) if np.isfinite(a) else None for a in v]
+
+    return dict(
+        names=list(names), value=value.tolist(), low=low.tolist(), high=high.tolist(),
+        low_factor=finite(lo_f), high_factor=finite(hi_f),
+        at_box=[bool(b) for b in scan["at_box"]],
+        undetermined=[nm for nm, a, b in zip(names, lo_f, hi_f)
+                      if max(a, b) >= UNDETERMINED_FACTOR],
+        cost_pulses2=float(scan["cost"]), allowance_pulses2=float(allowance),
+        rule=(f"{how}: the values whose prediction-error cost is within {allowance:.4g} "
+              "pulses^2 (the model choice's floor allowance) of the fit's; undetermined: a "
+              f"range reaching x{UNDETERMINED_FACTOR:g} or x1/{UNDETERMINED_FACTOR:g}"))
+
+
+def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTERVAL_FACTORS):
+    """One-at-a-time ranges of some components of x within a cost allowance (one batch).
+
+    The scan of :func:`joint_intervals` for any parameterisation (the PUMA
+    560's and an arm's, :func:`identification.arm_flexible.arm_joint_intervals`):
+    each listed component is moved by each factor and its inverse (added as
+    ``log10 factor`` on a log-scale component, multiplied otherwise; a
+    non-positive component is scaled from 1 % of its box's upper end) and
+    clipped to its box, the others held; all moves are evaluated as one
+    batch; walking out from x, the last move on each side whose cost stays
+    within ``allowance`` of x's is the range's end.
+
+    Parameters
+    ----------
+    residuals : callable
+        ``residuals(X) -> (m, n_res)`` for a batch ``X`` of shape (m, k).
+    x : ndarray, shape (k,)
+        The fit.
+    columns : sequence of int
+        The components scanned.
+    log_scale : sequence of bool
+        Per column: the component is a log10 of the quantity.
+    box : ndarray, shape (k, 2)
+        Search box (the moves are clipped to it).
+    allowance : float
+        Cost allowance (pulses^2) over x's cost.
+    factors : sequence of float
+        Increasing factors > 1.
+
+    Returns
+    -------
+    dict
+        ``cost`` (x's, pulses^2), ``low_x`` and ``high_x`` (per column the
+        point, shape (k,), at its range's lower and upper end) and ``at_box``
+        (per column: an end on the box).
+
+    Raises
+    ------
+    ValueError
+        If ``factors`` are not increasing numbers > 1.
+    """
+    fac = np.asarray(factors, dtype=float)
+    if fac.ndim != 1 or fac.size == 0 or not np.all(fac > 1.0) or np.any(np.diff(fac) <= 0):
+        raise ValueError(f"factors must be increasing numbers > 1, got {factors!r}")
+    x = np.asarray(x, dtype=float)
+    box = np.asarray(box, dtype=float)
+    rows = []
+    for col, logs in zip(columns, log_scale):
+        for fs in (fac ** -1, fac):  # down, then up, nearest first
+            for fk in fs:
+                xx = x.copy()
+                if logs:
+                    xx[col] = x[col] + math.log10(fk)
+                else:
+                    xx[col] = (x[col] if x[col] > 0 else 0.01 * box[col, 1]) * fk
+                xx[col] = min(max(xx[col], box[col, 0]), box[col, 1])
+                rows.append(xx)
+    X = np.vstack([x[None], np.asarray(rows)])
+    R = np.asarray(residuals(X), dtype=float)
+    cost = np.einsum("ij,ij->i", R, R)
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    c0 = float(cost[0])
+    low_x, high_x = [], []
+    at_box = np.zeros(len(columns), dtype=bool)
+    i = 1
+    for c, col in enumerate(columns):
+        ends = [x, x]
+        for side in (0, 1):
+            going = True
+            for _ in range(fac.size):
+                if going and cost[i] <= c0 + allowance:
+                    ends[side] = X[i]
+                    at_box[c] |= bool(X[i, col] <= box[col, 0] or X[i, col] >= box[col, 1])
+                else:
+                    going = False
+                i += 1
+        low_x.append(ends[0])
+        high_x.append(ends[1])
+    return dict(cost=c0, low_x=low_x, high_x=high_x, at_box=at_box)
+
+
 def _rigid_problem(log, space, rigid, workers, gain):
     """The prediction-error problem of the rigid fit's parameterisation (friction if unknown)."""
     return PredictionErrorProblem(
@@ -1063,6 +1302,15 @@ def _flexible_result(rigid, log, fit, model_choice, workers):
         res["joint_backlash_std_rad"] = [float(v) for v in bstd]
         res["joint_backlash_rad"] = ([float(v) if sig else 0.0 for v, sig in zip(b, significant)]
                                      if np.any(significant) else None)
+    # the ranges of the joint parameters the log leaves open (the standard errors' curvature
+    # does not see them): the controllers' robustness check covers the stiffness and motor
+    # inertia ranges wider than x2 (ctc.flexible.log_range_scenarios)
+    ranges = joint_intervals(log, xs, space, fit["substeps"], workers=workers)
+    res["joint_intervals"] = ranges
+    open_ = [n for n in ranges["undetermined"] if not n.startswith("D")]
+    if open_:
+        res["message"] += (f"; the log does not determine {', '.join(open_)} (within the "
+                           "quantisation floor's allowance over x2 or more: joint_intervals)")
     res["model_choice"] = model_choice
     return res
 

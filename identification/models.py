@@ -10,7 +10,11 @@ in compilation, the search, the model choice with the flexible fits, and
 the restarts of a failed search), ``viscous_friction_Nms_per_rad`` (2) and ``coulomb_friction_Nm``
 (2 x 2) -- identified, or echoed from the sidecar -- with
 ``friction_identified``, and ``model_choice`` (how ``model`` was chosen, see
-:mod:`identification.flexible`; None when it was not a choice).
+:mod:`identification.flexible`; None when it was not a choice), and
+``joint_intervals`` (a flexible result's ranges of each joint's stiffness, damping
+and reflected motor inertia that predict the log within the quantisation floor's
+allowance, :func:`identification.flexible.joint_intervals`; None for a rigid
+result).
 """
 from __future__ import annotations
 
@@ -22,7 +26,7 @@ __all__ = ["MODEL_KEYS", "result_entries"]
 MODEL_KEYS = ("model", "joint_stiffness_Nm_per_rad", "joint_damping_Nms_per_rad",
               "motor_inertia_reflected_kgm2", "joint_backlash_rad", "stage_times_s",
               "viscous_friction_Nms_per_rad", "coulomb_friction_Nm", "friction_identified",
-              "model_choice", "at_bounds")
+              "model_choice", "at_bounds", "joint_intervals")
 
 
 def result_entries(space, x, log) -> dict:
@@ -43,7 +47,8 @@ def result_entries(space, x, log) -> dict:
         says otherwise.
     """
     out = dict(model="rigid", joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=None,
-               motor_inertia_reflected_kgm2=None, joint_backlash_rad=None, model_choice=None)
+               motor_inertia_reflected_kgm2=None, joint_backlash_rad=None, model_choice=None,
+               joint_intervals=None)
     out.update(friction_entries(log))
     out.update(space.extras(x, log))
     return out

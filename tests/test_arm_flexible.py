@@ -112,6 +112,14 @@ def test_identify_compliant_arm_with_backlash(compliant):
     json.dumps(d)  # JSON-ready
     assert d["model"] == "flexible" and len(d["joint_backlash_rad"]) == 2
     assert res.elapsed_s >= sum(res.stage_times_s.values()) - 1e-6
+    # the log determines both springs and motors (identification.arm_flexible.arm_joint_intervals):
+    # no range of K or Ia reaches x2, and the truth is within the scan's first step of each
+    ji = d["joint_intervals"]
+    assert len(ji["names"]) == 6 and ji["names"][0] == f"K_{log.joint_names[0]}_Nm_per_rad"
+    assert not [n for n in ji["undetermined"] if not n.startswith("D_")]
+    truth_k_ia = list(s["stiffness"]) + list(truth["motor_inertia_reflected_kgm2"])
+    for p, t in zip((0, 1, 4, 5), truth_k_ia):
+        assert ji["low"][p] / 1.25 <= t <= ji["high"][p] * 1.25, (ji["names"][p], t)
 
 
 NEAR = "indep_arm_random2_compliant_near_floor"
