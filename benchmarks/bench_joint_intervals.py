@@ -14,10 +14,13 @@ inertia ``Jm k^2``, the truth is compared with
   read at the scan's resolution (its first factor, x1.25, either side: an end
   equal to the fit means "within x1.25");
 * the **2 sigma interval** of the Gauss-Newton standard errors (``x_std`` of
-  ``log10 K``, ``D`` and the inertia share ``r``).
+  ``log10 K``, ``D`` and the inertia share ``r``), widened by the same x1.25
+  either side (a fair comparison: a fit within 2 % of the truth is covered
+  by both).
 
-Reported: per log the fit's ratio to the truth and which parameters the
-result calls undetermined; then, over the fits the model choice calls
+Reported: per log the fit's ratio to the truth, which parameters the
+result calls undetermined and how many robots beside the fit its log
+allows (``corners``, the flexible-joint CTC's extra scenarios); then, over the fits the model choice calls
 adequate and at the floor (held-back cost <= 1.1 floors), how many truths
 each interval covers, and how many flags are right (an undetermined
 parameter whose fit is more than x1.25 off the truth, or a determined one
@@ -112,6 +115,7 @@ def analyse(rows):
         floors = mc.get("floor_ratio")
         at_floor = (res.get("model") == "flexible" and ji is not None and mc.get("adequate")
                     and floors is not None and floors <= 1.1)
+        n_corners = len((ji or {}).get("corners") or ())
         if res.get("model") != "flexible" or ji is None:
             lines.append(f"{stem}  model {res.get('model')}: no joint ranges")
             continue
@@ -121,7 +125,7 @@ def analyse(rows):
             lo_r, hi_r = lo / RESOLUTION, hi * RESOLUTION
             in_range = lo_r <= tv[p] <= hi_r
             s_lo, s_hi = sigma_interval(res, p)
-            in_sigma = s_lo <= tv[p] <= s_hi
+            in_sigma = s_lo / RESOLUTION <= tv[p] <= s_hi * RESOLUTION  # the same slack
             flagged = ji["names"][p] in ji["undetermined"]
             off = not (1 / RESOLUTION <= v / tv[p] <= RESOLUTION) if tv[p] > 0 else False
             cells.append(f"{ji['names'][p].split('_')[0]} {v / tv[p]:.3g}"
@@ -136,7 +140,8 @@ def analyse(rows):
                 c["off"] += off
                 c["right"] += flagged == off
         lines.append(f"{stem}  {floors:6.3g} floors{'' if at_floor else ' (not at the floor)'}  "
-                     + "  ".join(cells))
+                     + "  ".join(cells) + (f"  corners {n_corners}" if n_corners else "")
+                     + ("" if ji.get("judged", True) else "  (ranges not judged)"))
     return lines, cover
 
 
@@ -163,7 +168,7 @@ def main(argv=None):
     out = [f"joint ranges vs 2-sigma standard errors, seed {a.seed}, {a.n} draws, "
            f"{n_flex} compliant robots (identify(log, rng=0))",
            "per log: fit / truth per parameter; * the result calls it undetermined; "
-           "R the truth outside the range (x1.25 resolution); S outside 2 sigma", ""]
+           "R the truth outside the range, S outside 2 sigma (both widened x1.25 either side)", ""]
     out += lines
     out += ["", "over the flexible fits at the floor (adequate, <= 1.1 held-back floors):"]
     for q, c in cover.items():

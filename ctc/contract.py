@@ -64,13 +64,13 @@ class IdentifiedModel:
     adequate : bool or None
         ``model_choice['adequate']``: False when the identification found
         that its model does not describe the log.
-    joint_ranges : ndarray, shape (3, n, 2) or None
-        A flexible result's ``joint_intervals``
-        (:func:`identification.flexible.joint_intervals`) as factors of the
-        identified values: ``[low / value, high / value]`` of the stiffness,
-        the damping and the reflected motor inertia of each joint, the range
-        that predicts the log within the quantisation floor's allowance; None
-        when the result has none.
+    joint_corners : tuple of tuple
+        A flexible result's robots that its log allows beside the fit
+        (``joint_intervals['corners']``,
+        :func:`identification.flexible.joint_intervals`): per corner
+        ``(joint index, stiffness factor, damping factor, motor inertia
+        factor)``, one joint changed, its spring or motor not determined by
+        the log; empty when the log determines them (or the result is older).
 
     Notes
     -----
@@ -88,7 +88,7 @@ class IdentifiedModel:
     viscous_friction_Nms_per_rad: Optional[np.ndarray] = None
     coulomb_friction_Nm: Optional[np.ndarray] = None
     adequate: Optional[bool] = None
-    joint_ranges: Optional[np.ndarray] = None
+    joint_corners: tuple = ()
 
     @property
     def flexible(self) -> bool:
@@ -221,21 +221,25 @@ class IdentifiedModel:
         choice = d.get("model_choice") or {}
         adequate = choice.get("adequate") if hasattr(choice, "get") else None
         if model == "flexible":
-            fields["joint_ranges"] = _joint_ranges(d.get("joint_intervals"), n)
+            fields["joint_corners"] = _joint_corners(d.get("joint_intervals"), n)
         return cls(f=f, model=model, adequate=None if adequate is None else bool(adequate),
                    **fields)
 
 
-def _joint_ranges(intervals, n):
-    """``joint_intervals`` as factors (3, n, 2) of the identified values; None when absent or malformed."""
-    if not isinstance(intervals, dict):
-        return None
-    try:
-        v = np.asarray(intervals["value"], dtype=float).reshape(3, n)
-        lo = np.asarray(intervals["low"], dtype=float).reshape(3, n)
-        hi = np.asarray(intervals["high"], dtype=float).reshape(3, n)
-    except (KeyError, TypeError, ValueError):
-        return None
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.stack([np.where(v > 0, lo / v, 1.0), np.where(v > 0, hi / v, 1.0)], axis=-1)
-    return out if np.all(np.isfinite(out)) and np.all(out > 0) else None
+def _joint_corners(intervals, n) -> tuple:
+    """``joint_intervals['corners']`` as ``(joint, stiffness, damping, motor inertia)`` factors.
+
+    A malformed corner (a joint outside ``0..n-1``, a factor not finite and
+    positive) is left out: it names no robot.
+    """
+    corners = intervals.get("corners") if isinstance(intervals, dict) else None
+    out = []
+    for c in corners if isinstance(corners, (list, tuple)) else ():
+        try:
+            j = int(c["joint"])
+            f = tuple(float(c[k]) for k in ("stiffness", "damping", "motor_inertia"))
+        except (KeyError, TypeError, ValueError):
+            continue
+        if 0 <= j < n and all(np.isfinite(v) and v > 0 for v in f):
+            out.append((j,) + f)
+    return tuple(out)

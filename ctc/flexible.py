@@ -85,7 +85,6 @@ Kokotovic, IEEE J. Robot. Autom. 3 (1987)).
 """
 from __future__ import annotations
 
-import itertools
 import math
 from typing import NamedTuple
 
@@ -119,7 +118,7 @@ from .computed_torque import (
 
 __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "link_observer_gains",
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
-           "log_range_scenarios", "LOG_RANGE_FACTOR",
+           "log_range_scenarios",
            "robust_design_gains", "robust_design_options", "select_robust_design",
            "MAX_BANDWIDTH_FRACTION", "current_step_limit", "INTEGRAL_FRACTION",
            "MAX_ESTIMATOR_FRACTION", "DESIGN_KEYS",
@@ -771,7 +770,11 @@ def controller_from_result(result, log, **options):
         ``link_substeps``, ``link_damping`` and ``robust``: None builds the
         flexible-joint CTC unchecked; ``'check'`` runs
         :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` (stiffness
-        x0.7 / x1.3, damping x0.5 / x2, +2 kg; a few seconds), attaches the
+        x0.7 / x1.3, damping x0.5 / x2, +2 kg; a few seconds) and the
+        robots the log allows beside the fit (:func:`log_range_scenarios`:
+        none when the log determines the springs and motors, else up to 26
+        per open joint, each about as long; the controller returned then
+        warns with its worst case over them), attaches the
         report as ``.robustness`` and warns when the bound is not held;
         ``'fallback'`` (default) is the robust design: without design
         options of the caller it also checks the candidate designs of
@@ -826,19 +829,23 @@ def controller_from_result(result, log, **options):
 
 
 def _warn_log_ranges(report, model):
-    """Warn when the log leaves a joint open: the design's worst case over those ranges."""
+    """Warn when the log leaves a joint open: the returned controller's worst case over the
+    robots the log allows (its report ``report``)."""
     import warnings
 
     names = {sc["name"] for sc in log_range_scenarios(model)}
     rows = [sc for sc in report["scenarios"] if sc["name"] in names]
     if not rows:
         return
-    worst = np.max([sc["max_abs_e"] for sc in rows], axis=0)
+    lost = [sc["name"] for sc in rows if not sc["completed"]]
+    kept = [sc["max_abs_e"] for sc in rows if sc["completed"]]
+    worst = (f"tracks within {np.max(kept, axis=0).tolist()} pulses at worst" if kept else "")
+    if lost:
+        worst += ("; " if worst else "") + f"loses the arm with {', '.join(lost)}"
     warnings.warn("the log does not determine every joint parameter this controller uses "
-                  f"(the result's joint_intervals: {len(rows)} scenarios at the ends of its "
-                  f"ranges checked): over them the design tracks within {worst.tolist()} pulses "
-                  "at worst (see .robustness); a richer experiment determines them",
-                  RuntimeWarning, stacklevel=4)
+                  f"(the result's joint_intervals: {len(rows)} robots the log allows beside "
+                  f"the fit checked): over them this controller {worst} (see .robustness); a "
+                  "richer experiment determines them", RuntimeWarning, stacklevel=4)
 
 
 def _build_from_result(result, log, **options):
@@ -873,13 +880,14 @@ def _build_from_result(result, log, **options):
     else:
         report = robustness_check(ctrl, d, target)
         ctrl.robustness = report
-    _warn_log_ranges(report, d)
     if report["robust"]:
+        _warn_log_ranges(report, d)
         return ctrl
     if robust == "check":
         warnings.warn(f"the flexible-joint CTC does not hold {report['bound_pulses']} pulses over "
                       f"the model-error set ({report['reason']}); see its .robustness",
                       RuntimeWarning, stacklevel=3)
+        _warn_log_ranges(report, d)
         return ctrl
     # robust='fallback': the flexible design does not hold the bound over the
     # uncertainty set; the rigid-equivalent CTC is checked on the same set and the
@@ -910,6 +918,7 @@ def _build_from_result(result, log, **options):
                   f"the model-error set ({report['reason']}); {what}", RuntimeWarning,
                   stacklevel=3)
     chosen.robustness = dict(chosen.robustness, flexible=report, rigid=rep_rigid)
+    _warn_log_ranges(chosen.robustness, d)
     return chosen
 
 
@@ -925,8 +934,9 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None, **opt
     drive's full scale on every joint (the first design always is; default:
     every candidate is -- see :func:`controller_from_result` for what the
     cap costs).  The admissible candidates run
-    :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` and the one with
-    the smallest worst case is kept (minimax; the first design on a tie).
+    :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` and the robots
+    the log allows (:func:`log_range_scenarios`), and the one with the
+    smallest worst case is kept (minimax; the first design on a tie).
     Stability comes before the current's chatter: when no admissible
     candidate holds the set, the others are checked in the order of their
     current step and the first that holds it is kept.  Each checked
@@ -1156,30 +1166,22 @@ ROBUSTNESS_SCENARIOS = (
 )
 
 
-#: A joint's stiffness or reflected motor inertia whose range in the result's
-#: ``joint_intervals`` (:func:`identification.flexible.joint_intervals`: the values
-#: that predict the log within the quantisation floor's allowance) reaches this factor
-#: of the identified value, up or down, is not determined by the log: the ends of its
-#: range join the robustness scenarios (:func:`log_range_scenarios`).  The standard
-#: set's stiffness x0.7 / x1.3 stays within it.
-LOG_RANGE_FACTOR = 2.0
-
-
 def log_range_scenarios(model):
-    """Robustness scenarios at the ends of the joint ranges the log leaves open.
+    """Robustness scenarios at the robots the log allows beside the fit.
 
     A log can leave a joint's spring or its motor inertia undetermined (a
     stiff joint under a slow P loop moves motor and link together): the
-    result's ``joint_intervals`` then spans a factor of
-    :data:`LOG_RANGE_FACTOR` or more, and the identified value is one of
-    many that fit.  A controller built on it must hold the arm at any of
-    them: for each joint whose spring or motor inertia is open, every
-    combination of the open ends of its stiffness, damping and motor-inertia
-    ranges (the log confuses a softer, less damped spring with a heavier
-    motor) becomes a scenario of :func:`robustness_check` (that joint alone
-    changed), beside :data:`ROBUSTNESS_SCENARIOS`.  A joint whose damping
-    alone is open is left to the standard set (x0.5 / x2): a log rarely
-    determines a damping better.
+    identification then records, in ``joint_intervals['corners']``
+    (:func:`identification.flexible.joint_intervals`), the combinations of
+    that joint's stiffness, damping and motor inertia, at the ends of their
+    ranges, that predict the log within a tenth of a quantisation floor of
+    the fit -- robots the log cannot tell from the identified one.  A
+    controller built on it must hold the arm at any of them, so each becomes
+    a scenario of :func:`robustness_check` (that joint alone changed),
+    beside :data:`ROBUSTNESS_SCENARIOS`.  A joint whose damping alone is open
+    is left to the standard set (x0.5 / x2): a log rarely determines a
+    damping better, and a damping below half the fit's is not checked (a
+    known gap: less damping is the destabilising side).
 
     Parameters
     ----------
@@ -1189,36 +1191,23 @@ def log_range_scenarios(model):
     Returns
     -------
     tuple of dict
-        Scenarios with ``name`` (e.g. ``"joint 3 K x0.5 and Jm k^2 x4 (log
-        range)"``; PUMA 560 joint numbers, the first joint 2) and per-joint
-        ``stiffness``, ``damping`` and ``motor_inertia`` factors; empty
-        when the result has no ``joint_intervals`` or no joint's spring or
-        motor inertia range reaches :data:`LOG_RANGE_FACTOR`.
+        Scenarios with ``name`` (e.g. ``"joint 3 K x0.5, D x0.125, Jm k^2
+        x4 (log range)"``; PUMA 560 joint numbers, the first joint 2) and
+        per-joint ``stiffness``, ``damping`` and ``motor_inertia`` factors;
+        empty when the result records no corner.
     """
     d = IdentifiedModel.from_result(model)
-    r = d.joint_ranges
-    if r is None:
-        return ()
-    n = r.shape[1]
+    n = 2 if d.stiffness_Nm_per_rad is None else len(d.stiffness_Nm_per_rad)
     out = []
-    for j in range(n):
-        # the open ends of this joint's stiffness, damping and motor-inertia ranges (1: the fit's)
-        ends = [[1.0] + [float(r[q, j, e]) for e in (0, 1)
-                         if max(r[q, j, e], 1.0 / r[q, j, e]) >= LOG_RANGE_FACTOR]
-                for q in range(3)]
-        if len(ends[0]) == 1 and len(ends[2]) == 1:
-            continue  # spring and motor determined: the standard set covers the damping
-        for corner in itertools.product(*ends):
-            if all(v == 1.0 for v in corner):
-                continue
-            sc = {}
-            for key, v in zip(("stiffness", "damping", "motor_inertia"), corner):
-                a = np.ones(n)
-                a[j] = v
-                sc[key] = a.tolist()
-            what = " and ".join(f"{w} x{v:.3g}" for w, v in zip(("K", "D", "Jm k^2"), corner)
-                                if v != 1.0)
-            out.append(dict(name=f"joint {j + 2} {what} (log range)", **sc))
+    for j, kf, df, jf in d.joint_corners:
+        sc = {}
+        for key, v in (("stiffness", kf), ("damping", df), ("motor_inertia", jf)):
+            a = np.ones(n)
+            a[j] = v
+            sc[key] = a.tolist()
+        what = ", ".join(f"{w} x{v:.3g}" for w, v in (("K", kf), ("D", df), ("Jm k^2", jf))
+                         if abs(v - 1.0) > 1e-9)
+        out.append(dict(name=f"joint {j + 2} {what} (log range)", **sc))
     return tuple(out)
 
 

@@ -19,7 +19,7 @@ from .parameters import (
     Parameterisation,
     PayloadParameters,
 )
-from .flexible import MODELS, apply_model
+from .flexible import MODELS, apply_model, open_joints_text
 from .friction import FrictionParameters, default_friction_bounds, unknown_friction_indices
 from .models import result_entries
 from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
@@ -334,6 +334,9 @@ def identify(
         warnings.warn(text, ModelInadequacyWarning, stacklevel=2)
     if res.get("poorly_excited"):
         warnings.warn(excitation_text(res), PoorExcitationWarning, stacklevel=2)
+    joints_open = open_joints_text(res.get("joint_intervals"))
+    if joints_open:  # a flexible result's springs or motors the log leaves open
+        warnings.warn(joints_open, PoorExcitationWarning, stacklevel=2)
     return res
 
 

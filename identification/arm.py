@@ -1773,11 +1773,11 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers, residuals=None):
         # the joint parameters the log leaves open (identification.flexible.joint_intervals)
         from .arm_flexible import arm_joint_intervals
 
+        from .flexible import open_joints_text
+
         ji = arm_joint_intervals(log, x, space, box, residuals)
         out["joint_intervals"] = ji
-        open_ = [n for n in ji["undetermined"] if not n.startswith("D_")]
-        if open_:
-            out["warnings"].append(f"the log does not determine {', '.join(open_)} (within the "
-                                   "quantisation floor's allowance over x2 or more: "
-                                   "joint_intervals)")
+        text = open_joints_text(ji)
+        if text:
+            out["warnings"].append(text)
     return out

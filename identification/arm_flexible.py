@@ -59,8 +59,7 @@ import numpy as np
 
 from plant.simulation.arm import arm_plant, link_mode_bound, symmetric_from_lower
 
-from .flexible import (CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA, floor_ranges,
-                       quantisation_floor, range_record)
+from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA, scan_joints
 from .friction import FRICTION_COMPONENTS, friction_layout
 from .refinement import DEFAULT_GAIN, MaskedProblem, refine_through_gains
 
@@ -628,7 +627,12 @@ def arm_joint_intervals(log, x, space, box, residuals, *, allowance=None):
     the others held (beta is rigid-equivalent, so a heavier motor is a
     lighter link), and the values whose prediction-error cost stays within
     ``allowance`` of the fit's -- by default the model choice's
-    ``(ARM_FLOOR_FACTOR - 1)`` quantisation floors -- are the range.
+    ``(ARM_FLOOR_FACTOR - 1)`` quantisation floors -- are the range; the
+    combinations of an open joint's range ends that the log allows are its
+    ``corners``.  The result names the springs and motors the log leaves
+    open in its ``warnings``; the arm's flexible CTC (:mod:`ctc.arm`) does
+    not yet check its design at the corners (the PUMA 560 path's does,
+    :func:`ctc.flexible.log_range_scenarios`).
 
     Parameters
     ----------
@@ -649,31 +653,23 @@ def arm_joint_intervals(log, x, space, box, residuals, *, allowance=None):
     Returns
     -------
     dict
-        As :func:`identification.flexible.joint_intervals`: ``names``
-        (``K_<joint>_Nm_per_rad``, ``D_<joint>_Nms_per_rad``,
-        ``Ia_<joint>_kgm2``), ``value``, ``low``, ``high``, ``low_factor``,
-        ``high_factor``, ``at_box``, ``undetermined``, ``cost_pulses2``,
-        ``allowance_pulses2`` and ``rule`` (3 n values each, K, then D, then
-        Ia).
+        As :func:`identification.flexible.joint_intervals`
+        (:func:`identification.flexible.range_record` with ``corners``):
+        ``names`` ``K_<joint>_Nm_per_rad``, ``D_<joint>_Nms_per_rad``,
+        ``Ia_<joint>_kgm2`` (3 n values each, K, then D, then Ia).
     """
-    from .arm import ARM_FLOOR_FACTOR
-
     x = np.asarray(x, dtype=float)
     r, n = space.r, space.n
-    allow = ((ARM_FLOOR_FACTOR - 1.0) * quantisation_floor(n * log.n_samples)
-             if allowance is None else float(allowance))
-    cols = list(range(r, r + 3 * n))
-    scan = floor_ranges(residuals, x, cols, [True] * n + [False] * (2 * n), box, allow)
 
-    def physical(v, c):
-        return 10.0 ** v[c] if c < r + n else v[c]
+    def physical(X):  # (m, k) -> (m, 3 n): K, D, Ia
+        X = np.atleast_2d(X)
+        return np.concatenate([10.0 ** X[:, r:r + n], X[:, r + n:r + 3 * n]], axis=1)
 
-    value = np.array([physical(x, c) for c in cols])
-    low = np.array([physical(scan["low_x"][i], c) for i, c in enumerate(cols)])
-    high = np.array([physical(scan["high_x"][i], c) for i, c in enumerate(cols)])
     names = ([f"K_{j}_Nm_per_rad" for j in log.joint_names]
              + [f"D_{j}_Nms_per_rad" for j in log.joint_names]
              + [f"Ia_{j}_kgm2" for j in log.joint_names])
-    return range_record(names, value, low, high, scan, allow,
-                        "each joint's K, D and Ia scanned one at a time, the others held "
-                        "(identification.arm_flexible.arm_joint_intervals)")
+    return scan_joints(residuals, x, list(range(r, r + 3 * n)), n, box, physical, names,
+                       n * log.n_samples,
+                       "each joint's K, D and Ia scanned one at a time, the others held "
+                       "(identification.arm_flexible.arm_joint_intervals)",
+                       allowance=allowance)

@@ -291,16 +291,22 @@ def _joint_range_lines(result) -> list:
     if not isinstance(ji, dict):
         return []
     try:
-        rows = list(zip(ji["names"], ji["value"], ji["low"], ji["high"]))
+        rows = list(zip(ji["names"], ji["value"], ji["low"], ji["high"],
+                        ji.get("low_open") or [False] * len(ji["names"]),
+                        ji.get("high_open") or [False] * len(ji["names"])))
     except (KeyError, TypeError):
         return []
-    out = ["joint parameters, with the range that predicts the log within the floor allowance:"]
+    out = ["joint parameters, with the range that predicts the log as well as the fit "
+           "(< or >: it goes on past the search box or the scan):"]
+    if not ji.get("judged", True):
+        out[0] = ("joint parameters (ranges not judged: the fit does not describe the log):")
     undetermined = set(ji.get("undetermined") or ())
-    for name, v, lo, hi in rows:
+    for name, v, lo, hi, lo_open, hi_open in rows:
         quantity, _, unit = str(name).partition("_")
         unit = _UNITS.get(unit, unit.replace("_", " "))
         flag = "   (not determined by this log)" if name in undetermined else ""
-        out.append(f"  {quantity:<8}{v:>12.4g}  [{lo:.4g} .. {hi:.4g}] {unit}{flag}")
+        out.append(f"  {quantity:<8}{v:>12.4g}  [{'<' if lo_open else ''}{lo:.4g} .. "
+                   f"{'>' if hi_open else ''}{hi:.4g}] {unit}{flag}")
     return out
 
 

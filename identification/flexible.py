@@ -112,6 +112,7 @@ there meet the targets of ``tests/test_independent_logs.py``).
 from __future__ import annotations
 
 import contextvars
+import itertools
 import math
 
 import numpy as np
@@ -137,7 +138,7 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "HOP_TOLERANCE",
            "RANDOM_HOP_ROUNDS", "RANDOM_HOP_POINTS", "RANDOM_HOP_STARTS", "RANDOM_HOP_ITER",
            "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR",
-           "joint_intervals", "floor_ranges", "range_record", "INTERVAL_FACTORS", "UNDETERMINED_FACTOR",
+           "joint_intervals", "floor_ranges", "range_record", "scan_joints", "open_joints_text", "INTERVAL_FACTORS", "UNDETERMINED_FACTOR",
            "JOINT_PARAMETER_NAMES"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
@@ -921,26 +922,38 @@ def joint_intervals(log, x, space, substeps, *, workers=None, gain=DEFAULT_GAIN,
     variance, and a log can leave a joint's spring, damping or motor inertia
     undetermined while those errors look tight: on the changes benchmark's
     log ``indep_20261327_0021`` (joint 3 stiff, 75 kN m/rad) the fit's K3 is
-    twice the truth and its ``Jm3 k3^2`` 0.28 times the truth, both outside their
-    2-sigma intervals and inside the ranges of this scan; over the 20
-    flexible fits at the floor of that draw the ranges held every true K and
-    ``Jm k^2`` (40 of 40 each), the 2-sigma intervals 33 of 40
+    twice the truth and its ``Jm3 k3^2`` 0.28 times the truth, both outside
+    their 2-sigma intervals (even widened by the scan's x1.25 resolution)
+    and inside the ranges of this scan -- the only springs and motors of
+    the draw's 20 compliant fits at the floor that the 2-sigma intervals
+    miss, and the only ones the scan flags
     (``benchmarks/bench_joint_intervals.py``,
-    ``docs/figures/joint_intervals_20261327.txt``).  The scan:
-    each joint parameter (K, D, ``Jm k^2`` of each joint) is multiplied by
-    each of ``factors`` and its inverse, the others held at the fit, and the
-    prediction-error cost of the whole log (:func:`held_back_residuals`) is
-    compared with the fit's; the range is the values, walking out from the
-    fit, whose cost exceeds the fit's by at most ``allowance`` -- by default
-    the model choice's own allowance, ``(ARM_FLOOR_FACTOR - 1)`` quantisation
-    floors (:data:`identification.arm.ARM_FLOOR_FACTOR`): a model within it
-    is "at the floor" to the model choice, so the log cannot prefer the fit
-    to these values.  Holding the others makes the ranges *inner* bounds of
-    the indifference set (a profile that refits them can only widen it).
-    The idea is the profile likelihood's (S. A. Murphy and A. W. van der
-    Vaart, JASA 95 (2000) 449; A. Raue et al., Bioinformatics 25 (2009)
-    1923), with the quantisation floor's allowance in place of a chi-square
-    quantile.
+    ``docs/figures/joint_intervals_20261327.txt``).
+
+    The scan: each joint parameter (K, D, ``Jm k^2`` of each joint; the
+    rigid-equivalent f held, so a heavier motor is a lighter link) is
+    multiplied by each of ``factors`` and its inverse, the others held at
+    the fit, and the prediction-error cost of the whole log
+    (:func:`held_back_residuals`) is compared with the fit's; the range is
+    the values, walking out from the fit, whose cost exceeds the fit's by at
+    most ``allowance`` -- by default a tenth of a quantisation floor,
+    ``(ARM_FLOOR_FACTOR - 1)`` floors, the margin by which the model choice
+    counts a model "at the floor" (:data:`identification.arm.ARM_FLOOR_FACTOR`).
+    It is a zone of indifference around the fit, not a confidence interval:
+    the allowance scales with the log's length as the cost does, so a
+    longer log of the same kind does not narrow it, and holding the others
+    makes the ranges *inner* bounds (a profile that refits them can only
+    widen them).  Then, for each joint whose spring or motor range reaches
+    :data:`UNDETERMINED_FACTOR`, every combination of the open ends of its
+    three ranges is evaluated in the same way, and the combinations within
+    the allowance are kept (``corners``: the log confuses a softer, less
+    damped spring with a heavier motor, and a controller must hold the arm
+    at any robot the log allows).  The ranges are judged only for a fit
+    that describes its log (within :data:`INADEQUATE_FACTOR` floors): around
+    a fit far above the floor they say nothing.  The idea is the profile
+    likelihood's (S. A. Murphy and A. W. van der Vaart, JASA 95 (2000) 449;
+    A. Raue et al., Bioinformatics 25 (2009) 1923), with the quantisation
+    floor's allowance in place of a chi-square quantile.
 
     Parameters
     ----------
@@ -965,39 +978,143 @@ def joint_intervals(log, x, space, substeps, *, workers=None, gain=DEFAULT_GAIN,
     Returns
     -------
     dict
-        ``names`` (:data:`JOINT_PARAMETER_NAMES`), ``value``, ``low`` and
-        ``high`` (6 each, the units of the names), ``low_factor`` and
-        ``high_factor`` (the fit's value over ``low``, ``high`` over it),
-        ``at_box`` (the range reached the search box: 6 bools),
-        ``undetermined`` (the names whose range reaches
-        :data:`UNDETERMINED_FACTOR` on a side), ``cost_pulses2`` (the
-        fit's), ``allowance_pulses2`` and ``rule``.
+        :func:`range_record`'s, with ``names`` :data:`JOINT_PARAMETER_NAMES`.
 
     Raises
     ------
     ValueError
         If ``factors`` are not increasing numbers > 1.
     """
+    x = np.asarray(x, dtype=float)
+    problem = _problem(log, space, substeps, workers, gain)
+
+    def physical(X):  # (m, k) -> (m, 6): K2 K3 D2 D3 Jm2k2^2 Jm3k3^2
+        return space.joints(np.atleast_2d(X))
+
+    fac = np.asarray(factors, dtype=float)
+    return scan_joints(problem.residuals, x, list(range(9, 15)), 2, space.bounds(log),
+                       physical, list(JOINT_PARAMETER_NAMES), 2 * log.n_samples,
+                       f"each joint parameter scanned by x{', x'.join(f'{f:g}' for f in fac)} "
+                       "and their inverses, the others held at the fit "
+                       "(identification.flexible.joint_intervals)",
+                       allowance=allowance, factors=factors)
+
+
+def scan_joints(residuals, x, columns, n, box, physical, names, n_residuals, how, *,
+                allowance=None, factors=INTERVAL_FACTORS):
+    """The scan of :func:`joint_intervals` for any two-mass parameterisation.
+
+    Parameters
+    ----------
+    residuals : callable
+        ``residuals(X) -> (m, n_res)`` of the fit's prediction-error problem.
+    x : ndarray, shape (k,)
+        The fit.
+    columns : sequence of int, length 3 n
+        The columns of ``log10 K`` (n), ``D`` (n) and the motor inertia (n,
+        linear: ``Jm k^2`` itself or a share of a fixed f).
+    n : int
+        Joints.
+    box : ndarray, shape (k, 2)
+        Search box.
+    physical : callable
+        ``physical(X) -> (m, 3 n)``: K, D and ``Jm k^2`` of each row.
+    names : list of str, length 3 n
+    n_residuals : int
+        Residuals per candidate (for the quantisation floor).
+    how : str
+        The start of the record's ``rule``.
+    allowance : float, optional
+        Cost allowance (pulses^2); default ``(ARM_FLOOR_FACTOR - 1)`` floors.
+    factors : sequence of float
+
+    Returns
+    -------
+    dict
+        :func:`range_record`'s.
+    """
     from .arm import ARM_FLOOR_FACTOR
 
-    x = np.asarray(x, dtype=float)
-    allow = ((ARM_FLOOR_FACTOR - 1.0) * quantisation_floor(2 * log.n_samples)
-             if allowance is None else float(allowance))
-    cols = list(range(9, 15))  # log10 K2, log10 K3, D2, D3, r2, r3 (Jm k^2 = r f: linear in r)
-    problem = _problem(log, space, substeps, workers, gain)
-    scan = floor_ranges(problem.residuals, x, cols, [True, True, False, False, False, False],
-                        space.bounds(log), allow, factors)
-    value = space.joints(x)
-    low = np.array([space.joints(scan["low_x"][p])[p] for p in range(6)])
-    high = np.array([space.joints(scan["high_x"][p])[p] for p in range(6)])
-    fac = np.asarray(factors, dtype=float)
-    return range_record(
-        list(JOINT_PARAMETER_NAMES), value, low, high, scan, allow,
-        f"each joint parameter scanned by x{', x'.join(f'{f:g}' for f in fac)} and their "
-        "inverses, the others held at the fit (identification.flexible.joint_intervals)")
+    floor = quantisation_floor(n_residuals)
+    allow = (ARM_FLOOR_FACTOR - 1.0) * floor if allowance is None else float(allowance)
+    logs = [True] * n + [False] * (2 * n)
+    scan = floor_ranges(residuals, x, columns, logs, box, allow, factors)
+    value = physical(x)[0]
+    low = np.array([physical(scan["low_x"][p])[0, p] for p in range(3 * n)])
+    high = np.array([physical(scan["high_x"][p])[0, p] for p in range(3 * n)])
+    rec = range_record(names, value, low, high, scan, allow, how, floor)
+    # the combinations of the open ends of a joint whose spring or motor is open
+    rows, what = [], []
+    for j in range(n):
+        ends = []
+        for q in range(3):
+            p = q * n + j
+            e = [x[columns[p]]]
+            if value[p] > 0:
+                for side, key in ((0, "low_x"), (1, "high_x")):
+                    f = (value[p] / low[p]) if side == 0 else (high[p] / value[p])
+                    if _reaches(f):
+                        e.append(scan[key][p][columns[p]])
+            ends.append(e)
+        if len(ends[0]) == 1 and len(ends[2]) == 1:
+            continue  # spring and motor determined
+        for corner in itertools.product(*ends):
+            if all(c == e[0] for c, e in zip(corner, ends)):
+                continue
+            xx = x.copy()
+            for q in range(3):
+                xx[columns[q * n + j]] = corner[q]
+            rows.append(xx)
+            what.append(j)
+    corners = []
+    if rows and rec["judged"]:
+        R = np.asarray(residuals(np.asarray(rows)), dtype=float)
+        cost = np.einsum("ij,ij->i", R, R)
+        ph = physical(np.asarray(rows))
+        for r, j, c in zip(range(len(rows)), what, cost):
+            if np.isfinite(c) and c <= scan["cost"] + allow:
+                corners.append(dict(joint=int(j),
+                                    stiffness=float(ph[r, j] / value[j]),
+                                    damping=float(ph[r, n + j] / value[n + j]),
+                                    motor_inertia=float(ph[r, 2 * n + j] / value[2 * n + j]),
+                                    cost_pulses2=float(c)))
+    rec["corners"] = corners
+    return rec
 
 
-def range_record(names, value, low, high, scan, allowance, how) -> dict:
+def open_joints_text(intervals) -> str:
+    """What a result's ``joint_intervals`` leaves open of the springs and motors, as a sentence.
+
+    Parameters
+    ----------
+    intervals : dict or None
+        :func:`range_record`'s (a result's ``joint_intervals``).
+
+    Returns
+    -------
+    str
+        E.g. ``"the log does not determine K3_Nm_per_rad, Jm3k3^2_kgm2 (values x2
+        or more from the fit predict it within 9.42 pulses^2 of the fit's cost:
+        joint_intervals)"``; empty when every spring and motor is determined
+        (a damping alone is not named: a log rarely determines it better).
+    """
+    if not isinstance(intervals, dict):
+        return ""
+    names = [n for n in intervals.get("undetermined") or () if not str(n).startswith("D")]
+    if not names:
+        return ""
+    allow = intervals.get("allowance_pulses2")
+    within = f"within {allow:.4g} pulses^2" if isinstance(allow, (int, float)) else "as well"
+    return (f"the log does not determine {', '.join(names)} (values x{UNDETERMINED_FACTOR:g} or "
+            f"more from the fit predict it {within} of the fit's cost: joint_intervals)")
+
+
+def _reaches(factor) -> bool:
+    """A range factor at or beyond :data:`UNDETERMINED_FACTOR` (a scan step of that size too)."""
+    return bool(factor >= UNDETERMINED_FACTOR * (1.0 - 1e-9))
+
+
+def range_record(names, value, low, high, scan, allowance, how, floor=None) -> dict:
     """The JSON record of a range scan (:func:`joint_intervals`, and an arm's).
 
     Parameters
@@ -1007,39 +1124,54 @@ def range_record(names, value, low, high, scan, allowance, how) -> dict:
     value, low, high : ndarray, shape (p,)
         The fit's values and the ranges' ends (the names' units).
     scan : dict
-        :func:`floor_ranges`' (``cost``, ``at_box``).
+        :func:`floor_ranges`' (``cost``, ``low_open``, ``high_open``).
     allowance : float
         The cost allowance (pulses^2).
     how : str
         How the ranges were scanned (the start of ``rule``).
+    floor : float, optional
+        The log's quantisation floor (pulses^2): the ranges are judged only
+        for a fit within :data:`INADEQUATE_FACTOR` floors.
 
     Returns
     -------
     dict
         ``names``, ``value``, ``low``, ``high``, ``low_factor`` and
-        ``high_factor`` (value over low, high over value; None where the
-        value is 0), ``at_box``, ``undetermined`` (the names whose range
-        reaches :data:`UNDETERMINED_FACTOR` on a side), ``cost_pulses2``,
-        ``allowance_pulses2`` and ``rule``.
+        ``high_factor`` (value over low, high over value; 1 at a value of 0
+        below, None above when the range leaves 0), ``low_open`` and
+        ``high_open`` (the end is the box's or the scan's last step: the
+        range goes on), ``undetermined`` (the names whose range reaches
+        :data:`UNDETERMINED_FACTOR` on a side, or leaves a value of 0;
+        empty when not judged), ``judged``, ``fit_floors`` (the fit's cost
+        in floors), ``cost_pulses2``, ``allowance_pulses2`` and ``rule``.
     """
     value, low, high = (np.asarray(a, dtype=float) for a in (value, low, high))
     with np.errstate(divide="ignore", invalid="ignore"):
-        lo_f = np.where(low > 0, value / low, np.inf)
-        hi_f = np.where(value > 0, high / value, np.inf)
+        lo_f = np.where(value > 0, value / np.where(low > 0, low, np.nan), 1.0)
+        hi_f = np.where(value > 0, high / value, np.where(high > value, np.inf, 1.0))
+    c0 = float(scan["cost"])
+    fit_floors = c0 / floor if floor else None
+    judged = bool(np.isfinite(c0) and (fit_floors is None or fit_floors <= INADEQUATE_FACTOR))
+    undetermined = ([nm for nm, a, b in zip(names, lo_f, hi_f) if _reaches(a) or _reaches(b)]
+                    if judged else [])
 
     def finite(v):
         return [float(a) if np.isfinite(a) else None for a in v]
 
+    why = ("" if judged else f"; not judged: the fit's cost is {fit_floors:.3g} quantisation "
+           f"floors (> {INADEQUATE_FACTOR:g}), it does not describe the log"
+           if np.isfinite(c0) else "; not judged: the fit's cost is not finite")
     return dict(
         names=list(names), value=value.tolist(), low=low.tolist(), high=high.tolist(),
         low_factor=finite(lo_f), high_factor=finite(hi_f),
-        at_box=[bool(b) for b in scan["at_box"]],
-        undetermined=[nm for nm, a, b in zip(names, lo_f, hi_f)
-                      if max(a, b) >= UNDETERMINED_FACTOR],
-        cost_pulses2=float(scan["cost"]), allowance_pulses2=float(allowance),
+        low_open=[bool(b) for b in scan["low_open"]],
+        high_open=[bool(b) for b in scan["high_open"]],
+        undetermined=undetermined, judged=judged,
+        fit_floors=None if fit_floors is None or not np.isfinite(fit_floors) else float(fit_floors),
+        cost_pulses2=c0 if np.isfinite(c0) else None, allowance_pulses2=float(allowance),
         rule=(f"{how}: the values whose prediction-error cost is within {allowance:.4g} "
-              "pulses^2 (the model choice's floor allowance) of the fit's; undetermined: a "
-              f"range reaching x{UNDETERMINED_FACTOR:g} or x1/{UNDETERMINED_FACTOR:g}"))
+              "pulses^2 of the fit's; undetermined: a range reaching "
+              f"x{UNDETERMINED_FACTOR:g} or x1/{UNDETERMINED_FACTOR:g}{why}"))
 
 
 def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTERVAL_FACTORS):
@@ -1049,7 +1181,7 @@ def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTER
     560's and an arm's, :func:`identification.arm_flexible.arm_joint_intervals`):
     each listed component is moved by each factor and its inverse (added as
     ``log10 factor`` on a log-scale component, multiplied otherwise; a
-    non-positive component is scaled from 1 % of its box's upper end) and
+    component at 0 moves up only, from 1 % of its box's upper end) and
     clipped to its box, the others held; all moves are evaluated as one
     batch; walking out from x, the last move on each side whose cost stays
     within ``allowance`` of x's is the range's end.
@@ -1075,8 +1207,10 @@ def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTER
     -------
     dict
         ``cost`` (x's, pulses^2), ``low_x`` and ``high_x`` (per column the
-        point, shape (k,), at its range's lower and upper end) and ``at_box``
-        (per column: an end on the box).
+        point, shape (k,), at its range's lower and upper end), ``low_open``
+        and ``high_open`` (per column: that end is on the box or the scan's
+        last factor, so the range may go on).  A non-finite cost of x
+        admits no move.
 
     Raises
     ------
@@ -1095,8 +1229,10 @@ def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTER
                 xx = x.copy()
                 if logs:
                     xx[col] = x[col] + math.log10(fk)
-                else:
-                    xx[col] = (x[col] if x[col] > 0 else 0.01 * box[col, 1]) * fk
+                elif x[col] > 0:
+                    xx[col] = x[col] * fk
+                else:  # at 0: up only (the down moves repeat x and are not admitted)
+                    xx[col] = 0.01 * box[col, 1] * fk if fk > 1 else x[col]
                 xx[col] = min(max(xx[col], box[col, 0]), box[col, 1])
                 rows.append(xx)
     X = np.vstack([x[None], np.asarray(rows)])
@@ -1104,23 +1240,25 @@ def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTER
     cost = np.einsum("ij,ij->i", R, R)
     cost = np.where(np.isfinite(cost), cost, np.inf)
     c0 = float(cost[0])
+    limit = c0 + allowance if np.isfinite(c0) else -np.inf
     low_x, high_x = [], []
-    at_box = np.zeros(len(columns), dtype=bool)
+    opened = np.zeros((2, len(columns)), dtype=bool)
     i = 1
-    for c, col in enumerate(columns):
+    for c, (col, logs) in enumerate(zip(columns, log_scale)):
         ends = [x, x]
         for side in (0, 1):
-            going = True
-            for _ in range(fac.size):
-                if going and cost[i] <= c0 + allowance:
+            going = side == 1 or logs or x[col] > 0
+            for step in range(fac.size):
+                if going and cost[i] <= limit:
                     ends[side] = X[i]
-                    at_box[c] |= bool(X[i, col] <= box[col, 0] or X[i, col] >= box[col, 1])
+                    opened[side, c] = bool(step == fac.size - 1 or X[i, col] <= box[col, 0]
+                                           or X[i, col] >= box[col, 1])
                 else:
                     going = False
                 i += 1
         low_x.append(ends[0])
         high_x.append(ends[1])
-    return dict(cost=c0, low_x=low_x, high_x=high_x, at_box=at_box)
+    return dict(cost=c0, low_x=low_x, high_x=high_x, low_open=opened[0], high_open=opened[1])
 
 
 def _rigid_problem(log, space, rigid, workers, gain):
@@ -1307,10 +1445,9 @@ def _flexible_result(rigid, log, fit, model_choice, workers):
     # inertia ranges wider than x2 (ctc.flexible.log_range_scenarios)
     ranges = joint_intervals(log, xs, space, fit["substeps"], workers=workers)
     res["joint_intervals"] = ranges
-    open_ = [n for n in ranges["undetermined"] if not n.startswith("D")]
-    if open_:
-        res["message"] += (f"; the log does not determine {', '.join(open_)} (within the "
-                           "quantisation floor's allowance over x2 or more: joint_intervals)")
+    text = open_joints_text(ranges)
+    if text:
+        res["message"] += "; " + text
     res["model_choice"] = model_choice
     return res
 
