@@ -44,8 +44,9 @@ beyond twice that, hands the arm to that P law for the rest of the run, with a
 :class:`ctc.guard.FollowingErrorWarning` (the model does not fit).  A
 flexible result gives :class:`ArmFlexibleComputedTorque` (the motor-side
 CTC with the spring torque of the identified link model) only when it holds
-a model-error set (stiffness +-30 %, damping x0.5 .. x2) at least as well as
-the rigid-equivalent CTC (:data:`FLEXIBLE_CHECK_SCENARIOS`); its design is
+a model-error set (stiffness +-30 %, damping x0.5 .. x2, and the robots its
+log allows beside the fit) at least as well as the rigid-equivalent CTC
+(:data:`FLEXIBLE_CHECK_SCENARIOS`, :func:`check_scenarios`); its design is
 the robust one, the PUMA path's (:func:`ctc.flexible.select_robust_design`):
 of the default gains and the faster motor loops of
 :data:`ctc.flexible.ROBUST_DESIGNS`, the one with the smallest worst case
@@ -84,7 +85,7 @@ from .guard import FollowingErrorLimit, lost_bound
 
 __all__ = ["ArmComputedTorque", "ArmFlexibleComputedTorque", "ArmCTCParameters", "arm_ctc_law",
            "ArmFlexibleCTCParameters", "arm_flexible_ctc_law", "log_envelope",
-           "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S", "GOAL_PULSES"]
+           "FLEXIBLE_CHECK_SCENARIOS", "FLEXIBLE_CHECK_S", "GOAL_PULSES", "check_scenarios"]
 
 
 def log_envelope(log) -> np.ndarray:
@@ -762,7 +763,10 @@ class ArmComputedTorque:
         identified two-mass arm along the first :data:`FLEXIBLE_CHECK_S`
         seconds of the log's reference (:func:`plant.simulate_closed_loop`)
         over the model-error set :data:`FLEXIBLE_CHECK_SCENARIOS` (stiffness
-        +-30 %, damping x0.5 .. x2).  The flexible design with the smallest
+        +-30 %, damping x0.5 .. x2) and the robots the log allows beside the
+        fit (:func:`check_scenarios`: a joint whose spring or motor its log
+        leaves open, at the ends of its ranges; the returned controller then
+        warns with its worst case over them).  The flexible design with the smallest
         worst error after 0.1 s (minimax over the scenarios that at least
         one controller holds; the first on a tie) is returned when it is no
         worse than the rigid-equivalent CTC's, else the rigid-equivalent
@@ -1343,11 +1347,6 @@ FLEXIBLE_CHECK_S = 3.0
 #: gains first) that holds it on every scenario, without simulating the others.
 GOAL_PULSES = 1
 
-#: The order in which the check runs a design's scenarios: the softer gearbox first (the
-#: scenario loose designs fail, so a design that cannot win stops after one run), the
-#: nominal robot last.
-_CHECK_ORDER = tuple(sorted(range(len(FLEXIBLE_CHECK_SCENARIOS)), key=lambda i: (
-    FLEXIBLE_CHECK_SCENARIOS[i][0] == "nominal", FLEXIBLE_CHECK_SCENARIOS[i][1] >= 1.0)))
 
 
 def _flexible_candidates(result, log, design):
@@ -1442,13 +1441,19 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     nb = result["plant"].base.rank
     nj = result["plant"].n_joints
     row0 = np.asarray(result["plant_row"], dtype=float)
-    n_sc = len(FLEXIBLE_CHECK_SCENARIOS)
+    scenarios = check_scenarios(result, log)
+    n_sc = len(scenarios)
+    # the softer gearbox first (the scenario loose designs fail, so a design that cannot win
+    # stops after one run), the nominal robot last
+    order = sorted(range(n_sc), key=lambda i: (scenarios[i][0] == "nominal",
+                                               float(np.min(scenarios[i][1])) >= 1.0))
 
     fplant = result["flexible_plant"]
-    rows = np.tile(row0, (n_sc, 1))
-    for i, (_, fk, fd) in enumerate(FLEXIBLE_CHECK_SCENARIOS):
+    rows = np.tile(row0, (n_sc, 1))  # [beta (rigid-equivalent), K, D, Ia, b, friction]
+    for i, (_, fk, fd, fi) in enumerate(scenarios):
         rows[i, nb:nb + nj] *= fk
         rows[i, nb + nj:nb + 2 * nj] *= fd
+        rows[i, nb + 2 * nj:nb + 3 * nj] *= fi
     after = np.arange(n) * rig.sample_time_s >= 0.1 - 1e-12  # the samples from 0.1 s on
 
     # a run beyond the following-error limit has lost the arm, as a failed run: both are inf
@@ -1490,7 +1495,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
 
     def check(make, bound=np.inf):
         """(controller or None, errors per scenario): nan where the sequential check would have
-        skipped the run, after the first scenario (in :data:`_CHECK_ORDER`) whose finite
+        skipped the run, after the first scenario (in the check's order) whose finite
         error exceeds ``bound`` (finite: the largest error of a candidate that ran every
         scenario finitely) -- the candidate cannot be the minimax one.  A failed run (inf)
         stops nothing: no controller may run that scenario, and then it does not count."""
@@ -1502,7 +1507,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
         every = scenario_errors(ctrl)
         ctrl.envelope = env
         errs = [np.nan] * n_sc
-        for i in _CHECK_ORDER:
+        for i in order:
             errs[i] = every[i]
             if np.isfinite(errs[i]) and errs[i] > bound:
                 break
@@ -1553,7 +1558,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     def listed(errs):
         return [None if np.isnan(e) else e for e in errs]
 
-    selection = dict(scenarios=[s[0] for s in FLEXIBLE_CHECK_SCENARIOS],
+    selection = dict(scenarios=[s[0] for s in scenarios],
                      flexible=listed(err_f), rigid_equivalent=listed(err_r),
                      check_s=n * rig.sample_time_s, design=name,
                      designs=[dict(name=nm, errors=listed(e), worst=worst[i],
@@ -1564,6 +1569,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
                      worst_rigid_equivalent=w_r)
     if choice == "flexible":
         flex.selection = selection  # the minimax choice
+        _warn_log_corners(scenarios, err_f)
         return flex
     if choice == "nominal":
         # each loses a scenario that counts: the one that holds the nominal robot, said
@@ -1572,6 +1578,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
                       f"is used, which holds the nominal robot and the rigid-equivalent CTC "
                       f"does not", RuntimeWarning, stacklevel=3)
         flex.selection = selection
+        _warn_log_corners(scenarios, err_f)
         return flex
     if rigid is None:
         raise ValueError("neither the flexible nor the rigid-equivalent CTC can be built from "
@@ -1581,4 +1588,64 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
                   f"{', '.join(selection['scenarios'])}, best of {len(runs)} flexible "
                   f"design(s)): the rigid-equivalent CTC is used", RuntimeWarning, stacklevel=3)
     rigid.selection = selection
+    _warn_log_corners(scenarios, err_r)
     return rigid
+
+
+def check_scenarios(result, log):
+    """The model-error set of a flexible arm result's check: the standard set and the log's corners.
+
+    :data:`FLEXIBLE_CHECK_SCENARIOS` (every joint's stiffness and damping
+    scaled), then the robots the log allows beside the fit
+    (``joint_intervals['corners']``,
+    :func:`identification.arm_flexible.arm_joint_intervals`): one joint's
+    stiffness, damping and reflected motor inertia at the ends of ranges the
+    log leaves open, the rigid-equivalent beta held (a heavier motor is a
+    lighter link), as :func:`ctc.flexible.log_range_scenarios` on the PUMA
+    560 path.
+
+    Parameters
+    ----------
+    result : identification.arm.ArmIdentificationResult or dict
+        A flexible arm result.
+    log : plant.logs.arm.ArmLog
+        Its log (the joints' names).
+
+    Returns
+    -------
+    list of (str, ndarray, ndarray, ndarray)
+        Per scenario its name and the per-joint factors of the stiffness,
+        the damping and the reflected motor inertia (shape (n,) each); the
+        nominal robot first.
+    """
+    nj = result["plant"].n_joints
+    one = np.ones(nj)
+    out = [(name, fk * one, fd * one, one.copy()) for name, fk, fd in FLEXIBLE_CHECK_SCENARIOS]
+    m = IdentifiedModel.from_result(result, n_joints=nj)
+    for j, kf, df, jf in m.joint_corners:
+        f = [one.copy() for _ in range(3)]
+        for a, v in zip(f, (kf, df, jf)):
+            a[j] = v
+        what = ", ".join(f"{w} x{v:.3g}" for w, v in (("K", kf), ("D", df), ("Ia", jf))
+                         if abs(v - 1.0) > 1e-9)
+        out.append((f"{log.joint_names[j]} {what} (log range)", *f))
+    return out
+
+
+def _warn_log_corners(scenarios, errors):
+    """Warn with the returned controller's worst case over the robots the log allows."""
+    import warnings
+
+    rows = [(s[0], e) for s, e in zip(scenarios, errors) if s[0].endswith("(log range)")]
+    if not rows:
+        return
+    ran = [e for _, e in rows if np.isfinite(e)]
+    lost = [nm for nm, e in rows if np.isinf(e)]
+    worst = f"tracks within {max(ran):g} pulses at worst" if ran else ""
+    if lost:
+        worst += ("; " if worst else "") + f"loses the arm with {', '.join(lost)}"
+    warnings.warn("the log does not determine every joint parameter this controller uses "
+                  f"(the result's joint_intervals: {len(rows)} robots the log allows beside "
+                  f"the fit checked): over them this controller {worst or 'was not run'} (see "
+                  ".selection); a richer experiment determines them", RuntimeWarning,
+                  stacklevel=4)

@@ -874,7 +874,6 @@ def _build_from_result(result, log, **options):
         return ctrl
     import warnings
 
-
     if robust == "fallback" and not (DESIGN_KEYS & set(options)):
         ctrl, report = select_robust_design(ctrl, d, target, max_current_per_pulse=cap, **options)
     else:

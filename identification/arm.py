@@ -678,8 +678,9 @@ class ArmIdentificationResult(OptimizeResult):
     joint_backlash_rad : list or None
         Its backlash widths (n), None without backlash.
     joint_intervals : dict or None
-        A flexible result's ranges of each joint's K, D and ``Ia`` that
-        predict the log within the floor allowance
+        A flexible result's ranges of each joint's K, D and ``Ia`` whose
+        prediction-error cost stays within a tenth of a quantisation floor of
+        the fit's, with the robots the log allows beside the fit
         (:func:`identification.arm_flexible.arm_joint_intervals`); None for a
         rigid result.
     flexible_plant : plant.simulation.arm.ArmPlant or None
@@ -703,8 +704,9 @@ class ArmIdentificationResult(OptimizeResult):
             ``stage_times_s``, ``flexible_substeps``, ``search_restart`` and the joints
             (``joint_stiffness_Nm_per_rad``, ``joint_damping_Nms_per_rad``,
             ``motor_inertia_reflected_kgm2``, ``joint_backlash_rad``,
-            ``joint_intervals``; None for a rigid result) -- what :func:`identification.arm_payload.prior_from_file`
-            reads back as a payload's prior.
+            ``joint_intervals``; None for a rigid result) -- what
+            :func:`identification.arm_payload.prior_from_file` reads back as a
+            payload's prior.
         """
         def floats(v):
             return [None if not np.isfinite(a) else float(a) for a in np.asarray(v, dtype=float)]
@@ -1772,7 +1774,6 @@ def _flexible_arm_result(rigid, log, space, box, fit, workers, residuals=None):
     if residuals is not None and ok:
         # the joint parameters the log leaves open (identification.flexible.joint_intervals)
         from .arm_flexible import arm_joint_intervals
-
         from .flexible import open_joints_text
 
         ji = arm_joint_intervals(log, x, space, box, residuals)

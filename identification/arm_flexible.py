@@ -630,9 +630,9 @@ def arm_joint_intervals(log, x, space, box, residuals, *, allowance=None):
     ``(ARM_FLOOR_FACTOR - 1)`` quantisation floors -- are the range; the
     combinations of an open joint's range ends that the log allows are its
     ``corners``.  The result names the springs and motors the log leaves
-    open in its ``warnings``; the arm's flexible CTC (:mod:`ctc.arm`) does
-    not yet check its design at the corners (the PUMA 560 path's does,
-    :func:`ctc.flexible.log_range_scenarios`).
+    open in its ``warnings``; the arm's flexible CTC checks its design at
+    the corners (:func:`ctc.arm.check_scenarios`), as the PUMA 560 path's
+    does (:func:`ctc.flexible.log_range_scenarios`).
 
     Parameters
     ----------

@@ -82,11 +82,13 @@ floor with a spring twice as stiff and a motor a quarter as heavy as the
 robot's, while the Gauss-Newton standard errors stay small (they read the
 curvature at the fit, not how far the floor extends).
 :func:`joint_intervals` scans each joint's K, D and ``Jm k^2`` one at a
-time and reports the range within the model choice's floor allowance
-(``result['joint_intervals']``; a range reaching x2 makes the parameter
-*undetermined*, and the result's message names the springs and motors that
-are); the flexible-joint CTC checks its design at the ends of those ranges
-(:func:`ctc.flexible.log_range_scenarios`) and warns with the worst case.
+time and reports the range whose cost stays within a tenth of a
+quantisation floor of the fit's (``result['joint_intervals']``; a range
+reaching x2 makes the parameter *undetermined*, and ``identify`` names the
+springs and motors that are), with the combinations of an open joint's
+range ends that the log allows (``corners``); the flexible-joint CTC checks
+its design at those robots (:func:`ctc.flexible.log_range_scenarios`) and
+warns with its worst case.
 
 Rationale of the ratios, not tuned thresholds: on a log the rigid model
 describes, both models sit at the quantisation floor (ratio ~1; a spring adds
@@ -138,8 +140,8 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "HOP_TOLERANCE",
            "RANDOM_HOP_ROUNDS", "RANDOM_HOP_POINTS", "RANDOM_HOP_STARTS", "RANDOM_HOP_ITER",
            "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR",
-           "joint_intervals", "floor_ranges", "range_record", "scan_joints", "open_joints_text", "INTERVAL_FACTORS", "UNDETERMINED_FACTOR",
-           "JOINT_PARAMETER_NAMES"]
+           "joint_intervals", "floor_ranges", "range_record", "scan_joints", "open_joints_text",
+           "INTERVAL_FACTORS", "UNDETERMINED_FACTOR", "JOINT_PARAMETER_NAMES"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
 MODELS = ("rigid", "flexible", "auto")
@@ -1073,11 +1075,11 @@ def scan_joints(residuals, x, columns, n, box, physical, names, n_residuals, how
         ph = physical(np.asarray(rows))
         for r, j, c in zip(range(len(rows)), what, cost):
             if np.isfinite(c) and c <= scan["cost"] + allow:
-                corners.append(dict(joint=int(j),
-                                    stiffness=float(ph[r, j] / value[j]),
-                                    damping=float(ph[r, n + j] / value[n + j]),
-                                    motor_inertia=float(ph[r, 2 * n + j] / value[2 * n + j]),
-                                    cost_pulses2=float(c)))
+                # factors of the fit's values (a value of 0, a damping on its bound, is kept)
+                f = [ph[r, q * n + j] / value[q * n + j] if value[q * n + j] > 0 else 1.0
+                     for q in range(3)]
+                corners.append(dict(joint=int(j), stiffness=float(f[0]), damping=float(f[1]),
+                                    motor_inertia=float(f[2]), cost_pulses2=float(c)))
     rec["corners"] = corners
     return rec
 

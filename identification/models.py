@@ -12,9 +12,9 @@ the restarts of a failed search), ``viscous_friction_Nms_per_rad`` (2) and ``cou
 ``friction_identified``, and ``model_choice`` (how ``model`` was chosen, see
 :mod:`identification.flexible`; None when it was not a choice), and
 ``joint_intervals`` (a flexible result's ranges of each joint's stiffness, damping
-and reflected motor inertia that predict the log within the quantisation floor's
-allowance, :func:`identification.flexible.joint_intervals`; None for a rigid
-result).
+and reflected motor inertia whose prediction-error cost stays within a tenth of a
+quantisation floor of the fit's, and the robots the log allows beside the fit,
+:func:`identification.flexible.joint_intervals`; None for a rigid result).
 """
 from __future__ import annotations
 

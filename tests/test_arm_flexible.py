@@ -462,6 +462,29 @@ def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
     assert fixed.selection["rigid_equivalent"] == sel["rigid_equivalent"]
 
 
+def test_the_check_runs_the_robots_the_log_allows_and_says_what_they_cost(compliant):
+    """A result whose log leaves a joint open (corners in its joint_intervals, here put in by
+    hand on the committed compliant log's result): the check runs them beside the standard
+    set, the scaled rows are that joint's alone, and the controller warns with its worst case."""
+    from ctc.arm import check_scenarios
+
+    log, _, res = compliant
+    corner = dict(joint=1, stiffness=0.5, damping=0.5, motor_inertia=2.0, cost_pulses2=1.0)
+    opened = res.__class__(dict(res))
+    opened["joint_intervals"] = dict(res["joint_intervals"], corners=[corner])
+    sc = check_scenarios(opened, log)
+    assert [s[0] for s in sc[:5]] == [s[0] for s in check_scenarios(res, log)]
+    name, fk, fd, fi = sc[5]
+    assert name == f"{log.joint_names[1]} K x0.5, D x0.5, Ia x2 (log range)"
+    assert fk.tolist() == [1.0, 0.5] and fd.tolist() == [1.0, 0.5] and fi.tolist() == [1.0, 2.0]
+    with pytest.warns(RuntimeWarning, match="does not determine every joint parameter") as rec:
+        ctrl = ArmComputedTorque.from_result(opened, log)
+    assert ctrl.selection["scenarios"][-1] == name
+    assert any("1 robots the log allows" in str(w.message) for w in rec)
+    # the identified result itself: its log determines both joints, no corner, no warning
+    assert len(check_scenarios(res, log)) == 5 and res["joint_intervals"]["corners"] == []
+
+
 def test_flexible_ctc_rejects_bad_joints(compliant):
     log, _, res = compliant
     kw = dict(stiffness=[1e4, 1e4], damping=[1.0, 1.0], motor_inertia=[0.5, 0.3])
