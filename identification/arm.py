@@ -751,10 +751,14 @@ class ArmIdentificationResult(OptimizeResult):
                                  create_dirs=create_dirs)
 
     def table(self) -> str:
-        """The base parameters with their standard errors, as text (one line each)."""
+        """The base parameters with their standard errors, as text (one line each), and a
+        flexible result's joint ranges (:func:`identification.flexible.joint_range_lines`)."""
         lines = [f"{'param':<8}{'value':>14}{'± std':>12}{'rse %':>9}  expression"]
         for name, v, sd, r, ex in zip(self.names, self.x, self.x_std, self.x_rse, self.expressions):
             lines.append(f"{name:<8}{v:>14.6g}  ± {sd:<8.2g}{100 * r:>8.3g}  {ex}")
+        from .flexible import joint_range_lines
+
+        lines.extend(joint_range_lines(self.get("joint_intervals")))  # a flexible result's
         lines.append(f"prediction-error cost: {self.fun:.6g} pulses^2   output error Y (eq. 4): "
                      f"{self.output_error:.6g} pulses^2")
         lines.append(f"simulations: {self.nfev}   iterations: {self.nit}   wall time: "

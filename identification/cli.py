@@ -281,35 +281,6 @@ def _validate(args) -> None:
         raise CLIError("--prior is only used with --payload")
 
 
-#: Units of the joint parameters' names (``identification.flexible.JOINT_PARAMETER_NAMES``).
-_UNITS = {"Nm_per_rad": "N m/rad", "Nms_per_rad": "N m s/rad", "kgm2": "kg m^2"}
-
-
-def _joint_range_lines(result) -> list:
-    """A flexible result's joints with the ranges the log leaves open (``joint_intervals``)."""
-    ji = result.get("joint_intervals")
-    if not isinstance(ji, dict):
-        return []
-    try:
-        rows = list(zip(ji["names"], ji["value"], ji["low"], ji["high"],
-                        ji.get("low_open") or [False] * len(ji["names"]),
-                        ji.get("high_open") or [False] * len(ji["names"])))
-    except (KeyError, TypeError):
-        return []
-    out = ["joint parameters, with the range that predicts the log as well as the fit "
-           "(< or >: it goes on past the search box or the scan):"]
-    if not ji.get("judged", True):
-        out[0] = ("joint parameters (ranges not judged: the fit does not describe the log):")
-    undetermined = set(ji.get("undetermined") or ())
-    for name, v, lo, hi, lo_open, hi_open in rows:
-        quantity, _, unit = str(name).partition("_")
-        unit = _UNITS.get(unit, unit.replace("_", " "))
-        flag = "   (not determined by this log)" if name in undetermined else ""
-        out.append(f"  {quantity:<8}{v:>12.4g}  [{'<' if lo_open else ''}{lo:.4g} .. "
-                   f"{'>' if hi_open else ''}{hi:.4g}] {unit}{flag}")
-    return out
-
-
 def format_result_table(result, log=None) -> str:
     """The identified f1..f9 with units, and the output error, as text.
 
@@ -342,7 +313,9 @@ def format_result_table(result, log=None) -> str:
     for name, unit, v, sd in zip(F_NAMES, F_UNITS, np.asarray(result["f"], dtype=float), std):
         lines.append(f"{name:<6}{v:>14.6g}" + ("" if sd is None else f"  ± {sd:<8.2g}")
                      + f"  {unit}")
-    lines.extend(_joint_range_lines(result))
+    from .flexible import joint_range_lines
+
+    lines.extend(joint_range_lines(result.get("joint_intervals")))
     payload = result.get("payload")
     if payload:
         for k, v in payload.items():

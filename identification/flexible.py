@@ -141,6 +141,7 @@ __all__ = ["FlexibleParameters", "flexible_substeps", "DEFAULT_BACKLASH_BOUNDS",
            "RANDOM_HOP_ROUNDS", "RANDOM_HOP_POINTS", "RANDOM_HOP_STARTS", "RANDOM_HOP_ITER",
            "RANDOM_HOP_PATIENCE", "RANDOM_HOP_MAX_STEP", "RANDOM_HOP_FLOOR",
            "joint_intervals", "floor_ranges", "range_record", "scan_joints", "open_joints_text",
+           "joint_range_lines",
            "INTERVAL_FACTORS", "UNDETERMINED_FACTOR", "JOINT_PARAMETER_NAMES"]
 
 #: Values of ``identify(model=...)`` and of the CLI's ``--model``.
@@ -1109,6 +1110,66 @@ def open_joints_text(intervals) -> str:
     within = f"within {allow:.4g} pulses^2" if isinstance(allow, (int, float)) else "as well"
     return (f"the log does not determine {', '.join(names)} (values x{UNDETERMINED_FACTOR:g} or "
             f"more from the fit predict it {within} of the fit's cost: joint_intervals)")
+
+
+#: Display units of the joint parameters' name suffixes (:func:`joint_range_lines`).
+_RANGE_UNITS = (("_Nms_per_rad", "N m s/rad"), ("_Nm_per_rad", "N m/rad"), ("_kgm2", "kg m^2"))
+
+
+def joint_range_lines(intervals) -> list:
+    """A result's ``joint_intervals`` as text lines: each joint parameter, its range, its flag.
+
+    The CLI's result table (:func:`identification.cli.format_result_table`)
+    and an arm result's :meth:`identification.arm.ArmIdentificationResult.table`
+    print them.
+
+    Parameters
+    ----------
+    intervals : dict or None
+        :func:`range_record`'s (``names``, ``value``, ``low``, ``high``,
+        ``low_open``, ``high_open``, ``undetermined``, ``judged``).
+
+    Returns
+    -------
+    list of str
+        A header and one line per parameter, e.g. ``"  K3  1.499e+05
+        [7.493e+04 .. >1.995e+05] N m/rad   (not determined by this log)"``
+        (``<`` / ``>``: the range goes on past the search box or the scan);
+        empty for None or a malformed record.
+    """
+    if not isinstance(intervals, dict):
+        return []
+    try:
+        names = list(intervals["names"])
+        rows = list(zip(names, intervals["value"], intervals["low"], intervals["high"],
+                        intervals.get("low_open") or [False] * len(names),
+                        intervals.get("high_open") or [False] * len(names)))
+    except (KeyError, TypeError):
+        return []
+    head = ("joint parameters, with the range that predicts the log as well as the fit "
+            "(< or >: it goes on past the search box or the scan):")
+    if not intervals.get("judged", True):
+        head = "joint parameters (ranges not judged: the fit does not describe the log):"
+    out = [head]
+    undetermined = set(intervals.get("undetermined") or ())
+
+    def split(name):  # "K3_Nm_per_rad" -> ("K3", "N m/rad")
+        for suffix, shown in _RANGE_UNITS:
+            if name.endswith(suffix):
+                return name[:-len(suffix)], shown
+        return name, ""
+
+    width = max([8] + [len(split(str(n))[0]) + 1 for n in names])
+    for name, v, lo, hi, lo_open, hi_open in rows:
+        quantity, unit = split(str(name))
+        flag = "   (not determined by this log)" if name in undetermined else ""
+        try:
+            out.append(f"  {quantity:<{width}}{float(v):>12.4g}  "
+                       f"[{'<' if lo_open else ''}{float(lo):.4g} .. "
+                       f"{'>' if hi_open else ''}{float(hi):.4g}] {unit}{flag}")
+        except (TypeError, ValueError):
+            return []
+    return out
 
 
 def _reaches(factor) -> bool:

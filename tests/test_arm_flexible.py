@@ -117,6 +117,11 @@ def test_identify_compliant_arm_with_backlash(compliant):
     ji = d["joint_intervals"]
     assert len(ji["names"]) == 6 and ji["names"][0] == f"K_{log.joint_names[0]}_Nm_per_rad"
     assert not [n for n in ji["undetermined"] if not n.startswith("D_")]
+    table = res.table().splitlines()  # the ranges in the result's table, none flagged
+    i = table.index(next(ln for ln in table if ln.startswith("joint parameters")))
+    assert [ln.split()[0] for ln in table[i + 1:i + 7]] == [
+        f"{q}_{j}" for q in ("K", "D", "Ia") for j in log.joint_names]
+    assert not any("not determined" in ln for ln in table[i + 1:i + 7] if " D_" not in ln)
     truth_k_ia = list(s["stiffness"]) + list(truth["motor_inertia_reflected_kgm2"])
     for p, t in zip((0, 1, 4, 5), truth_k_ia):
         assert ji["low"][p] / 1.25 <= t <= ji["high"][p] * 1.25, (ji["names"][p], t)

@@ -109,6 +109,13 @@ def test_a_spring_and_motor_the_log_leaves_open_are_flagged_and_checked(tmp_path
     assert {"K3_Nm_per_rad", "Jm3k3^2_kgm2"} <= set(ji["undetermined"])
     assert not {"K2_Nm_per_rad", "Jm2k2^2_kgm2"} & set(ji["undetermined"])
     assert "does not determine K3_Nm_per_rad" in res["message"]
+    # the CLI's table lists every joint parameter with its range, flagging the open ones
+    from identification.cli import format_result_table
+
+    rows = {ln.split()[0]: ln for ln in format_result_table(res, log).splitlines()
+            if ln.startswith("  ")}
+    assert "(not determined by this log)" in rows["K3"] and "(not determined" not in rows["K2"]
+    assert rows["Jm3k3^2"].endswith("kg m^2   (not determined by this log)")
     # the truth lies in the ranges of the open parameters (at the scan's x1.25 resolution),
     # where the fit itself does not
     truth = _truth_joints(stem)
