@@ -1119,9 +1119,8 @@ _RANGE_UNITS = (("_Nms_per_rad", "N m s/rad"), ("_Nm_per_rad", "N m/rad"), ("_kg
 def joint_range_lines(intervals) -> list:
     """A result's ``joint_intervals`` as text lines: each joint parameter, its range, its flag.
 
-    The CLI's result table (:func:`identification.cli.format_result_table`)
-    and an arm result's :meth:`identification.arm.ArmIdentificationResult.table`
-    print them.
+    The CLI's result table (``python -m identification``) and an arm
+    result's ``table()`` print them.
 
     Parameters
     ----------
