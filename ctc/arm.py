@@ -1622,30 +1622,19 @@ def check_scenarios(result, log):
     one = np.ones(nj)
     out = [(name, fk * one, fd * one, one.copy()) for name, fk, fd in FLEXIBLE_CHECK_SCENARIOS]
     m = IdentifiedModel.from_result(result, n_joints=nj)
-    for j, kf, df, jf in m.joint_corners:
-        f = [one.copy() for _ in range(3)]
-        for a, v in zip(f, (kf, df, jf)):
-            a[j] = v
-        what = ", ".join(f"{w} x{v:.3g}" for w, v in (("K", kf), ("D", df), ("Ia", jf))
-                         if abs(v - 1.0) > 1e-9)
-        out.append((f"{log.joint_names[j]} {what} (log range)", *f))
-    return out
+    return out + m.corner_scenarios(log.joint_names)
 
 
 def _warn_log_corners(scenarios, errors):
     """Warn with the returned controller's worst case over the robots the log allows."""
     import warnings
 
-    rows = [(s[0], e) for s, e in zip(scenarios, errors) if s[0].endswith("(log range)")]
+    from .contract import LOG_RANGE, log_range_warning
+
+    rows = [(s[0], e) for s, e in zip(scenarios, errors) if s[0].endswith(LOG_RANGE)]
     if not rows:
         return
     ran = [e for _, e in rows if np.isfinite(e)]
-    lost = [nm for nm, e in rows if np.isinf(e)]
-    worst = f"tracks within {max(ran):g} pulses at worst" if ran else ""
-    if lost:
-        worst += ("; " if worst else "") + f"loses the arm with {', '.join(lost)}"
-    warnings.warn("the log does not determine every joint parameter this controller uses "
-                  f"(the result's joint_intervals: {len(rows)} robots the log allows beside "
-                  f"the fit checked): over them this controller {worst or 'was not run'} (see "
-                  ".selection); a richer experiment determines them", RuntimeWarning,
-                  stacklevel=4)
+    warnings.warn(log_range_warning(f"{max(ran):g}" if ran else None,
+                                    [nm for nm, e in rows if np.isinf(e)], len(rows),
+                                    ".selection"), RuntimeWarning, stacklevel=4)

@@ -29,7 +29,7 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["IdentifiedModel", "JOINT_KEYS"]
+__all__ = ["IdentifiedModel", "JOINT_KEYS", "LOG_RANGE", "log_range_warning"]
 
 #: The joints of a flexible result: result key -> :class:`IdentifiedModel` field.
 JOINT_KEYS = (
@@ -89,6 +89,33 @@ class IdentifiedModel:
     coulomb_friction_Nm: Optional[np.ndarray] = None
     adequate: Optional[bool] = None
     joint_corners: tuple = ()
+
+    def corner_scenarios(self, joint_names):
+        """The robots the log allows beside the fit as per-joint factors, one joint changed.
+
+        Parameters
+        ----------
+        joint_names : sequence of str
+            The joints' names for the labels (n).
+
+        Returns
+        -------
+        list of (str, ndarray, ndarray, ndarray)
+            Per corner of :attr:`joint_corners` its label (e.g. ``"joint 3 K
+            x0.5, Jm k^2 x4 (log range)"``, ending in :data:`LOG_RANGE`) and
+            the factors of the stiffness, the damping and the reflected motor
+            inertia, shape (n,) each; empty without corners.
+        """
+        n = len(joint_names)
+        out = []
+        for j, *f in self.joint_corners:
+            vec = [np.ones(n) for _ in f]
+            for a, v in zip(vec, f):
+                a[j] = v
+            what = ", ".join(f"{w} x{v:.3g}" for w, v in zip(("K", "D", "Jm k^2"), f)
+                             if abs(v - 1.0) > 1e-9)
+            out.append((f"{joint_names[j]} {what}{LOG_RANGE}", *vec))
+        return out
 
     @property
     def flexible(self) -> bool:
@@ -224,6 +251,39 @@ class IdentifiedModel:
             fields["joint_corners"] = _joint_corners(d.get("joint_intervals"), n)
         return cls(f=f, model=model, adequate=None if adequate is None else bool(adequate),
                    **fields)
+
+
+#: The end of a robustness scenario's name that is a robot the log allows beside the fit
+#: (:meth:`IdentifiedModel.corner_scenarios`).
+LOG_RANGE = " (log range)"
+
+
+def log_range_warning(worst, lost, n_checked, where) -> str:
+    """The warning of a controller built on a result whose log leaves joints open.
+
+    Parameters
+    ----------
+    worst : list or float or None
+        The controller's largest tracking error (pulses) over the corners it ran
+        (None: it ran none to the end).
+    lost : list of str
+        The corners on which it lost the arm.
+    n_checked : int
+        Corners checked.
+    where : str
+        The controller's attribute holding the report (``".robustness"``).
+
+    Returns
+    -------
+    str
+    """
+    said = f"tracks within {worst} pulses at worst" if worst is not None else ""
+    if lost:
+        said += ("; " if said else "") + f"loses the arm with {', '.join(lost)}"
+    return ("the log does not determine every joint parameter this controller uses (the "
+            f"result's joint_intervals: {n_checked} robots the log allows beside the fit "
+            f"checked): over them this controller {said or 'was not run'} (see {where}); a "
+            "richer experiment determines them")
 
 
 def _joint_corners(intervals, n) -> tuple:

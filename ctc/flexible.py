@@ -833,19 +833,16 @@ def _warn_log_ranges(report, model):
     robots the log allows (its report ``report``)."""
     import warnings
 
+    from .contract import log_range_warning
+
     names = {sc["name"] for sc in log_range_scenarios(model)}
     rows = [sc for sc in report["scenarios"] if sc["name"] in names]
     if not rows:
         return
-    lost = [sc["name"] for sc in rows if not sc["completed"]]
     kept = [sc["max_abs_e"] for sc in rows if sc["completed"]]
-    worst = (f"tracks within {np.max(kept, axis=0).tolist()} pulses at worst" if kept else "")
-    if lost:
-        worst += ("; " if worst else "") + f"loses the arm with {', '.join(lost)}"
-    warnings.warn("the log does not determine every joint parameter this controller uses "
-                  f"(the result's joint_intervals: {len(rows)} robots the log allows beside "
-                  f"the fit checked): over them this controller {worst} (see .robustness); a "
-                  "richer experiment determines them", RuntimeWarning, stacklevel=4)
+    warnings.warn(log_range_warning(np.max(kept, axis=0).tolist() if kept else None,
+                                    [sc["name"] for sc in rows if not sc["completed"]],
+                                    len(rows), ".robustness"), RuntimeWarning, stacklevel=4)
 
 
 def _build_from_result(result, log, **options):
@@ -1196,18 +1193,9 @@ def log_range_scenarios(model):
         empty when the result records no corner.
     """
     d = IdentifiedModel.from_result(model)
-    n = 2 if d.stiffness_Nm_per_rad is None else len(d.stiffness_Nm_per_rad)
-    out = []
-    for j, kf, df, jf in d.joint_corners:
-        sc = {}
-        for key, v in (("stiffness", kf), ("damping", df), ("motor_inertia", jf)):
-            a = np.ones(n)
-            a[j] = v
-            sc[key] = a.tolist()
-        what = ", ".join(f"{w} x{v:.3g}" for w, v in (("K", kf), ("D", df), ("Jm k^2", jf))
-                         if abs(v - 1.0) > 1e-9)
-        out.append(dict(name=f"joint {j + 2} {what} (log range)", **sc))
-    return tuple(out)
+    return tuple(dict(name=name, stiffness=k.tolist(), damping=dd.tolist(),
+                      motor_inertia=jm.tolist())
+                 for name, k, dd, jm in d.corner_scenarios(("joint 2", "joint 3")))
 
 
 def robustness_check(ctrl, result, log, *, scenarios=None, substeps=8, duration_s=1.0):

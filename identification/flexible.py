@@ -1284,43 +1284,42 @@ def floor_ranges(residuals, x, columns, log_scale, box, allowance, factors=INTER
         raise ValueError(f"factors must be increasing numbers > 1, got {factors!r}")
     x = np.asarray(x, dtype=float)
     box = np.asarray(box, dtype=float)
-    rows = []
+    rows = [x]
+    walks = []  # per column, per side (down, up): the rows of its moves, nearest first
     for col, logs in zip(columns, log_scale):
-        for fs in (fac ** -1, fac):  # down, then up, nearest first
-            for fk in fs:
-                xx = x.copy()
-                if logs:
-                    xx[col] = x[col] + math.log10(fk)
-                elif x[col] > 0:
-                    xx[col] = x[col] * fk
-                else:  # at 0: up only (the down moves repeat x and are not admitted)
-                    xx[col] = 0.01 * box[col, 1] * fk if fk > 1 else x[col]
-                xx[col] = min(max(xx[col], box[col, 0]), box[col, 1])
-                rows.append(xx)
-    X = np.vstack([x[None], np.asarray(rows)])
+        sides = []
+        for side, fs in ((0, fac ** -1), (1, fac)):
+            idx = []
+            if side == 1 or logs or x[col] > 0:  # a component at 0 moves up only
+                for fk in fs:
+                    xx = x.copy()
+                    if logs:
+                        xx[col] = x[col] + math.log10(fk)
+                    else:
+                        xx[col] = (x[col] if x[col] > 0 else 0.01 * box[col, 1]) * fk
+                    xx[col] = min(max(xx[col], box[col, 0]), box[col, 1])
+                    idx.append(len(rows))
+                    rows.append(xx)
+            sides.append(idx)
+        walks.append(sides)
+    X = np.asarray(rows)
     R = np.asarray(residuals(X), dtype=float)
     cost = np.einsum("ij,ij->i", R, R)
     cost = np.where(np.isfinite(cost), cost, np.inf)
     c0 = float(cost[0])
     limit = c0 + allowance if np.isfinite(c0) else -np.inf
-    low_x, high_x = [], []
+    ends = [[x, x] for _ in columns]
     opened = np.zeros((2, len(columns)), dtype=bool)
-    i = 1
-    for c, (col, logs) in enumerate(zip(columns, log_scale)):
-        ends = [x, x]
-        for side in (0, 1):
-            going = side == 1 or logs or x[col] > 0
-            for step in range(fac.size):
-                if going and cost[i] <= limit:
-                    ends[side] = X[i]
-                    opened[side, c] = bool(step == fac.size - 1 or X[i, col] <= box[col, 0]
-                                           or X[i, col] >= box[col, 1])
-                else:
-                    going = False
-                i += 1
-        low_x.append(ends[0])
-        high_x.append(ends[1])
-    return dict(cost=c0, low_x=low_x, high_x=high_x, low_open=opened[0], high_open=opened[1])
+    for c, col in enumerate(columns):
+        for side, idx in enumerate(walks[c]):
+            for step, i in enumerate(idx):
+                if cost[i] > limit:
+                    break  # the walk ends at the first move beyond the allowance
+                ends[c][side] = X[i]
+                opened[side, c] = bool(step == fac.size - 1 or X[i, col] <= box[col, 0]
+                                       or X[i, col] >= box[col, 1])
+    return dict(cost=c0, low_x=[e[0] for e in ends], high_x=[e[1] for e in ends],
+                low_open=opened[0], high_open=opened[1])
 
 
 def _rigid_problem(log, space, rigid, workers, gain):

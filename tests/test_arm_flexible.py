@@ -480,7 +480,7 @@ def test_the_check_runs_the_robots_the_log_allows_and_says_what_they_cost(compli
     sc = check_scenarios(opened, log)
     assert [s[0] for s in sc[:5]] == [s[0] for s in check_scenarios(res, log)]
     name, fk, fd, fi = sc[5]
-    assert name == f"{log.joint_names[1]} K x0.5, D x0.5, Ia x2 (log range)"
+    assert name == f"{log.joint_names[1]} K x0.5, D x0.5, Jm k^2 x2 (log range)"
     assert fk.tolist() == [1.0, 0.5] and fd.tolist() == [1.0, 0.5] and fi.tolist() == [1.0, 2.0]
     with pytest.warns(RuntimeWarning, match="does not determine every joint parameter") as rec:
         ctrl = ArmComputedTorque.from_result(opened, log)
