@@ -12,13 +12,20 @@ flick between the full-scale limits from sample to sample.
 ``max_current_per_pulse=`` (a fraction of full scale) caps that step for
 the faster candidates.
 
+The robust design is the minimax one at the encoder's resolution: of the
+candidates whose worst case is within one pulse
+(:data:`ctc.flexible.DESIGN_TIE_PULSES`) of the smallest, the one with the
+smallest current step (:func:`ctc.flexible.tied_choice`).
+
 This script measures that on cases of the changes benchmark
 (``bench_changes.py``; its cache of logs and priors), on the INDEPENDENT
 simulator: per case, the CTC that switches to the true payload at the
 change (the benchmark's oracle; no payload change: the static CTC) built
 by ``from_result`` (the robust design), by ``from_result`` with
-``max_current_per_pulse=--cap`` and with the default gains
-(``robust=None``), each reporting
+``max_current_per_pulse=--cap``, with the default gains
+(``robust=None``) and by the strict minimax (``tie 0``: the robust design
+with :func:`ctc.flexible.select_robust_design`'s ``tie_pulses=0``, the
+rule before the resolution), as ``--designs`` chooses, each reporting
 
 * the current step for one pulse (A per joint,
   :func:`ctc.protocol.current_per_pulse`),
@@ -30,6 +37,10 @@ by ``from_result`` (the robust design), by ``from_result`` with
 Run (about 2 min per case)::
 
     python benchmarks/bench_design_current.py --seed 20261130 --cases 1,2,8,16
+    python benchmarks/bench_design_current.py --seed 20261328 --designs from_result,tie0 \
+        --cases 6,16,17,29,31,37,50,55,57,58,66,68 --jobs 2
+
+Cases with a rigid prior are skipped (the designs are the flexible-joint CTC's).
 """
 from __future__ import annotations
 
@@ -51,8 +62,29 @@ import bench_robustness as br  # noqa: E402
 import independent_robot as ir  # noqa: E402
 
 
-def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.1) -> list[dict]:
-    """The three designs' runs on case ``index`` (one dict each)."""
+#: The designs ``--designs`` can name, in the order they are printed.
+DESIGNS = ("from_result", "cap", "default", "tie0")
+
+
+def _strict_minimax(prior, log):
+    """``from_result``'s robust design by the strict minimax (``tie_pulses=0``), or None for
+    a rigid prior."""
+    from ctc.contract import IdentifiedModel
+    from ctc.flexible import FlexibleJointComputedTorqueController, select_robust_design
+
+    d = IdentifiedModel.from_result(prior)
+    if not d.flexible:
+        return None
+    rig = d.rig(log.rig)
+    target = log if rig is log.rig else log.replace(rig=rig)
+    first = FlexibleJointComputedTorqueController.from_log(d.f, target, **d.joints())
+    return select_robust_design(first, d, target, tie_pulses=0)[0]
+
+
+def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.1,
+             designs=("from_result", "cap", "default")) -> list[dict]:
+    """The chosen designs' runs on case ``index`` (one dict each; none for a rigid prior
+    when ``tie0`` is among them)."""
     import ctc
     import plant
     from ctc.protocol import current_per_pulse
@@ -69,11 +101,20 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.
     k_after = int(math.ceil((ch["times_s"][-1] + 0.5) / ts))
     fs = float(s.current_full_scale_A)
     rows = []
-    for design, options in (("from_result", {}), (f"cap {cap:g}", dict(max_current_per_pulse=cap)),
-                            ("default gains", dict(robust=None))):
+    label = {"from_result": "from_result", "cap": f"cap {cap:g}", "default": "default gains",
+             "tie0": "tie 0"}
+    options = {"from_result": {}, "cap": dict(max_current_per_pulse=cap),
+               "default": dict(robust=None)}
+    for key in (k for k in DESIGNS if k in designs):
+        design = label[key]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            inner = ctc.ComputedTorqueController.from_result(prior, log, **options)
+            if key == "tie0":
+                inner = _strict_minimax(prior, log)
+                if inner is None:
+                    return []  # a rigid prior: no flexible design to compare
+            else:
+                inner = ctc.ComputedTorqueController.from_result(prior, log, **options[key])
             step = current_per_pulse(inner, log)
             run = ir.IndependentRobot(s).run(bc.oracle_of(inner, s, ch, changes), log.trajectory,
                                              log.n_total,
@@ -92,6 +133,22 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.
     return rows
 
 
+def _job(args):
+    seed, index, out, robust_out, cap, designs = args
+    return run_case(seed, index, out, robust_out, cap, designs)
+
+
+def _print_rows(rows):
+    for r in rows:
+        if r["controller"] != "FlexibleJointComputedTorqueController":
+            r["design"] += " (rigid CTC)"
+        print(f"{r['index']:5d} {r['kind']:9} {str(r['ppr']):>11} {r['design']:17} "
+              f"{str(r['bandwidth_hz']):>13} {str(r['current_per_pulse_A']):>13} "
+              f"{str(r['max_e_after']):>13} "
+              f"{str(r['saturated']) + '/' + str(r['n']):>15} {str(r['chatter_A']):>14}",
+              flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, required=True, help="the changes benchmark's seed")
@@ -102,24 +159,34 @@ def main(argv=None) -> int:
                     help="the robustness suite's cache (logs and default identifications)")
     ap.add_argument("--cap", type=float, default=0.1,
                     help="max_current_per_pulse of the capped design (fraction of full scale)")
+    ap.add_argument("--designs", type=str, default="from_result,cap,default",
+                    help=f"comma-separated designs to run, of {', '.join(DESIGNS)} "
+                         "(tie0: the strict minimax)")
+    ap.add_argument("--jobs", type=int, default=1, help="cases run at once (processes)")
     a = ap.parse_args(argv)
     if not a.cap > 0:
         ap.error("--cap must be > 0")
+    if a.jobs < 1:
+        ap.error("--jobs must be >= 1")
     try:
         cases = [int(c) for c in a.cases.split(",")]
     except ValueError:
         ap.error(f"--cases must be comma-separated integers, got {a.cases!r}")
+    designs = tuple(d.strip() for d in a.designs.split(",") if d.strip())
+    if not designs or not set(designs) <= set(DESIGNS):
+        ap.error(f"--designs must name some of {', '.join(DESIGNS)}, got {a.designs!r}")
     print(f"{'case':>5} {'change':9} {'ppr':>11} {'design':17} {'bandwidth Hz':>13} "
           f"{'A per pulse':>13} {'max|e| after':>13} {'at full scale':>15} {'chatter A rms':>14}")
-    for index in cases:
-        for r in run_case(a.seed, index, a.out, a.robust_out, a.cap):
-            if r["controller"] != "FlexibleJointComputedTorqueController":
-                r["design"] += " (rigid CTC)"
-            print(f"{r['index']:5d} {r['kind']:9} {str(r['ppr']):>11} {r['design']:17} "
-                  f"{str(r['bandwidth_hz']):>13} {str(r['current_per_pulse_A']):>13} "
-                  f"{str(r['max_e_after']):>13} "
-                  f"{str(r['saturated']) + '/' + str(r['n']):>15} {str(r['chatter_A']):>14}",
-                  flush=True)
+    jobs = [(a.seed, index, a.out, a.robust_out, a.cap, designs) for index in cases]
+    if a.jobs == 1:
+        for job in jobs:
+            _print_rows(_job(job))
+        return 0
+    import multiprocessing as mp
+
+    with mp.get_context("spawn").Pool(min(a.jobs, len(jobs))) as pool:
+        for rows in pool.imap(_job, jobs):  # in case order, each printed once it is in
+            _print_rows(rows)
     return 0
 
 

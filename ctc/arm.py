@@ -768,8 +768,11 @@ class ArmComputedTorque:
         leaves open, at the ends of its ranges; the returned controller then
         warns with its worst case over them).  The flexible design with the smallest
         worst error after 0.1 s (minimax over the scenarios that at least
-        one controller holds; the first on a tie) is returned when it is no
-        worse than the rigid-equivalent CTC's, else the rigid-equivalent
+        one controller holds) is returned when it is no
+        worse than the rigid-equivalent CTC's -- or, of the designs within
+        :data:`ctc.flexible.DESIGN_TIE_PULSES` of it, the one with the
+        smallest current step for one pulse (:func:`ctc.flexible.tied_choice`,
+        as on the PUMA 560 path) -- else the rigid-equivalent
         CTC with a ``RuntimeWarning``.  A run that fails, or goes beyond
         the following-error limit on some joint
         (:func:`ctc.guard.lost_bound`: it has lost the arm), counts as an
@@ -778,16 +781,18 @@ class ArmComputedTorque:
         that holds the nominal robot is returned, with a
         ``RuntimeWarning``, if the rigid-equivalent CTC does not hold it.
         A design stops being simulated as
-        soon as one scenario's error exceeds the largest error of a
-        controller that ran them all (it can no longer be the minimax one).
+        soon as one scenario's error exceeds, by more than that resolution,
+        the largest error of a controller that ran them all (it can no
+        longer be the minimax one nor tied with it).
         The returned controller's ``selection`` holds the errors: per
         scenario ``flexible`` (of the chosen flexible design, ``design``)
         and ``rigid_equivalent``, ``designs`` (each flexible design's
         ``name``, ``errors``, ``worst``; None for a scenario not run),
         ``counted``, ``worst_flexible``, ``worst_rigid_equivalent``,
         ``check_s``, ``held_back`` (the faster designs the current cap kept
-        out, each with its ``current_per_pulse_A``) and
-        ``current_per_pulse_limit_A``.  Safety first: a flexible design that does not
+        out, each with its ``current_per_pulse_A``),
+        ``current_per_pulse_limit_A`` and ``tied`` (when designs were tied,
+        each one's ``name``, ``worst`` and ``current_per_pulse_A``).  Safety first: a flexible design that does not
         tolerate the identified robot's likely errors is used only when the
         rigid-equivalent CTC loses the nominal robot and the design holds it
         (with a warning).
@@ -1366,6 +1371,49 @@ def _flexible_candidates(result, log, design):
         result, log, **extra, **design)) for name, extra in out]
 
 
+def _tied_design(runs, worst, counted, best, log):
+    """The flexible design kept among those the minimax rule cannot tell apart.
+
+    The designs that ran every counted scenario with a worst case within
+    :data:`ctc.flexible.DESIGN_TIE_PULSES` of the best one's are one at the
+    encoder's resolution; the one with the smallest current step for one pulse
+    (:func:`ctc.protocol.current_per_pulse`) is kept, as on the PUMA 560 path
+    (:func:`ctc.flexible.tied_choice`).
+
+    Parameters
+    ----------
+    runs : list of (str, controller or None, list of float)
+        The flexible designs of :func:`_checked_flexible`: name, controller, errors per scenario.
+    worst : list of float
+        Their worst cases (and the rigid-equivalent CTC's, last), from :func:`_minimax_choice`.
+    counted : ndarray of bool, shape (n_scenarios,)
+        The scenarios that count.
+    best : int
+        The minimax design.
+    log : plant.logs.arm_log.ArmLog
+        Rig and reference (the current step is measured on them).
+
+    Returns
+    -------
+    (int, list of dict)
+        The design kept and, when more than one was tied, each tied design's
+        ``name``, ``worst`` and ``current_per_pulse_A``.
+    """
+    from .flexible import DESIGN_TIE_PULSES, tied_choice
+    from .protocol import current_per_pulse
+
+    tied = [i for i, (_, c, e) in enumerate(runs)
+            if c is not None and len(e) and np.isfinite(worst[i])
+            and worst[i] <= worst[best] + DESIGN_TIE_PULSES
+            and not np.any(np.isnan(np.asarray(e, dtype=float)[counted]))]
+    if best not in tied or len(tied) < 2:
+        return best, []
+    steps = [current_per_pulse(runs[i][1], log) for i in tied]
+    kept = tied[tied_choice([worst[i] for i in tied], steps)]
+    return kept, [dict(name=runs[i][0], worst=worst[i], current_per_pulse_A=np.round(st, 4).tolist())
+                  for i, st in zip(tied, steps)]
+
+
 def _minimax_choice(flexible, rigid, n_scenarios):
     """The rule of :func:`_checked_flexible`: which controller its scenario errors pick.
 
@@ -1519,7 +1567,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
                                                        k: v for k, v in design.items()
                                                        if k not in ("link_substeps",
                                                                     "link_damping")}))
-    from .flexible import current_step_limit
+    from .flexible import DESIGN_TIE_PULSES, current_step_limit
     from .protocol import current_per_pulse
 
     step_limit = current_step_limit(rig, max_current_per_pulse)
@@ -1543,7 +1591,9 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
         done = [e for _, c, e in runs if c is not None and len(e) and np.all(np.isfinite(e))]
         if len(err_r) and np.all(np.isfinite(err_r)):
             done.append(err_r)
-        ctrl, errs = check(make, min((max(e) for e in done), default=np.inf))
+        # a design within the selection's resolution of the best so far runs every scenario
+        # (:func:`_tied_design` may keep it for its smaller current step)
+        ctrl, errs = check(make, min((max(e) for e in done), default=np.inf) + DESIGN_TIE_PULSES)
         runs.append((name, ctrl, errs))
         if ctrl is not None and len(errs) and np.all(np.isfinite(errs)) and max(errs) <= GOAL_PULSES:
             break  # this design holds the tracking goal over the whole set: none can do better
@@ -1552,6 +1602,9 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     # scenario has an infinite worst case; a skipped scenario is no failure (the candidate
     # already exceeded a finite worst case elsewhere)
     best, choice, worst, counted = _minimax_choice([r[2] for r in runs], err_r, n_sc)
+    tied = []
+    if choice == "flexible":
+        best, tied = _tied_design(runs, worst, counted, best, log)
     name, flex, err_f = runs[best]
     w_f, w_r = worst[best], worst[-1]
 
@@ -1564,7 +1617,7 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
                      designs=[dict(name=nm, errors=listed(e), worst=worst[i],
                                    built=c is not None)
                               for i, (nm, c, e) in enumerate(runs)],
-                     held_back=held_back, current_per_pulse_limit_A=step_limit)
+                     held_back=held_back, current_per_pulse_limit_A=step_limit, tied=tied)
     selection.update(counted=[bool(c) for c in counted], worst_flexible=w_f,
                      worst_rigid_equivalent=w_r)
     if choice == "flexible":

@@ -120,6 +120,7 @@ __all__ = ["FlexibleJointComputedTorqueController", "controller_from_result", "l
            "robustness_check", "ROBUSTNESS_SCENARIOS", "ROBUST_DESIGNS", "FALLBACK_P_FRACTION",
            "log_range_scenarios",
            "robust_design_gains", "robust_design_options", "select_robust_design",
+           "tied_choice", "DESIGN_TIE_PULSES",
            "MAX_BANDWIDTH_FRACTION", "current_step_limit", "INTEGRAL_FRACTION",
            "MAX_ESTIMATOR_FRACTION", "DESIGN_KEYS",
            "FlexibleCTCParameters", "FlexibleCTCLaw", "FlexibleCTCLawKind", "flexible_ctc_law",
@@ -781,7 +782,10 @@ def controller_from_result(result, log, **options):
         :func:`robust_design_options` (the faster motor loops of
         :data:`ROBUST_DESIGNS`, each without and with integral action, and the
         default gains with it) on the same set and
-        keeps the one with the smallest worst case; when that one does not
+        keeps the one with the smallest worst case -- at the encoder's
+        resolution: of the designs within :data:`DESIGN_TIE_PULSES` of it,
+        the one with the smallest current step for one pulse
+        (:func:`select_robust_design`, :func:`tied_choice`); when that one does not
         hold the bound either, it checks the rigid-equivalent CTC and returns
         the one with the smaller worst case (minimax), with a warning -- unless
         the rigid CTC cannot track the identified robot itself (nominal error,
@@ -918,7 +922,14 @@ def _build_from_result(result, log, **options):
     return chosen
 
 
-def select_robust_design(first, model, log, *, max_current_per_pulse=None, **options):
+#: Worst cases (pulses, :func:`robustness_check`) within this many pulses of the smallest
+#: are one at the encoder's resolution: :func:`select_robust_design` keeps the design among
+#: them that commands the smallest current step for one pulse (:func:`tied_choice`).
+DESIGN_TIE_PULSES = 1
+
+
+def select_robust_design(first, model, log, *, max_current_per_pulse=None,
+                         tie_pulses=DESIGN_TIE_PULSES, **options):
     """The robust flexible-joint CTC design: the smallest worst case over the model-error set.
 
     The first design and each of :func:`robust_design_options` (the faster
@@ -931,8 +942,16 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None, **opt
     every candidate is -- see :func:`controller_from_result` for what the
     cap costs).  The admissible candidates run
     :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` and the robots
-    the log allows (:func:`log_range_scenarios`), and the one with the
-    smallest worst case is kept (minimax; the first design on a tie).
+    the log allows (:func:`log_range_scenarios`).  The kept design is the
+    minimax one at the encoder's resolution: among the candidates that hold
+    the set with a worst case within :data:`DESIGN_TIE_PULSES` of the
+    smallest, the one with the smallest current step (compared joint by
+    joint from the largest step down; then the smaller worst case, then the
+    first).  A worst case one pulse larger
+    is one more count of quantisation flicker in a simulated run, while a
+    faster loop's larger current step is paid on every sample: on coarse
+    encoders the fastest candidates turn the drive into a relay that sits at
+    full scale on most samples (:func:`ctc.protocol.current_per_pulse`).
     Stability comes before the current's chatter: when no admissible
     candidate holds the set, the others are checked in the order of their
     current step and the first that holds it is kept.  Each checked
@@ -950,6 +969,10 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None, **opt
     max_current_per_pulse : float or None
         Cap of a faster candidate's one-pulse current step, as a fraction of
         the drive's full scale (> 0); None: no cap.
+    tie_pulses : float
+        The selection's resolution (pulses, >= 0; default
+        :data:`DESIGN_TIE_PULSES`); 0 is the strict minimax, the current
+        step deciding only equal worst cases.
     **options
         Further keyword arguments of :meth:`FlexibleJointComputedTorqueController.from_log`
         (``trajectory``, ``link_substeps``, ...; no design keywords).
@@ -975,7 +998,8 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None, **opt
         ctrl.robustness = rep
         return rep
 
-    ctrl, report = first, checked(first, current_per_pulse(first, log, trajectory=trajectory))
+    step = current_per_pulse(first, log, trajectory=trajectory)
+    runs = [(first, checked(first, step), step)]  # the admissible candidates, checked
     held_back = []  # (largest step, candidate, steps) of the candidates the drive cannot carry
     for _, design in robust_design_options(log.rig):
         cand = FlexibleJointComputedTorqueController.from_log(
@@ -984,15 +1008,64 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None, **opt
         if np.max(step) > limit:
             held_back.append((float(np.max(step)), len(held_back), cand, step))
             continue
-        rep = checked(cand, step)
-        if _worst(rep) < _worst(report):
-            ctrl, report = cand, rep
+        runs.append((cand, checked(cand, step), step))
+    ctrl, report = runs[tied_choice([_worst(r) for _, r, _ in runs],
+                                    [s for _, _, s in runs], [r["robust"] for _, r, _ in runs],
+                                    tie_pulses)][:2]
     if not report["robust"]:
         for _, _, cand, step in sorted(held_back, key=lambda h: h[:2]):
             rep = checked(cand, step)
             if rep["robust"]:
                 return cand, rep
     return ctrl, report
+
+
+def tied_choice(worst, steps, robust=None, tie_pulses=DESIGN_TIE_PULSES) -> int:
+    """Index of the design the robust selection keeps: minimax at the encoder's resolution.
+
+    Among the designs that hold the model-error set with a worst case within
+    ``tie_pulses`` of the smallest, the one whose current step for one pulse
+    is smallest, compared joint by joint from the largest step down
+    (``inf``, a law that saturates on one pulse, is the largest); then the
+    smaller worst case, then the first.  When the design with the smallest
+    worst case does not hold the set, it is kept: stability comes first, and
+    errors beyond the bound are no matter of a pulse's resolution.
+
+    Parameters
+    ----------
+    worst : sequence of float
+        Per design its worst case (pulses; ``10**9`` or ``inf`` for a lost run).
+    steps : sequence of array_like, shape (n_joints,)
+        Per design its current step per pulse (A, :func:`ctc.protocol.current_per_pulse`).
+    robust : sequence of bool, optional
+        Per design whether it holds the set (default: all do).
+    tie_pulses : float
+        The resolution, >= 0 (default :data:`DESIGN_TIE_PULSES`).
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ValueError
+        If no design is given, the sequences differ in length, or
+        ``tie_pulses`` is not a number >= 0.
+    """
+    n = len(worst)
+    robust = [True] * n if robust is None else list(robust)
+    if n == 0 or len(steps) != n or len(robust) != n:
+        raise ValueError("tied_choice needs one worst case, one current step and one robust "
+                         f"flag per design, got {n}, {len(steps)} and {len(robust)}")
+    if not (isinstance(tie_pulses, (int, float)) and tie_pulses >= 0):
+        raise ValueError(f"tie_pulses must be a number of pulses >= 0, got {tie_pulses!r}")
+    w = np.asarray(worst, dtype=float)
+    best = int(np.argmin(w))
+    if not (np.isfinite(w[best]) and robust[best]):
+        return best
+    tied = [i for i in range(n) if w[i] <= w[best] + tie_pulses and robust[i]]
+    return min(tied, key=lambda i: (tuple(sorted(np.asarray(steps[i], dtype=float).ravel(),
+                                                 reverse=True)), w[i], i))
 
 
 def current_step_limit(rig, max_current_per_pulse) -> float:

@@ -99,7 +99,22 @@ it in ``optimisers``):
     scale and the current's chatter of the robust design, the same capped at
     a tenth of full scale and the default gains; about 2 min a case), and the
     fourth draw rerun with ``--max-current-per-pulse 0.1`` in a fresh output
-    folder (``figures/changes_20261130_cap01_run.txt``).
+    folder (``figures/changes_20261130_cap01_run.txt``).  The selection at
+    the encoder's resolution (:func:`ctc.flexible.tied_choice`) against the
+    strict minimax on the 12 flexible payload changes among the first 70
+    draws of a seed chosen before their run, 20261328
+    (``bench_design_current.py --seed 20261328 --designs from_result,tie0
+    --cases`` those 12 ``--jobs 2``: ``figures/design_current_20261328.txt``;
+    the logs and priors of its probe run reused through ``--robust-out`` and
+    ``--out``), and the sixth draw's flexible cases whose design that
+    selection changes, rerun on it (``bench_changes.py --n 58 --seed
+    20261327 --cases 0,4,6,8,33,34,35,39,40,46,47,50,52,53,57 --jobs 2`` with
+    the priors of the whole draw's run copied into a fresh ``--out``:
+    ``figures/changes_20261327_tied_design_run.txt``); the draw's table is
+    then ``bench_changes.py --n 58 --seed 20261327 --jobs 1`` over that folder
+    with the other 41 cases of the whole run copied in (their controllers
+    are the same; ``figures/changes_20261327.txt``, ``.rst``; the table
+    before, ``figures/changes_20261327_before_tied_design.txt``).
 ``changes_inconsistent``
     ``benchmarks/bench_changes.py --n 58 --seed 20261130 --cases 9,21,36,55
     --jobs 2`` with fresh output and robustness folders: the fourth draw's cases
@@ -206,7 +221,9 @@ it in ``optimisers``):
     about 25 min before it:
     ``figures/bench_arms_compliant_before_leader_stop.txt``; seeds 20261122 to
     20261127 were this benchmark's development draws; ``--n 0 3 0`` adds PUMA
-    joints 1-3, about 1.3 min a draw).
+    joints 1-3, about 1.3 min a draw); on the version whose check keeps the
+    tied design with the smallest current step (:func:`ctc.flexible.tied_choice`),
+    the same command's stdout: ``figures/bench_arms_compliant_tied_design.txt``.
 ``arms_compliant_puma123``
     ``benchmarks/bench_arms.py --compliant --n 0 2 0 --seed 20261801 --jobs 2``:
     PUMA 560 joints 1-3 with two-mass joints and backlash, two draws of a
@@ -687,6 +704,10 @@ def changes_sixth(ctx):
 #: every pick-up and put-down on a flexible robot, none chosen by its outcome.
 FOURTH_FLEXIBLE_PAYLOAD_CASES = "1,2,4,5,8,11,16,19,22,28,33,34,44,47,49,50,55,56"
 
+#: The flexible payload changes among the first 70 draws of the seed 20261328 (chosen before
+#: their run): every pick-up and put-down on a flexible robot.
+TIE_FLEXIBLE_PAYLOAD_CASES = "6,16,17,29,31,37,50,55,57,58,66,68"
+
 
 def current_cap(ctx):
     """The robust flexible design's one-pulse current step and what capping it costs."""
@@ -695,7 +716,12 @@ def current_cap(ctx):
                       ctx["raw"], "design_current_20261130", timeout=3 * 3600)
     capped = _bench_changes(ctx, "changes_20261130_cap01", 20261130, n=2 if ctx["quick"] else 58,
                             fresh=True, extra=("--max-current-per-pulse", "0.1"))
-    return {"printed": text.splitlines(), "wall_s": wall, "capped": capped}
+    tie_cases = "6" if ctx["quick"] else TIE_FLEXIBLE_PAYLOAD_CASES
+    tie, tie_wall = _run(["benchmarks/bench_design_current.py", "--seed", "20261328", "--designs",
+                          "from_result,tie0", "--cases", tie_cases, "--jobs", "2"],
+                         ctx["raw"], "design_current_20261328", timeout=3 * 3600)
+    return {"printed": text.splitlines(), "wall_s": wall, "capped": capped,
+            "tie_printed": tie.splitlines(), "tie_wall_s": tie_wall}
 
 
 def arms(ctx):

@@ -9,6 +9,7 @@ import pytest
 
 import plant
 from ctc.arm import ArmComputedTorque, ArmFlexibleComputedTorque
+from ctc.flexible import DESIGN_TIE_PULSES
 from identification.arm import identify_arm
 from plant.simulation.arm import arm_plant, simulate_arm
 from plant.logs.arm_log import load_arm_log
@@ -391,6 +392,31 @@ def test_the_model_error_checks_choice_is_minimax_and_holds_the_nominal_robot_fi
     assert _minimax_choice([[inf, 1, 1, 1, inf]], [inf, 1, 1, inf, 1], n)[1] == "rigid"
 
 
+def test_the_arm_check_keeps_the_tied_design_with_the_smallest_current_step(monkeypatch):
+    """Of the flexible designs within DESIGN_TIE_PULSES of the minimax one that ran every
+    counted scenario, the arm's check keeps the one with the smallest one-pulse current step
+    (ctc.flexible.tied_choice, as on the PUMA path) and lists them in the selection."""
+    from ctc import arm, protocol
+
+    steps = {"a": [9.0, 9.0], "b": [3.0, 4.0], "c": [1.0, 1.0], "d": [0.5, 0.5]}
+    monkeypatch.setattr(protocol, "current_per_pulse", lambda ctrl, log: np.array(steps[ctrl]))
+    nan = np.nan
+    # the designs' controllers stand in by name; worst cases per design, then the rigid CTC's
+    runs = [("a", "a", [1, 2, 1]), ("b", "b", [1, 3, 1]), ("c", "c", [1, 4, 1]),
+            ("d", "d", [1, 3, nan]), ("e", None, [])]
+    worst, counted = [2, 3, 4, 3, np.inf, 5], np.array([True, True, True])
+    kept, tied = arm._tied_design(runs, worst, counted, 0, log=None)
+    # b: a pulse from a's worst case at a third of its step; c is two pulses off; d skipped a
+    # counted scenario; e was not built
+    assert kept == 1 and [t["name"] for t in tied] == ["a", "b"]
+    assert tied[1] == dict(name="b", worst=3, current_per_pulse_A=[3.0, 4.0])
+    # a scenario that does not count does not matter
+    kept, tied = arm._tied_design(runs, worst, np.array([True, True, False]), 0, log=None)
+    assert kept == 3 and {t["name"] for t in tied} == {"a", "b", "d"}
+    # nothing within the resolution: the minimax design, no list
+    assert arm._tied_design(runs[2:3], [4, 5], counted, 0, log=None) == (0, [])
+
+
 def test_the_two_mass_box_widens_only_its_motor_inertia_bound(compliant):
     """``ArmFlexibleSpace.bounds(..., ia_max=IA_FRACTION_MAX)`` moves only the upper bounds of
     ``Ia`` (to that fraction of the smallest diagonal inertia), so the fit's RK4 steps stay;
@@ -446,15 +472,27 @@ def test_flexible_ctc_from_result_is_the_minimax_choice(compliant):
     assert designs[0]["name"] == "default" and 1 <= len(designs) + len(held) <= 6
     # without a cap on the current per pulse no design is held back
     assert sel["current_per_pulse_limit_A"] == np.inf and held == []
-    if len(designs) + len(held) < 6:  # the search stopped at a design that holds +-1 pulse
-        assert designs[-1]["worst"] <= 1 and sel["design"] == designs[-1]["name"]
     worsts = [np.nanmax(errors(d["errors"])[counted]) for d in designs]
     assert [d["worst"] for d in designs] == worsts
     best = int(np.argmin(worsts))
-    assert sel["design"] == designs[best]["name"] and sel["worst_flexible"] == worsts[best]
-    for d in designs:  # a design stopped early had already exceeded the chosen one's worst case
-        if any(e is None for e in d["errors"]):
-            assert d["worst"] > sel["worst_flexible"] or d["worst"] > worst_r
+    # the designs within the selection's resolution of the best one: the kept one has the
+    # smallest current step for one pulse (ctc.flexible.tied_choice)
+    names = [d["name"] for d in designs]
+    kept = names.index(sel["design"])
+    tied = sel["tied"]
+    if tied:
+        assert {designs[best]["name"], sel["design"]} <= {t["name"] for t in tied}
+        assert all(t["worst"] <= worsts[best] + DESIGN_TIE_PULSES for t in tied)
+        steps = {t["name"]: sorted(t["current_per_pulse_A"], reverse=True) for t in tied}
+        assert steps[sel["design"]] == min(steps.values())
+    else:
+        assert kept == best
+    assert sel["worst_flexible"] == worsts[kept]
+    if len(designs) + len(held) < 6:  # the search stopped at a design that holds +-1 pulse
+        assert designs[-1]["worst"] <= 1 and (kept == len(designs) - 1 or tied)
+    for d in designs:  # a design stopped early had exceeded a finished one's worst case by more
+        if any(e is None for e in d["errors"]):  # than the resolution
+            assert d["worst"] > min(worsts[best], worst_r) + DESIGN_TIE_PULSES
     worst_f = worsts[best]
     flexible_wins = np.isfinite(worst_f) and worst_f <= worst_r
     assert isinstance(ctrl, ArmFlexibleComputedTorque) == flexible_wins
