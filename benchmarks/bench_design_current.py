@@ -3,8 +3,8 @@
 ``ComputedTorqueController.from_result`` on a flexible result checks the
 default design and faster motor loops (:data:`ctc.flexible.ROBUST_DESIGNS`,
 up to three times the default bandwidth) over the model-error set and keeps
-the one with the smallest worst case in pulses
-(:func:`ctc.flexible.select_robust_design`).  A faster loop also multiplies
+the one with the smallest worst case in pulses, to a pulse
+(:func:`ctc.flexible.select_robust_design`, below).  A faster loop also multiplies
 the current the law commands for one pulse of quantisation (``Kp`` grows
 with the bandwidth squared, the observer's velocity correction times ``Kv``
 with its cube), so a robot tracking at +-1 pulse can see its drive current
@@ -25,7 +25,10 @@ by ``from_result`` (the robust design), by ``from_result`` with
 ``max_current_per_pulse=--cap``, with the default gains
 (``robust=None``) and by the strict minimax (``tie 0``: the robust design
 with :func:`ctc.flexible.select_robust_design`'s ``tie_pulses=0``, the
-rule before the resolution), as ``--designs`` chooses, each reporting
+rule before the resolution but for equal worst cases, which the current
+step decides instead of the order; without ``from_result``'s fallback to
+the rigid-equivalent CTC, so a row of a robot no flexible design holds
+can differ), as ``--designs`` chooses, each reporting
 
 * the current step for one pulse (A per joint,
   :func:`ctc.protocol.current_per_pulse`),
@@ -40,7 +43,10 @@ Run (about 2 min per case)::
     python benchmarks/bench_design_current.py --seed 20261328 --designs from_result,tie0 \
         --cases 6,16,17,29,31,37,50,55,57,58,66,68 --jobs 2
 
-Cases with a rigid prior are skipped (the designs are the flexible-joint CTC's).
+With ``tie0`` among the designs, cases with a rigid prior are skipped (the
+designs compared are the flexible-joint CTC's).  With ``--jobs 2`` each process runs
+numba single-threaded (``NUMBA_NUM_THREADS=1`` unless set), as
+``bench_robustness.py``.
 """
 from __future__ import annotations
 
@@ -95,6 +101,8 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.
     log = plant.load_log(csv)
     ch = bc.draw_change(seed, index, s)
     prior = bc._prior(csv, robust_out, out, log)
+    if "tie0" in designs and prior.get("model", "rigid") == "rigid":
+        return []  # a rigid prior: no flexible design to compare
     ts = s.sample_time_s
     after = bc.changed_settings(s, ch)
     changes = [(int(math.ceil(t / ts)), ir.IndependentRobot(c)) for t, c in zip(ch["times_s"], after)]
@@ -111,8 +119,6 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.
             warnings.simplefilter("ignore")
             if key == "tie0":
                 inner = _strict_minimax(prior, log)
-                if inner is None:
-                    return []  # a rigid prior: no flexible design to compare
             else:
                 inner = ctc.ComputedTorqueController.from_result(prior, log, **options[key])
             step = current_per_pulse(inner, log)
@@ -183,7 +189,9 @@ def main(argv=None) -> int:
             _print_rows(_job(job))
         return 0
     import multiprocessing as mp
+    import os
 
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # read by the spawned workers' numba
     with mp.get_context("spawn").Pool(min(a.jobs, len(jobs))) as pool:
         for rows in pool.imap(_job, jobs):  # in case order, each printed once it is in
             _print_rows(rows)

@@ -50,7 +50,10 @@ log allows beside the fit) at least as well as the rigid-equivalent CTC
 the robust one, the PUMA path's (:func:`ctc.flexible.select_robust_design`):
 of the default gains and the faster motor loops of
 :data:`ctc.flexible.ROBUST_DESIGNS`, the one with the smallest worst case
-over that set.
+over that set -- to a pulse: of the designs within
+:data:`ctc.flexible.DESIGN_TIE_PULSES` of it (and no worse than the
+rigid-equivalent CTC), the one with the smallest current step for one
+pulse (:func:`ctc.flexible.tied_choice`).
 
 The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
@@ -770,9 +773,11 @@ class ArmComputedTorque:
         worst error after 0.1 s (minimax over the scenarios that at least
         one controller holds) is returned when it is no
         worse than the rigid-equivalent CTC's -- or, of the designs within
-        :data:`ctc.flexible.DESIGN_TIE_PULSES` of it, the one with the
-        smallest current step for one pulse (:func:`ctc.flexible.tied_choice`,
-        as on the PUMA 560 path) -- else the rigid-equivalent
+        :data:`ctc.flexible.DESIGN_TIE_PULSES` of it and no worse than the
+        rigid-equivalent CTC, the one with the smallest current step for one
+        pulse (:func:`ctc.flexible.tied_choice`, as on the PUMA 560 path; a
+        design that holds the goal, ``GOAL_PULSES``, over the set can give
+        way to a slower one that holds a pulse more) -- else the rigid-equivalent
         CTC with a ``RuntimeWarning``.  A run that fails, or goes beyond
         the following-error limit on some joint
         (:func:`ctc.guard.lost_bound`: it has lost the arm), counts as an
@@ -1348,8 +1353,11 @@ FLEXIBLE_CHECK_SCENARIOS = (("nominal", 1.0, 1.0), ("stiffness x0.7", 0.7, 1.0),
 #: Seconds of the log's reference the check simulates (from t = 0).
 FLEXIBLE_CHECK_S = 3.0
 
-#: The tracking goal (pulses): the check takes the first flexible design (the default
-#: gains first) that holds it on every scenario, without simulating the others.
+#: The tracking goal (pulses): the check stops at the first flexible design (the default
+#: gains first, then ever faster loops) that holds it on every scenario, without simulating
+#: the others; a design checked before it within :data:`ctc.flexible.DESIGN_TIE_PULSES`
+#: (a worst case of 2 pulses) is tied with it and kept if its current step is smaller
+#: (``_tied_design``: the goal is met to the selection's resolution).
 GOAL_PULSES = 1
 
 
@@ -1375,8 +1383,10 @@ def _tied_design(runs, worst, counted, best, log):
     """The flexible design kept among those the minimax rule cannot tell apart.
 
     The designs that ran every counted scenario with a worst case within
-    :data:`ctc.flexible.DESIGN_TIE_PULSES` of the best one's are one at the
-    encoder's resolution; the one with the smallest current step for one pulse
+    :data:`ctc.flexible.DESIGN_TIE_PULSES` of the best one's, and no worse
+    than the rigid-equivalent CTC's (the flexible design is chosen only when
+    it holds the set at least as well), are one at the encoder's resolution;
+    the one with the smallest current step for one pulse
     (:func:`ctc.protocol.current_per_pulse`) is kept, as on the PUMA 560 path
     (:func:`ctc.flexible.tied_choice`).
 
@@ -1385,7 +1395,7 @@ def _tied_design(runs, worst, counted, best, log):
     runs : list of (str, controller or None, list of float)
         The flexible designs of :func:`_checked_flexible`: name, controller, errors per scenario.
     worst : list of float
-        Their worst cases (and the rigid-equivalent CTC's, last), from :func:`_minimax_choice`.
+        Their worst cases and the rigid-equivalent CTC's (last), from :func:`_minimax_choice`.
     counted : ndarray of bool, shape (n_scenarios,)
         The scenarios that count.
     best : int
@@ -1402,9 +1412,9 @@ def _tied_design(runs, worst, counted, best, log):
     from .flexible import DESIGN_TIE_PULSES, tied_choice
     from .protocol import current_per_pulse
 
+    cap = min(worst[best] + DESIGN_TIE_PULSES, worst[-1])  # worst[-1]: the rigid CTC's
     tied = [i for i, (_, c, e) in enumerate(runs)
-            if c is not None and len(e) and np.isfinite(worst[i])
-            and worst[i] <= worst[best] + DESIGN_TIE_PULSES
+            if c is not None and len(e) and np.isfinite(worst[i]) and worst[i] <= cap
             and not np.any(np.isnan(np.asarray(e, dtype=float)[counted]))]
     if best not in tied or len(tied) < 2:
         return best, []
@@ -1477,8 +1487,8 @@ def _minimax_choice(flexible, rigid, n_scenarios):
 
 def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
     """The flexible CTC of a flexible result with the smallest worst case over the model-error
-    set, or the rigid-equivalent one when that holds the set better (minimax;
-    :meth:`ArmComputedTorque.from_result`)."""
+    set, to a pulse (:func:`_tied_design`), or the rigid-equivalent one when that holds the
+    set better (minimax; :meth:`ArmComputedTorque.from_result`)."""
     import warnings
 
     from plant.simulation.arm import simulate_arm
@@ -1545,7 +1555,8 @@ def _checked_flexible(result, log, *, max_current_per_pulse=None, **design):
         """(controller or None, errors per scenario): nan where the sequential check would have
         skipped the run, after the first scenario (in the check's order) whose finite
         error exceeds ``bound`` (finite: the largest error of a candidate that ran every
-        scenario finitely) -- the candidate cannot be the minimax one.  A failed run (inf)
+        scenario finitely, plus the selection's resolution) -- the candidate can be
+        neither the minimax one nor tied with it.  A failed run (inf)
         stops nothing: no controller may run that scenario, and then it does not count."""
         try:
             ctrl = make()

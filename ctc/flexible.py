@@ -86,6 +86,7 @@ Kokotovic, IEEE J. Robot. Autom. 3 (1987)).
 from __future__ import annotations
 
 import math
+import numbers
 from typing import NamedTuple
 
 import numba
@@ -806,9 +807,11 @@ def controller_from_result(result, log, **options):
         the full scale (a relay; ``benchmarks/bench_design_current.py``).
         The cap is the user's trade: on the fourth draw of the changes
         benchmark (``benchmarks/bench_changes.py --seed 20261130``, 56
-        cases on the independent simulator) a cap of 0.1 cut the flexible
-        payload changes tracked within a pulse from 14 to 8 of 18, and the CTCs
-        of 6 flexible robots instead of 1 tripped the following-error limit.
+        cases on the independent simulator; measured with the strict
+        minimax, before the selection at the encoder's resolution) a cap of
+        0.1 cut the flexible payload changes tracked within a pulse from 14
+        to 8 of 18, and the CTCs of 6 flexible robots instead of 1 tripped
+        the following-error limit.
 
     Returns
     -------
@@ -927,10 +930,13 @@ def _build_from_result(result, log, **options):
 #: them that commands the smallest current step for one pulse (:func:`tied_choice`).
 DESIGN_TIE_PULSES = 1
 
+#: A worst case at or beyond this many pulses is a lost run (:func:`_worst`'s mark).
+LOST_PULSES = 10 ** 9
+
 
 def select_robust_design(first, model, log, *, max_current_per_pulse=None,
                          tie_pulses=DESIGN_TIE_PULSES, **options):
-    """The robust flexible-joint CTC design: the smallest worst case over the model-error set.
+    """The robust flexible-joint CTC design: minimax over the model-error set, to a pulse.
 
     The first design and each of :func:`robust_design_options` (the faster
     motor loops of :data:`ROBUST_DESIGNS` and integral-action twins,
@@ -943,18 +949,21 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None,
     cap costs).  The admissible candidates run
     :func:`robustness_check` over :data:`ROBUSTNESS_SCENARIOS` and the robots
     the log allows (:func:`log_range_scenarios`).  The kept design is the
-    minimax one at the encoder's resolution: among the candidates that hold
-    the set with a worst case within :data:`DESIGN_TIE_PULSES` of the
-    smallest, the one with the smallest current step (compared joint by
-    joint from the largest step down; then the smaller worst case, then the
-    first).  A worst case one pulse larger
+    minimax one at the encoder's resolution (:func:`tied_choice`): among the
+    candidates that hold the set with a worst case within ``tie_pulses``
+    (default :data:`DESIGN_TIE_PULSES`) of the smallest of those that hold
+    it, the one with the smallest current step (compared joint by joint from
+    the largest step down; then the smaller worst case, then the first).  A
+    worst case one pulse larger
     is one more count of quantisation flicker in a simulated run, while a
     faster loop's larger current step is paid on every sample: on coarse
     encoders the fastest candidates turn the drive into a relay that sits at
     full scale on most samples (:func:`ctc.protocol.current_per_pulse`).
-    Stability comes before the current's chatter: when no admissible
-    candidate holds the set, the others are checked in the order of their
-    current step and the first that holds it is kept.  Each checked
+    Stability comes before the current's chatter: a candidate that holds
+    the set is always preferred to one that does not, and when no admissible
+    candidate holds it, the ones the cap held back are checked in the order
+    of their current step and the first that holds it is kept (else the
+    admissible one with the smallest worst case).  Each checked
     candidate's report is its ``.robustness``, with ``current_per_pulse_A``
     and ``current_per_pulse_limit_A``.
 
@@ -972,7 +981,8 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None,
     tie_pulses : float
         The selection's resolution (pulses, >= 0; default
         :data:`DESIGN_TIE_PULSES`); 0 is the strict minimax, the current
-        step deciding only equal worst cases.
+        step deciding only equal worst cases (the rule before the
+        resolution took the first of those).
     **options
         Further keyword arguments of :meth:`FlexibleJointComputedTorqueController.from_log`
         (``trajectory``, ``link_substeps``, ...; no design keywords).
@@ -985,10 +995,12 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None,
     Raises
     ------
     ValueError
-        If ``max_current_per_pulse`` is neither None nor a number > 0.
+        If ``max_current_per_pulse`` is neither None nor a number > 0, or
+        ``tie_pulses`` is not a number >= 0 (before any check runs).
     """
     from .protocol import current_per_pulse
 
+    _check_tie(tie_pulses)
     limit = current_step_limit(log.rig, max_current_per_pulse)
     trajectory = options.get("trajectory")
 
@@ -1023,18 +1035,23 @@ def select_robust_design(first, model, log, *, max_current_per_pulse=None,
 def tied_choice(worst, steps, robust=None, tie_pulses=DESIGN_TIE_PULSES) -> int:
     """Index of the design the robust selection keeps: minimax at the encoder's resolution.
 
-    Among the designs that hold the model-error set with a worst case within
-    ``tie_pulses`` of the smallest, the one whose current step for one pulse
-    is smallest, compared joint by joint from the largest step down
-    (``inf``, a law that saturates on one pulse, is the largest); then the
-    smaller worst case, then the first.  When the design with the smallest
-    worst case does not hold the set, it is kept: stability comes first, and
-    errors beyond the bound are no matter of a pulse's resolution.
+    The best design is the one with the smallest worst case among those
+    that hold the model-error set (stability first: a design that holds it
+    is preferred to any that does not, whatever their worst cases -- the
+    bound is per joint, the worst case over joints), or among all when none
+    holds it; a lost run (``nan``, ``inf`` or ``10**9``) is never best
+    unless every run was lost.  When the best holds the set, the designs
+    that hold it with a worst case within ``tie_pulses`` of the best's are
+    tied, and the one whose current step for one pulse is smallest, compared
+    joint by joint from the largest step down (``inf``, a law that saturates
+    on one pulse, is the largest), is kept; then the smaller worst case,
+    then the first.  When none holds the set, the best is kept: errors
+    beyond the bound are no matter of a pulse's resolution.
 
     Parameters
     ----------
     worst : sequence of float
-        Per design its worst case (pulses; ``10**9`` or ``inf`` for a lost run).
+        Per design its worst case (pulses; ``10**9``, ``inf`` or ``nan`` for a lost run).
     steps : sequence of array_like, shape (n_joints,)
         Per design its current step per pulse (A, :func:`ctc.protocol.current_per_pulse`).
     robust : sequence of bool, optional
@@ -1057,15 +1074,22 @@ def tied_choice(worst, steps, robust=None, tie_pulses=DESIGN_TIE_PULSES) -> int:
     if n == 0 or len(steps) != n or len(robust) != n:
         raise ValueError("tied_choice needs one worst case, one current step and one robust "
                          f"flag per design, got {n}, {len(steps)} and {len(robust)}")
-    if not (isinstance(tie_pulses, (int, float)) and tie_pulses >= 0):
-        raise ValueError(f"tie_pulses must be a number of pulses >= 0, got {tie_pulses!r}")
+    _check_tie(tie_pulses)
     w = np.asarray(worst, dtype=float)
-    best = int(np.argmin(w))
+    w = np.where(np.isnan(w) | (w >= LOST_PULSES), np.inf, w)  # lost runs
+    best = min(range(n), key=lambda i: (not robust[i], w[i], i))
     if not (np.isfinite(w[best]) and robust[best]):
         return best
-    tied = [i for i in range(n) if w[i] <= w[best] + tie_pulses and robust[i]]
+    tied = [i for i in range(n) if robust[i] and w[i] <= w[best] + tie_pulses]
     return min(tied, key=lambda i: (tuple(sorted(np.asarray(steps[i], dtype=float).ravel(),
                                                  reverse=True)), w[i], i))
+
+
+def _check_tie(tie_pulses):
+    """Refuse a selection resolution that is not a number of pulses >= 0 (one line)."""
+    if isinstance(tie_pulses, bool) or not isinstance(tie_pulses, numbers.Real) or \
+            not tie_pulses >= 0:
+        raise ValueError(f"tie_pulses must be a number of pulses >= 0, got {tie_pulses!r}")
 
 
 def current_step_limit(rig, max_current_per_pulse) -> float:

@@ -33,7 +33,9 @@ it in ``optimisers``):
     ``examples/ctc_vs_p.py`` with the true robots (``--truth``,
     ``--drill-truth``): P vs CTC max |e|, robustness, flexible robot.
 ``real_rigs``
-    ``examples/real_rigs.py`` with the truth: spectrum, cut-off, drill-log f
+    ``examples/real_rigs.py`` with the truth (on the version before the robust
+    design's selection at the encoder's resolution:
+    ``figures/real_rigs_before_tied_design.txt``): spectrum, cut-off, drill-log f
     errors, on-line payload mass and wall time; the spectrum image.
 ``speed``
     ``benchmarks/bench_simulate.py``: cost per simulation, scaling, full
@@ -110,7 +112,12 @@ it in ``optimisers``):
     selection changes, rerun on it (``bench_changes.py --n 58 --seed
     20261327 --cases 0,4,6,8,33,34,35,39,40,46,47,50,52,53,57 --jobs 2`` with
     the priors of the whole draw's run copied into a fresh ``--out``:
-    ``figures/changes_20261327_tied_design_run.txt``); the draw's table is
+    ``figures/changes_20261327_tied_design_run.txt``; case 0050's record,
+    ``figures/changes_20261327_case_50_tied_design.json``, is that run's
+    ``--out/cases`` file; of 0033, 0050 and 0057 the designs by both rules,
+    ``bench_design_current.py --seed 20261327 --designs from_result,tie0
+    --cases 33,50,57 --jobs 2`` with that ``--out``:
+    ``figures/design_current_20261327_33_50_57.txt``); the draw's table is
     then ``bench_changes.py --n 58 --seed 20261327 --jobs 1`` over that folder
     with the other 41 cases of the whole run copied in (their controllers
     are the same; ``figures/changes_20261327.txt``, ``.rst``; the table

@@ -427,10 +427,10 @@ def test_the_robust_selection_is_minimax_at_the_encoders_resolution():
     them that hold the set, the one with the smallest one-pulse current step is kept (joint
     by joint from the largest step, inf the largest); a best design that loses the set is
     kept."""
-    from ctc.flexible import tied_choice
+    from ctc.flexible import select_robust_design, tied_choice
 
     assert DESIGN_TIE_PULSES == 1
-    inf = np.inf
+    inf, nan = np.inf, np.nan
     # the fastest loop's 5 pulses against 6 at half its current step: the slower one
     assert tied_choice([9, 6, 5], [[3.3, 4.3], [5.0, 6.8], [7.0, 9.5]]) == 1
     # every tied design saturates a joint on one pulse: the other joint's step decides
@@ -439,20 +439,31 @@ def test_the_robust_selection_is_minimax_at_the_encoders_resolution():
     assert tied_choice([5, 7], [[9.0, 9.0], [1.0, 1.0]]) == 0
     # equal steps: the smaller worst case, then the first
     assert tied_choice([4, 3, 3], [[1.0, 2.0], [2.0, 1.0], [1.0, 2.0]]) == 1
-    # a design that loses the set is no tie for one that holds it; when the best one loses it
-    # too, it is kept (stability first)
+    # a design that loses the set is no tie for one that holds it, and one that holds it is
+    # preferred whatever the worst cases (the bound is per joint; stability first)
     assert tied_choice([3, 4], [[5.0, 5.0], [1.0, 1.0]], [True, False]) == 0
-    assert tied_choice([3, 4], [[5.0, 5.0], [1.0, 1.0]], [False, True]) == 0
-    # every design lost a run: the first of the smallest (no resolution to speak of)
-    assert tied_choice([10 ** 9, inf], [[1.0, 1.0], [0.5, 0.5]]) == 0
+    assert tied_choice([3, 4], [[5.0, 5.0], [1.0, 1.0]], [False, True]) == 1
+    assert tied_choice([3, 9, 9], [[5.0, 5.0], [1.0, 1.0], [2.0, 2.0]], [False, True, True]) == 1
+    # none holds the set: the smallest worst case, whatever its step
+    assert tied_choice([4, 3], [[1.0, 1.0], [5.0, 5.0]], [False, False]) == 1
+    # lost runs (10**9, inf, nan) are never best unless every run was lost
+    assert tied_choice([10 ** 9, 7], [[0.5, 0.5], [9.0, 9.0]]) == 1
+    assert tied_choice([nan, 7], [[0.5, 0.5], [9.0, 9.0]]) == 1
+    assert tied_choice([10 ** 9, inf, nan], [[1.0, 1.0], [0.5, 0.5], [0.1, 0.1]]) == 0
+    # the strict minimax: the step decides equal worst cases only
     assert tied_choice([5, 6], [[9.0, 9.0], [1.0, 1.0]], tie_pulses=0) == 0
+    assert tied_choice([5, 5], [[9.0, 9.0], [1.0, 1.0]], tie_pulses=0) == 1
+    assert tied_choice([5, 6], [[9.0, 9.0], [1.0, 1.0]], tie_pulses=np.int64(1)) == 1
     with pytest.raises(ValueError, match="one worst case"):
         tied_choice([1, 2], [[1.0, 1.0]])
     with pytest.raises(ValueError, match="one worst case"):
         tied_choice([], [])
-    for bad in (-1, "1", None, np.nan):
+    for bad in (-1, "1", None, np.nan, True):
         with pytest.raises(ValueError, match="tie_pulses must be"):
             tied_choice([1], [[1.0]], tie_pulses=bad)
+        # refused by the selection before any check runs
+        with pytest.raises(ValueError, match="tie_pulses must be"):
+            select_robust_design(None, None, None, tie_pulses=bad)
 
 
 def test_robust_design_reports_and_caps_the_current_per_pulse(drill_log, drill_result):
