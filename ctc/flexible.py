@@ -930,7 +930,7 @@ def _build_from_result(result, log, **options):
 #: them that commands the smallest current step for one pulse (:func:`tied_choice`).
 DESIGN_TIE_PULSES = 1
 
-#: A worst case at or beyond this many pulses is a lost run (:func:`_worst`'s mark).
+#: The worst case (pulses) of a lost run in a robustness report (:func:`robustness_check`).
 LOST_PULSES = 10 ** 9
 
 
@@ -1236,14 +1236,14 @@ def _nominal(report) -> np.ndarray:
     """Max abs(e) per joint (pulses) of a robustness report's nominal scenario (failed: 10^9)."""
     for sc in report["scenarios"]:
         if sc["name"] == "nominal":
-            return np.asarray(sc["max_abs_e"] if sc["completed"] else [10 ** 9] * len(sc["max_abs_e"]),
-                              dtype=float)
+            e = sc["max_abs_e"] if sc["completed"] else [LOST_PULSES] * len(sc["max_abs_e"])
+            return np.asarray(e, dtype=float)
     return np.zeros(len(report["bound_pulses"]))
 
 
 def _worst(report) -> int:
     """Largest max abs(e) (pulses) over a robustness report's scenarios (failed runs: 10^9)."""
-    return max((max(s["max_abs_e"]) if s["completed"] else 10 ** 9) for s in report["scenarios"])
+    return max((max(s["max_abs_e"]) if s["completed"] else LOST_PULSES) for s in report["scenarios"])
 
 
 #: Model errors the flexible-joint CTC must tolerate (issue 21): stiffness
@@ -1365,7 +1365,7 @@ def robustness_check(ctrl, result, log, *, scenarios=None, substeps=8, duration_
                                            n_samples=n)
         except (ValueError, plant.SimulationError):  # the loop diverged (non-finite currents)
             rows.append(dict(name=sc["name"], success=False, completed=False,
-                             max_abs_e=[10 ** 9, 10 ** 9]))
+                             max_abs_e=[LOST_PULSES, LOST_PULSES]))
             worst = worst or sc["name"]
             continue
         e = np.max(np.abs(r.e_pulses[k0:]), axis=0) if len(r.e_pulses) > k0 else np.array([0, 0])

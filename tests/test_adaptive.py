@@ -284,8 +284,8 @@ def test_a_stiffness_change_on_a_flexible_arm_is_reported_not_adapted(drill_log,
 
     Both run the 86 Hz design (the motor loop three times the default) that the robust
     selection kept before its resolution (:func:`ctc.flexible.tied_choice`): on the 71 Hz
-    design it keeps now, the change is named as well, and 2.1 s after it a 64 g payload is
-    installed for 0.4 s, until the empty gripper explains the windows again -- a known gap of
+    design it keeps now, the change is named as well, but seconds after it a payload of tens
+    of grams is installed until the empty gripper explains the windows again -- a known gap of
     the supervisor (a payload beats the named drive change on windows a lighter loop leaves
     less quiet)."""
     import warnings as _w
