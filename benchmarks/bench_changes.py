@@ -403,7 +403,8 @@ def table_lines(rows):
             continue
         ad = r["adaptive"]
         last = ad["payload_history"][-1][1] if ad["payload_history"] else 0.0
-        ev = ",".join(sorted({e["kind"] for e in ad["events"]})) or "-"
+        ev = ",".join(sorted({e["kind"] + (":" + e["cause"] if e.get("cause") else "")
+                              for e in ad["events"]})) or "-"
         good = _passes(r["verdict"])
         lines.append((r["stem"][-4:], r["joints"][:4], str(r["ppr"]), _change_text(r["change"]),
                       str(r["P"]["max_e_after"]), str(r["static"]["max_e_after"]),

@@ -121,7 +121,15 @@ it in ``optimisers``):
     then ``bench_changes.py --n 58 --seed 20261327 --jobs 1`` over that folder
     with the other 41 cases of the whole run copied in (their controllers
     are the same; ``figures/changes_20261327.txt``, ``.rst``; the table
-    before, ``figures/changes_20261327_before_tied_design.txt``).
+    before, ``figures/changes_20261327_before_tied_design.txt``).  The
+    sixth draw's three cases with a named stiffness change, rerun on the
+    version whose empty gripper meets the rival changes after one
+    (``bench_changes.py --n 58 --seed 20261327 --cases 24,35,53 --jobs 2``
+    with the whole run's priors copied into a fresh ``--out``:
+    ``figures/changes_20261327_drive_named_cases.txt``), and the draw rerun
+    whole on a quiet refinement tried and dropped (the model pooled only
+    with windows it is one payload with; ``--n 58 --seed 20261327 --jobs 2``
+    likewise: ``figures/changes_20261327_one_payload_refinement_run.txt``).
 ``changes_inconsistent``
     ``benchmarks/bench_changes.py --n 58 --seed 20261130 --cases 9,21,36,55
     --jobs 2`` with fresh output and robustness folders: the fourth draw's cases

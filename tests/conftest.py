@@ -13,10 +13,32 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import threading
 from pathlib import Path
 from typing import Callable
 
 import pytest
+
+
+def pytest_configure(config):
+    """Run the Ctrl-C tests as from a terminal.
+
+    A suite started in the background by a non-interactive shell (``cmd &``
+    without job control) inherits SIGINT ignored, and so do its child
+    processes; the library then leaves Ctrl-C alone
+    (:func:`identification.sigint.install` replaces only Python's default
+    handler), and no test could deliver one.  Python's default handler is put
+    back in each test process (the main suite's and every pytest-xdist
+    worker's, which runs its tests in its main thread from pytest-xdist 3.6);
+    a process started from it gets SIGINT's default action at exec.  The
+    suite then stops on a Ctrl-C meant for the shell's foreground job, as it
+    would in the foreground.
+    """
+    if (threading.current_thread() is threading.main_thread()
+            and signal.getsignal(signal.SIGINT) is signal.SIG_IGN):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
 
 #: Stems of the development logs.
 PAPER_RIGID = "puma560_paper_rigid"

@@ -282,15 +282,12 @@ def test_a_stiffness_change_on_a_flexible_arm_is_reported_not_adapted(drill_log,
     names it -- an ``'unexplained'`` event with ``cause='drive'`` and the factors -- and the
     model is kept: no payload update, tracking as the static CTC's within a pulse.
 
-    Both run the 86 Hz design (the motor loop three times the default) that the robust
-    selection kept before its resolution (:func:`ctc.flexible.tied_choice`): on the 71 Hz
-    design it keeps now, the change is named as well, but seconds after it a payload of tens
-    of grams is installed until the empty gripper explains the windows again -- a known gap of
-    the supervisor (a payload beats the named drive change on windows a lighter loop leaves
-    less quiet)."""
+    On the robust design the controller keeps by default, windows seconds after the
+    change read payloads of tens of grams, within :func:`ctc.adaptive.same_payload` of the
+    empty gripper in use; such an update used to meet no rival and was installed until the
+    empty gripper explained the windows again.  After a named stiffness change it meets the
+    rival changes, and the named drive change wins a tie."""
     import warnings as _w
-
-    from ctc.flexible import robust_design_gains
 
     d = drill_result[0]
     d = d.to_dict() if hasattr(d, "to_dict") else dict(d)
@@ -301,13 +298,11 @@ def test_a_stiffness_change_on_a_flexible_arm_is_reported_not_adapted(drill_log,
     robot = plant.FlexibleJoints(K, d["joint_damping_Nms_per_rad"], jm)
     softer = plant.FlexibleJoints(0.7 * K, d["joint_damping_Nms_per_rad"], jm)
     schedule = [(1.0, f, softer)]
-    design = dict(gains=robust_design_gains(drill_log.rig, 3.0), link_damping=0.7)
     with _w.catch_warnings():
         _w.simplefilter("ignore")
         static = plant.simulate_closed_loop(drill_log, f, ctc.ComputedTorqueController.from_result(
-            d, drill_log, **design), flexible=robot, f_schedule=schedule, substeps=SUBSTEPS)
-        adaptive = ctc.AdaptiveComputedTorqueController.from_log(d, drill_log, **design)
-    assert np.allclose(adaptive._ctc.gains.bandwidth_hz, design["gains"].bandwidth_hz)
+            d, drill_log), flexible=robot, f_schedule=schedule, substeps=SUBSTEPS)
+        adaptive = ctc.AdaptiveComputedTorqueController.from_log(d, drill_log)
     with pytest.warns(ctc.UnmodelledChangeWarning, match="stiffness"):
         r = plant.simulate_closed_loop(drill_log, f, adaptive, flexible=robot, f_schedule=schedule,
                                        substeps=SUBSTEPS)
@@ -316,7 +311,8 @@ def test_a_stiffness_change_on_a_flexible_arm_is_reported_not_adapted(drill_log,
     assert len(named) == 1 and named[0]["t_s"] > 1.0, adaptive.events
     factors = list(named[0]["drive_change"].values())
     np.testing.assert_allclose(factors, [0.7, 0.7], rtol=0.15)
-    assert all(m <= 0.05 for _, m in adaptive.payload_history), adaptive.payload_history
+    assert adaptive.payload_history == [], adaptive.events
+    assert not [e for e in adaptive.events if e["kind"] == "update"], adaptive.events
     ts = drill_log.rig.sample_time_s
     after = slice(int(1.5 / ts), None)
     assert np.all(np.abs(r.e_pulses[after]).max(axis=0)
