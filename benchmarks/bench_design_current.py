@@ -44,9 +44,10 @@ Run (about 2 min per case)::
         --cases 6,16,17,29,31,37,50,55,57,58,66,68 --jobs 2
 
 With ``tie0`` among the designs, cases with a rigid prior are skipped (the
-designs compared are the flexible-joint CTC's).  With ``--jobs 2`` each process runs
-numba single-threaded (``NUMBA_NUM_THREADS=1`` unless set), as
-``bench_robustness.py``.
+designs compared are the flexible-joint CTC's).  The cases run through
+``bench_robustness.run_jobs``: with ``--jobs 2`` on two spawned processes, each
+running numba single-threaded (``NUMBA_NUM_THREADS=1`` unless set); a line per
+finished case, then the table.
 """
 from __future__ import annotations
 
@@ -140,8 +141,9 @@ def run_case(seed: int, index: int, out: Path, robust_out: Path, cap: float = 0.
 
 
 def _job(args):
+    """One case's rows for :func:`bench_robustness.run_jobs` (its ``stem`` is the case)."""
     seed, index, out, robust_out, cap, designs = args
-    return run_case(seed, index, out, robust_out, cap, designs)
+    return dict(stem=f"case {index:04d}", rows=run_case(seed, index, out, robust_out, cap, designs))
 
 
 def _print_rows(rows):
@@ -181,20 +183,12 @@ def main(argv=None) -> int:
     designs = tuple(d.strip() for d in a.designs.split(",") if d.strip())
     if not designs or not set(designs) <= set(DESIGNS):
         ap.error(f"--designs must name some of {', '.join(DESIGNS)}, got {a.designs!r}")
+    jobs = [(a.seed, index, a.out, a.robust_out, a.cap, designs) for index in cases]
+    done = br.run_jobs(_job, jobs, a.jobs)  # a line per finished case, then the table
     print(f"{'case':>5} {'change':9} {'ppr':>11} {'design':17} {'bandwidth Hz':>13} "
           f"{'A per pulse':>13} {'max|e| after':>13} {'at full scale':>15} {'chatter A rms':>14}")
-    jobs = [(a.seed, index, a.out, a.robust_out, a.cap, designs) for index in cases]
-    if a.jobs == 1:
-        for job in jobs:
-            _print_rows(_job(job))
-        return 0
-    import multiprocessing as mp
-    import os
-
-    os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # read by the spawned workers' numba
-    with mp.get_context("spawn").Pool(min(a.jobs, len(jobs))) as pool:
-        for rows in pool.imap(_job, jobs):  # in case order, each printed once it is in
-            _print_rows(rows)
+    for res in done:
+        _print_rows(res["rows"])
     return 0
 
 
