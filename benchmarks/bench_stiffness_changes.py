@@ -6,7 +6,8 @@ gives every two-mass flexible robot of the same draw (the same logs, the
 same default identifications as priors) a joint stiffness change x
 ``--factor`` (default 0.7, the issue's) at a random time, drawn per robot
 from ``numpy.random.default_rng([change_seed, index])`` uniform in
-0.6-2.5 s (at most 1 s before the log's end), and runs the static CTC
+0.6-2.5 s (at most 1 s before the log's end; a robot whose log leaves less
+than 0.3 s before that is skipped, and counted), and runs the static CTC
 (``ctc.ComputedTorqueController.from_result``) and the adaptive CTC
 (``ctc.AdaptiveComputedTorqueController.from_log``, default window and fixed
 latency) through it on :mod:`independent_robot`.  The robot carries no new
@@ -14,7 +15,9 @@ payload, so every payload update of the adaptive CTC is a false one.
 
 Scores per robot (max abs(e) in pulses per joint, "after" from 0.5 s after
 the change to the end): a false payload update (any update to more than
-0.05 kg), and one before the supervisor named the change; the change
+0.05 kg), and one before the supervisor named the change (an update's time
+is when it took effect, after the identification's latency; an event's,
+the end of the window that raised it); the change
 named (an ``'unexplained'`` event with ``cause='drive'``) and reported (any
 ``'unexplained'`` event); the adaptive CTC no worse than the static one + 1
 pulse after the change; no divergence.
@@ -25,6 +28,10 @@ Run
 
     pip install -e ".[bench]"
     python benchmarks/bench_stiffness_changes.py --seed 20261327 --change-seed 20261379 --jobs 2
+
+``--out`` is the changes benchmark's output folder, whose ``priors`` it
+reuses (the robustness suite's cached identifications first); a prior
+missing from both is identified anew and cached there.
 """
 
 from __future__ import annotations
@@ -57,6 +64,10 @@ def change_time(change_seed: int, index: int, duration_s: float) -> float:
     return min(t, duration_s - 1.0)
 
 
+#: A change earlier than this leaves too little of the run before it (the calibration windows).
+EARLIEST_S = 0.3
+
+
 def run_robot(seed: int, index: int, change_seed: int, factor: float, out: Path,
               robust_out: Path) -> dict | None:
     """Static and adaptive CTC through a stiffness change on one robot; None when rigid."""
@@ -71,6 +82,8 @@ def run_robot(seed: int, index: int, change_seed: int, factor: float, out: Path,
     log = plant.load_log(csv)
     ts, n = s.sample_time_s, log.n_total
     t = change_time(change_seed, index, n * ts)
+    if t < EARLIEST_S:
+        raise RuntimeError(f"no feasible change time: the log is {n * ts:.2f} s long")
     ch = dict(kind="stiffness", factor=float(factor), times_s=[t])
     changes = [(int(math.ceil(t / ts)), ir.IndependentRobot(c))
                for c in bc.changed_settings(s, ch)]
@@ -140,11 +153,14 @@ def main(argv=None):
     ap.add_argument("--robust-out", type=Path, default=br.DEFAULT_OUT,
                     help="the robustness suite's cache (logs and default identifications)")
     a = ap.parse_args(argv)
-    if a.n < 1 or a.jobs < 1 or not a.factor > 0:
-        ap.error("--n and --jobs must be >= 1 and --factor > 0")
+    if a.n < 1 or a.jobs < 1 or not a.factor > 0 or a.seed < 0 or a.change_seed < 0:
+        ap.error("--n and --jobs must be >= 1, --factor > 0 and the seeds >= 0")
     jobs = [(a.seed, i, a.change_seed, a.factor, str(a.out), str(a.robust_out))
             for i in range(a.n)]
-    rows = [r for r in br.run_jobs(_job, jobs, a.jobs) if "skipped" not in r]
+    rows = br.run_jobs(_job, jobs, a.jobs)
+    skipped = [r for r in rows if "skipped" in r]
+    n_rigid = sum(r["skipped"] == "rigid" for r in skipped)
+    rows = [r for r in rows if "skipped" not in r]
     errors = [r for r in rows if "error" in r]
     rows = [r for r in rows if "error" not in r]
     print(f"\nstiffness x{a.factor:g} on every flexible robot of draw {a.seed} "
@@ -161,7 +177,9 @@ def main(argv=None):
               f"{str(r['static']['max_e_after']):13} {str(r['adaptive']['max_e_after']):15} "
               f"{ups:34} {evs}")
     n = len(rows)
-    print(f"\nsummary over {n} flexible robots ({len(errors)} errors):")
+    print(f"\nsummary over {n} flexible robots ({len(errors)} errors; {n_rigid} rigid robots "
+          f"and {len(skipped) - n_rigid} draws without a stable P loop, a feasible reference "
+          f"or a change time skipped):")
     for key, text in [("no_false_update", "no false payload update (> 0.05 kg) at all"),
                       ("no_false_update_before_named", "no false payload update before the "
                                                        "change was named"),
@@ -179,8 +197,8 @@ def main(argv=None):
     for r in worst[:5]:
         print(f"  {r['stem']} ppr {r['ppr']} stiffness x{r['factor']:g} @ {r['t_s']:.2f} s: "
               f"static {r['static']['max_e_after']}, adaptive {r['adaptive']['max_e_after']}; "
-              f"updates {[(round(t, 2), round(m, 2)) for t, m in r['updates']]}; verdict "
-              + ", ".join(k for k, v in r["verdict"].items() if not v))
+              f"updates {[(round(t, 2), round(m, 2)) for t, m in r['updates']]}; failed: "
+              + (", ".join(k for k, v in r["verdict"].items() if not v) or "none"))
     for r in errors:
         print(f"  ERROR {r['stem']}: {r['error']}")
     return 1 if errors else 0
