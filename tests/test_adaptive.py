@@ -912,19 +912,21 @@ def test_agreeing_estimates_that_describe_the_robot_end_an_inconsistent_pause(
     assert np.abs(resp.e_pulses[k:]).max() <= 1
 
 
-@pytest.mark.parametrize("factor, named", [(1.15, True), (0.85, False)])
-def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor, named):
+@pytest.mark.parametrize("factor", [1.15, 0.85])
+def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor):
     """The drive friction x1.15 / x0.85 at 1.0 s (supervisor step 3's rival hypothesis).
 
     A friction change of this size reads as a plausible 2-5 kg payload in
-    single windows.  At x1.15 the friction change fitted beside the payload
-    (dB, dTc per joint) explains two successive windows significantly better
-    (Vuong's test), so the change is named: an ``'unexplained'`` event with
-    ``cause='friction'`` and a warning.  At x0.85 the payload estimates
-    disagree first (4.9, 1.8, 1.9 kg) and the episode is isolated as
-    inconsistent.  Either way the change is reported as not a payload, the
-    controller ends on the prior, and it tracks as the static CTC does
-    (within a pulse).
+    single windows.  The friction change fitted beside the payload (dB, dTc
+    per joint) explains successive windows significantly better (Vuong's
+    test), so the change is named: an ``'unexplained'`` event with
+    ``cause='friction'`` and a warning.  At x0.85 the first window's 4.9 kg
+    estimate, which friction explains better (not significantly), is held
+    (step 5: no payload is in use) -- before, it was installed, the next
+    estimates disagreed (1.8, 1.9 kg) and the episode was isolated as
+    inconsistent, the change never named.  The change is reported as not a
+    payload, the controller ends on the prior, and it tracks as the static
+    CTC does (within a pulse).
     """
     from plant.simulation.friction import friction_vector
 
@@ -933,13 +935,12 @@ def test_a_friction_change_is_reported_not_adapted(paper_log, prior, factor, nam
         warns="does not explain")
     assert resp.success and static.success
     causes = [e.get("cause") for e in adaptive.events if e["kind"] == "unexplained"]
-    assert causes, adaptive.events
-    assert ("friction" in causes) == named, adaptive.identifications
+    assert "friction" in causes, adaptive.identifications
+    assert adaptive.payload_history == []
     fr = [r["friction"] for r in adaptive.identifications if r["decision"] == "friction"]
-    if named:
-        # the fitted change has the friction's sign and beat the payload at the test's level
-        assert any(np.sign(r["change"]["dTc2_Nm"]) == np.sign(factor - 1.0) for r in fr)
-        assert all(r["z_run"] > 3.0 for r in fr)
+    # the fitted change has the friction's sign and beat the payload at the test's level
+    assert any(np.sign(r["change"]["dTc2_Nm"]) == np.sign(factor - 1.0) for r in fr)
+    assert all(r["z_run"] > 3.0 for r in fr)
     np.testing.assert_array_equal(adaptive.f, prior)
     k = int(np.ceil(1.5 / paper_log.rig.sample_time_s))
     assert np.all(np.abs(resp.e_pulses[k:]).max(axis=0)
