@@ -57,15 +57,14 @@ import independent_robot as ir  # noqa: E402
 #: An update to more than this mass is a payload (the changes benchmark's false-update line).
 FALSE_MASS_KG = 0.05
 
+#: A change earlier than this leaves too little of the run before it (the calibration windows).
+EARLIEST_S = 0.3
+
 
 def change_time(change_seed: int, index: int, duration_s: float) -> float:
     """The change's time (s): uniform in 0.6-2.5 s per robot, at most 1 s before the end."""
     t = float(np.random.default_rng([change_seed, index]).uniform(0.6, 2.5))
     return min(t, duration_s - 1.0)
-
-
-#: A change earlier than this leaves too little of the run before it (the calibration windows).
-EARLIEST_S = 0.3
 
 
 def run_robot(seed: int, index: int, change_seed: int, factor: float, out: Path,
