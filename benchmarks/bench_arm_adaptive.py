@@ -15,7 +15,10 @@ looking; rigid; friction known or ``null`` at random), this benchmark
    0.5-5 kg, centre of mass within +-0.15 m of the last link's frame origin
    per axis, at 0.6-2 s), a put-down (the same tool carried from the start and
    put down at 0.6-2 s), a friction change (motor-side viscous and Coulomb
-   friction x0.5-2 at 0.6-2 s: not a payload) or none;
+   friction x0.5-2 at 0.6-2 s: not a payload) or none; with ``--compliant``,
+   ``--kinds`` may also name ``stiffness`` (every joint's spring x0.7) and
+   ``damping`` (every spring's damping x2), issue 21's changes of a flexible
+   robot that are no payload;
 3. runs the static CTC (:meth:`ctc.arm.ArmComputedTorque.from_result`) and
    the adaptive CTC (:class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque`,
    its defaults) on the independent robot through the change
@@ -32,7 +35,8 @@ Scores, from 0.5 s after the change to the end (max abs(e) per joint, pulses):
 payload changes -- adaptive within 1 pulse, last mass within 5 % of the
 carried one (of the tool's mass for a put-down); friction changes -- the
 adaptive CTC no worse than the static one + 1 pulse, no payload installed
-(> 0.05 kg) at the end, the change reported (``'unexplained'``); no change
+(> 0.05 kg) at the end, the change reported (``'unexplained'``); stiffness and
+damping changes -- the same, with no payload installed at any time; no change
 -- no update and no report; every run -- no update > 0.05 kg before the change, no
 current beyond the drive's full scale; the first draw's two adaptive runs
 identical bit for bit.
@@ -66,6 +70,9 @@ from bench_arm_payload import draw_payload  # noqa: E402
 
 FAMILIES = ("planar2", "puma123", "random", "urdf")
 KINDS = ("pick-up", "put-down", "friction", "none")
+#: Changes of the joints' springs, drawn only with ``--kinds`` on compliant draws (issue 21's
+#: non-payload changes of a flexible robot): stiffness x0.7, damping x2 on every joint.
+DRIVE_KINDS = {"stiffness": ("stiffness", 0.7), "damping": ("damping", 2.0)}
 MASS_TOLERANCE = 0.05
 #: Shortest run: the latest change (2 s) plus the 0.5 s before scoring plus 0.1 s scored.
 MIN_RUN_S = 2.6
@@ -79,6 +86,8 @@ def draw_change(seed: int, kinds=KINDS) -> dict:
     ch = dict(kind=kind, t_s=float(rng.uniform(0.6, 2.0)))
     if kind == "friction":
         ch["factor"] = float(np.exp(rng.uniform(math.log(0.5), math.log(2.0))))
+    elif kind in DRIVE_KINDS:
+        ch["factor"] = DRIVE_KINDS[kind][1]
     return ch
 
 
@@ -107,6 +116,10 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool, compliant: bool
         start, m_end = s, 0.0
         after = dataclasses.replace(s, viscous=tuple(v * f for v in s.viscous),
                                     coulomb=tuple((a * f, b * f) for a, b in s.coulomb))
+    elif ch["kind"] in DRIVE_KINDS:
+        field = DRIVE_KINDS[ch["kind"]][0]
+        start, m_end = s, 0.0
+        after = dataclasses.replace(s, **{field: tuple(v * ch["factor"] for v in getattr(s, field))})
     else:
         start, after, m_end = s, None, 0.0
     changes = [] if after is None else [(k_change, ia.IndependentArm(after))]
@@ -171,7 +184,8 @@ def score(r: dict) -> dict:
     t_c = r["change"]["t_s"]
     m_last = hist[-1][1]
     v = dict(payload_ok=None, mass_ok=None, friction_not_worse=None, friction_no_payload=None,
-             friction_reported=None, none_quiet=None)
+             friction_reported=None, drive_not_worse=None, drive_no_payload=None,
+             drive_reported=None, none_quiet=None)
     after_ok = a["max_after"] is not None and max(a["max_after"]) <= 1
     if kind in ("pick-up", "put-down"):
         v["payload_ok"] = after_ok
@@ -182,6 +196,13 @@ def score(r: dict) -> dict:
                                                zip(a["max_after"], st["max_after"])))
         v["friction_no_payload"] = m_last <= 0.05
         v["friction_reported"] = any(ev["kind"] == "unexplained" for ev in a["events"])
+    elif kind in DRIVE_KINDS:
+        v["drive_not_worse"] = bool(a["max_after"] is not None and st["max_after"] is not None
+                                    and all(x <= y + 1 for x, y in
+                                            zip(a["max_after"], st["max_after"])))
+        # no payload at any time: the springs' change is no payload, before or after
+        v["drive_no_payload"] = all(abs(m) <= 0.05 for _, m in hist)
+        v["drive_reported"] = any(ev["kind"] == "unexplained" for ev in a["events"])
     else:
         v["none_quiet"] = len(hist) == 1 and not a["events"]
     if kind == "put-down":  # carried from the start: its first update is expected
@@ -197,6 +218,9 @@ TARGETS = (("payload_ok", "payload change: adaptive <= 1 pulse from 0.5 s after"
            ("friction_not_worse", "friction change: adaptive <= static + 1 pulse"),
            ("friction_no_payload", "friction change: no payload installed at the end"),
            ("friction_reported", "friction change: reported as not a payload"),
+           ("drive_not_worse", "stiffness/damping change: adaptive <= static + 1 pulse"),
+           ("drive_no_payload", "stiffness/damping change: no payload installed at any time"),
+           ("drive_reported", "stiffness/damping change: reported as not a payload"),
            ("none_quiet", "no change: no update and no report"),
            ("no_false_update", "no update > 0.05 kg before the change"),
            ("current_ok", "no current beyond full scale"))
@@ -215,7 +239,7 @@ def _line(r) -> str:
         return f"{r['family']:8s} {r['seed']}  ERROR {r['error']}"
     ch = r["change"]
     what = (f"{ch['kind']} {r['tool']['mass_kg']:.2f} kg" if ch["kind"] in ("pick-up", "put-down")
-            else f"friction x{ch['factor']:.2f}" if ch["kind"] == "friction" else "none")
+            else f"{ch['kind']} x{ch['factor']:.2f}" if "factor" in ch else "none")
     a = r["adaptive"]
     ev = ",".join(sorted({e["kind"] for e in a["events"]})) or "-"
     prior = (f"  prior {r['prior_model']}{'+backlash' if r.get('backlash') else ''}"
@@ -237,13 +261,16 @@ def main(argv=None):
     ap.add_argument("--compliant", action="store_true",
                     help="two-mass flexible joints (half with backlash), the default identification")
     ap.add_argument("--kinds", default=",".join(KINDS),
-                    help=f"comma-separated kinds of change to draw from (default {','.join(KINDS)})")
+                    help=f"comma-separated kinds of change to draw from (default {','.join(KINDS)}; "
+                         f"with --compliant also {','.join(DRIVE_KINDS)})")
     ap.add_argument("--only", default=None,
                     help="rerun just these draws of the call, e.g. planar2:20262001,puma123:20262002")
     a = ap.parse_args(argv)
     kinds = tuple(k.strip() for k in a.kinds.split(",") if k.strip())
-    if not kinds or any(k not in KINDS for k in kinds):
-        ap.error(f"--kinds must name some of {', '.join(KINDS)}, got {a.kinds!r}")
+    allowed = KINDS + (tuple(DRIVE_KINDS) if a.compliant else ())
+    if not kinds or any(k not in allowed for k in kinds):
+        ap.error(f"--kinds must name some of {', '.join(allowed)}, got {a.kinds!r}"
+                 + ("" if a.compliant else f" ({', '.join(DRIVE_KINDS)} need --compliant)"))
     if a.run_s < MIN_RUN_S:
         ap.error(f"--run-s must be at least {MIN_RUN_S} s (a change at 2 s, scored from 0.5 s after)")
     ia.check_counts(ap, a.n, FAMILIES)

@@ -32,19 +32,27 @@ rigid or a two-mass flexible prior (the last paragraph):
    the window's output error above
    :data:`identification.flexible.INADEQUATE_FACTOR` quantisation floors is
    a change a payload does not describe (friction, damping, a collision:
-   decision ``'unexplained'``).  **The rival**: before an update to another
+   decision ``'unexplained'``).  **The rivals**: before an update to another
    payload (not a refinement, not the empty gripper), a change of the drive
    friction under the model in use -- per joint a factor on the viscous and
    on the Coulomb friction
-   (:func:`identification.arm_payload.identify_arm_friction_change`) -- is
-   fitted on the same window, and when it explains the window better than
-   the payload by Vuong's test for non-nested models of the same data
+   (:func:`identification.arm_payload.identify_arm_friction_change`) -- and,
+   on a flexible prior, a change of the joints' springs -- per joint a factor
+   on the stiffness and on the damping
+   (:func:`identification.arm_payload.identify_arm_drive_change`; a gearbox
+   that wears or warms) -- are fitted on the same window, and when one
+   explains the window better than the payload by Vuong's test for
+   non-nested models of the same data
    (:func:`ctc.adaptive.vuong_residual_statistic`, ``z`` beyond the normal
-   quantile of ``false_alarm``; Q. H. Vuong, Econometrica 57, 1989) the
-   decision is ``'friction'`` (``cause`` of the report); once a window of
-   the episode has said friction, the payload must explain each window
-   significantly better than friction (``z`` below minus that quantile)
-   until a window shows no change.  Motor-side
+   quantile of ``false_alarm`` shared among the rivals, Bonferroni, as on
+   the PUMA path; Q. H. Vuong, Econometrica 57, 1989) the decision is that
+   rival's, ``'friction'`` or ``'drive'`` (``cause`` of the report); once a
+   window of the episode has said so, the payload must explain each window
+   significantly better than that rival (``z`` below minus that quantile)
+   until a window shows no change.  Measured on
+   ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping``
+   (``docs/figures/bench_arm_adaptive_drive_changes_20261381.txt``): see
+   :doc:`tutorial_your_robot`.  Motor-side
    viscous friction reflected through a 100:1 gearbox can dominate a small
    arm's dynamics; measured on ``benchmarks/bench_arm_adaptive.py`` (seed
    20261301, planar draw 20261310) a 0.2 % friction change moved the
@@ -288,6 +296,9 @@ class ArmAdaptiveComputedTorque:
     ----------
     flexible : bool
         The prior is a two-mass arm (module docstring).
+    rivals : tuple of str
+        The changes an update is tested against (step 3): ``('friction',)``, and
+        ``('friction', 'drive')`` on a flexible prior.
     design_warnings : list of str
         A flexible prior's design warnings (e.g. the rigid-equivalent CTC
         kept because no flexible design holds the model-error set).
@@ -301,7 +312,7 @@ class ArmAdaptiveComputedTorque:
     events : list of dict
         ``t_s``, ``kind`` (``'update'``, ``'refinement'``, ``'rollback'``,
         ``'unexplained'``, ``'unsafe'``, ``'diagnosis'``) and ``message``;
-        a reported change adds its ``cause`` (``'friction'``, ``'unknown'``;
+        a reported change adds its ``cause`` (``'friction'``, ``'drive'``, ``'unknown'``;
         ``'payload'`` for a diagnosis, with its ``payload``).
     diagnosis : str or None
         What the windows after the watchdog's fallback named (module
@@ -317,10 +328,12 @@ class ArmAdaptiveComputedTorque:
         ``'update'``, ``'refinement'``, ``'not material'`` (a significant
         estimate within :data:`REFINEMENT_KG` of the empty gripper in use),
         ``'held'``, ``'implausible'``,
-        ``'unexplained'``, ``'friction'``, ``'unsafe'``, ``'failed'``; a
+        ``'unexplained'``, ``'friction'``, ``'drive'``, ``'unsafe'``, ``'failed'``; a
         flexible prior's switch check adds ``switch_check_pulses`` and
         ``switch_check_bound``; a fitted friction
-        rival adds ``friction_z``, ``friction_y`` and ``friction_factors``), ``mass_kg``, ``mass_std``, ``lr``, ``threshold``,
+        rival adds ``friction_z``, ``friction_y`` and ``friction_factors``, a fitted
+        springs' rival ``drive_z``, ``drive_y`` and ``drive_factors``), ``mass_kg``,
+        ``mass_std``, ``lr``, ``threshold``,
         ``y_now``, ``y_new`` (pulses^2), ``tracking_mse`` (pulses^2),
         ``elapsed_s``, ``reason`` and, when the decision was taken on the
         second half of a window spanning a change, ``half_window``; a window the
@@ -342,6 +355,7 @@ class ArmAdaptiveComputedTorque:
         from scipy.stats import chi2, norm
 
         from identification.arm_payload import (DEFAULT_ARM_PAYLOAD_BOUNDS,
+                                                identify_arm_drive_change,
                                                 identify_arm_friction_change,
                                                 identify_arm_payload)
 
@@ -403,14 +417,23 @@ class ArmAdaptiveComputedTorque:
         self.n = self._ctc.n
         self._identify_payload = identify_arm_payload
         self._identify_friction = identify_arm_friction_change
+        self._identify_drive = identify_arm_drive_change
         self._z_threshold = float(norm.isf(self.false_alarm))
+        # the rivals of an update (step 3): the drive friction, and on a flexible prior the
+        # joints' springs; a rival stops an update at false_alarm shared among them
+        # (Bonferroni), as on the PUMA path
+        self.rivals = ("friction", "drive") if self.flexible else ("friction",)
+        self._rival_z = float(norm.isf(self.false_alarm / len(self.rivals)))
         # compile the replay kernels now, not inside the loop: one window of the prior's log,
-        # the payload's and the friction rival's
+        # the payload's and the rivals'
         k1 = min(log.n_samples, max(self.window_n, 20))
         first = (0.0, (k1 - 1) * ts)
         identify_arm_payload(log, prior, window_s=first, bounds=self.bounds, workers=1, max_iter=2)
         identify_arm_friction_change(log, prior, window_s=first, currents=None, workers=1,
                                      max_iter=2)
+        if self.flexible:
+            identify_arm_drive_change(log, prior, window_s=first, currents=None, workers=1,
+                                      max_iter=2)
         self.reset()
 
     @classmethod
@@ -454,8 +477,8 @@ class ArmAdaptiveComputedTorque:
         self._pool = []  # estimates of the payload in use since its update (m, sd, beta, com)
         self._since = []  # estimates of windows the model in use describes, since it took effect
         self._odd = 0  # successive windows a payload does not describe
-        self._causes = []  # their causes ('friction', 'unknown')
-        self._friction_named = False  # a friction change reported in this episode
+        self._causes = []  # their causes ('friction', 'drive', 'unknown')
+        self._named = set()  # the rival changes reported in this episode ('friction', 'drive')
         self._warned = False
         self._unsafe = []  # payloads (kg) the switch check refused (flexible priors)
         self.diagnosis = None
@@ -608,7 +631,7 @@ class ArmAdaptiveComputedTorque:
             self._agree = []
             self._cautious = False
             self._rejected = None
-            self._friction_named = False
+            self._named = set()
             self._quiet_refinement(k1, fit, rec, mse)
             return
         if self._at_mass_bound(m):
@@ -623,30 +646,21 @@ class ArmAdaptiveComputedTorque:
             self._unexplained(k1, rec)
             return
         if not _refines(m, self.payload_mass_kg) and m > REFINEMENT_KG:
-            # the rival (step 3): a change of the drive friction under the model in use
-            fr = self._identify_friction(wlog, self.prior, beta=self.beta, window_s=window,
-                                         currents="logged", workers=1)
-            if fr.success:
-                z = vuong_residual_statistic(est.residuals_pulses, fr.residuals_pulses)
-                rec.update(friction_z=float(z), friction_y=float(fr.fun),
-                           friction_factors=dict(viscous=fr.viscous_factor.tolist(),
-                                                 coulomb=fr.coulomb_factor.tolist()))
-                # once the run shows a friction change (this episode's windows), the payload
-                # must explain the window significantly better than friction; before, friction
-                # must explain it significantly better to stop the update
-                suspect = self._friction_named or "friction" in self._causes
-                if z > (-self._z_threshold if suspect else self._z_threshold):
-                    rec.update(decision="friction", cause="friction",
-                               reason=("a friction change (viscous x"
-                                       + " / x".join(f"{v:.3g}" for v in fr.viscous_factor)
-                                       + ", Coulomb x"
-                                       + " / x".join(f"{v:.3g}" for v in fr.coulomb_factor)
-                                       + f", {fr.fun:.4g} pulses^2) explains the window better "
-                                       f"than the payload ({m:.3g} kg, {st['y_new']:.4g}): "
-                                       f"Vuong z {z:.3g} > "
-                                       f"{(-1 if suspect else 1) * self._z_threshold:.3g}"))
-                    self._unexplained(k1, rec)
-                    return
+            # the rivals (step 3): a change of the drive friction, and on a flexible prior of
+            # the joints' springs, under the model in use
+            rival = self._rival(wlog, window, est, m, st, rec)
+            if rival is not None:
+                rec.update(decision=rival[0], cause=rival[0], reason=rival[1])
+                self._unexplained(k1, rec)
+                return
+            ahead = [c for c in self.rivals if rec.get(f"{c}_z", -math.inf) > 0.0]
+            if ahead and self.flexible and self.payload is None and not self._cautious:
+                # a rival ahead of the payload, if not significantly, on a flexible prior with
+                # the empty gripper in use: one window is no reason to install a payload (a
+                # spring that softens reads as one; module docstring, step 3) -- the update
+                # waits for ARM_PERSISTENCE_WINDOWS agreeing estimates, as after a rollback
+                self._cautious = True
+                rec["held_for"] = ahead
         self._odd = 0
         self._causes = []
         if self._rejected is not None and same_payload(m, self._rejected):
@@ -663,8 +677,11 @@ class ArmAdaptiveComputedTorque:
                 same_payload(a[0], m) for a in self._agree)):
             rec.update(decision="held",
                        reason=f"{len(self._agree)} agreeing estimate(s) of "
-                              f"{ARM_PERSISTENCE_WINDOWS} needed after a change no payload "
-                              "explained or a rollback")
+                              f"{ARM_PERSISTENCE_WINDOWS} needed after "
+                              + (" and ".join(f"the {c} rival" for c in rec["held_for"])
+                                 + " explained the window better than the payload, if not "
+                                 "significantly" if rec.get("held_for") else
+                                 "a change no payload explained or a rollback"))
             return
         # the estimates this update rests on: the agreeing ones after a caution (each was
         # held, none installed), else this window's
@@ -813,6 +830,51 @@ class ArmAdaptiveComputedTorque:
         warnings.warn(msg, RuntimeWarning, stacklevel=4)
         return msg
 
+    def _rival(self, wlog, window, est, m, st, rec):
+        """The rival change that explains the window better than the payload estimate, or None.
+
+        Each of :attr:`rivals` is fitted on the window under the model in use
+        (:func:`identification.arm_payload.identify_arm_friction_change`, and on a
+        flexible prior :func:`identification.arm_payload.identify_arm_drive_change`)
+        and tested against the payload by Vuong's ``z`` (positive: the rival
+        better).  Before a rival change has shown in this episode it must explain the
+        window significantly better (``z`` beyond the normal quantile of
+        ``false_alarm`` shared among the rivals); once it has (a window of the
+        episode said so, or it was reported), the payload must explain the window
+        significantly better than it.  Returns ``(cause, reason)`` of the rival
+        furthest beyond its threshold; the fits go into the window's record
+        (``<cause>_z``, ``<cause>_y``, ``<cause>_factors``).
+        """
+        best = None
+        for cause in self.rivals:
+            fit = self._identify_friction if cause == "friction" else self._identify_drive
+            h = fit(wlog, self.prior, beta=self.beta, window_s=window, currents="logged",
+                    workers=1)
+            if not h.success:
+                continue
+            z = float(vuong_residual_statistic(est.residuals_pulses, h.residuals_pulses))
+            if cause == "friction":
+                factors = dict(viscous=h.viscous_factor.tolist(), coulomb=h.coulomb_factor.tolist())
+                what = ("a friction change (viscous x" + " / x".join(
+                    f"{v:.3g}" for v in h.viscous_factor) + ", Coulomb x" + " / x".join(
+                    f"{v:.3g}" for v in h.coulomb_factor))
+            else:
+                factors = dict(stiffness=h.stiffness_factor.tolist(),
+                               damping=h.damping_factor.tolist())
+                what = ("a change of the joints' springs (stiffness x" + " / x".join(
+                    f"{v:.3g}" for v in h.stiffness_factor) + ", damping x" + " / x".join(
+                    f"{v:.3g}" for v in h.damping_factor))
+            rec.update({f"{cause}_z": z, f"{cause}_y": float(h.fun),
+                        f"{cause}_factors": factors})
+            shown = cause in self._named or cause in self._causes
+            threshold = -self._rival_z if shown else self._rival_z
+            if z > threshold and (best is None or z - threshold > best[0]):
+                best = (z - threshold, cause,
+                        f"{what}, {h.fun:.4g} pulses^2) explains the window better than the "
+                        f"payload ({m:.3g} kg, {st['y_new']:.4g}): Vuong z {z:.3g} > "
+                        f"{threshold:.3g}")
+        return None if best is None else best[1:]
+
     def _unexplained(self, k1, rec) -> None:
         """A window no plausible payload describes: reported the second time in a row."""
         self._odd += 1
@@ -823,9 +885,12 @@ class ArmAdaptiveComputedTorque:
             self._cautious = True
             if not self._warned:
                 msg = (f"a change the payload model does not explain at t = {k1 * self.ts:.3f} s "
-                       f"(friction, damping, a collision?): {rec['reason']}; the model is kept")
-                cause = "friction" if "friction" in self._causes else "unknown"
-                self._friction_named = cause == "friction"
+                       f"(friction, springs, a collision?): {rec['reason']}; the model is kept")
+                # the rival the episode's windows named last, else a change no rival describes
+                named = [c for c in self._causes if c in self.rivals]
+                cause = named[-1] if named else "unknown"
+                if named:
+                    self._named.add(cause)
                 self._event(k1, "unexplained", msg, cause=cause)
                 warnings.warn(msg, UnmodelledChangeWarning, stacklevel=3)
                 self._warned = True

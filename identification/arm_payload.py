@@ -99,7 +99,7 @@ from plant.simulation.core import cell_centre
 
 from .api import at_bounds
 from .arm import ARM_REFINE_SUBSTEPS, rig_with_friction
-from .flexible import quantisation_z
+from .flexible import DRIVE_CHANGE_BOUNDS, quantisation_z
 from .friction import friction_layout
 from .refinement import DEFAULT_GAIN, refine
 from .result_schema import jsonable
@@ -108,6 +108,7 @@ from .uncertainty import sandwich_covariance
 __all__ = ["identify_arm_payload", "ArmPayloadResult", "ArmPayloadProblem",
            "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "WIDE_SEARCH_Z",
            "identify_arm_friction_change", "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX",
+           "identify_arm_drive_change", "ArmDriveChangeProblem",
            "prior_from_file"]
 
 #: Names of the searched payload parameters (kg, m).
@@ -280,16 +281,18 @@ class ArmPayloadProblem:
             parts.append(self.joints)
         return np.concatenate(parts + [np.asarray(e, dtype=float).reshape(-1) for e in extra])
 
-    def _link_start(self, beta, th, thd) -> np.ndarray:
+    def _link_start(self, beta, th, thd, joints=None) -> np.ndarray:
         """A two-mass arm's start state ``(q, qd, th, thd)`` (4 n,) for motors at ``th, thd``:
         the links where the springs carry the link's inverse dynamics along the reference
         (module docstring), two fixed-point passes for the link angle in ``D_link(q)``; a
         window at the log's first sample starts as the plant does (springs relaxed, the links
-        where the motors are: :meth:`plant.simulation.plants.Plant.initial_state`)."""
+        where the motors are: :meth:`plant.simulation.plants.Plant.initial_state`).
+        ``joints`` (4 n,) are the lane's ``[K, D, Ia, b]`` (default the problem's)."""
         n = self.n
         if self.k0 == 0:
             return np.concatenate([th, thd, th, thd])
-        K, Ia, b = self.joints[:n], self.joints[2 * n:3 * n], self.joints[3 * n:]
+        joints = self.joints if joints is None else joints
+        K, Ia, b = joints[:n], joints[2 * n:3 * n], joints[3 * n:]
         link_beta = np.asarray(beta, dtype=float) - Ia @ self.plant.motor_inertia_columns
         q = np.array(th, dtype=float)
         sc = np.empty(2 * n)
@@ -358,7 +361,8 @@ class ArmPayloadProblem:
         starts = np.hstack([self.q0 + X[:, p + n:p + 2 * n] / self.spr, X[:, p:p + n]])
         lanes = np.vstack([self.lane(x) for x in X])
         if self.joints is not None:  # the encoders read the motors; the links at the springs'
-            starts = np.vstack([self._link_start(row[:self.prior.size], s[:n], s[n:])
+            r = self.prior.size
+            starts = np.vstack([self._link_start(row[:r], s[:n], s[n:], row[r:r + 4 * n])
                                 for row, s in zip(lanes, starts)])
             # the springs' ringing at the window's start: the links' offsets from there
             starts[:, :n] += X[:, p + 2 * n:p + 3 * n] / self.spr
@@ -536,6 +540,58 @@ def _start_box(log, problem, k0):
 FRICTION_CHANGE_LOG_BOX = math.log(4.0)
 
 
+class ArmDriveChangeProblem(ArmPayloadProblem):
+    """:class:`ArmPayloadProblem` for a change of a two-mass arm's springs instead of a payload.
+
+    ``X = [ln fK_1 .. ln fK_n, ln fD_1 .. ln fD_n, start state]``: per joint the
+    factors on the spring's stiffness K and damping D (the gearbox wearing,
+    softening or stiffening; issue 21's stiffness x0.7 and damping x2), the
+    arm's base parameters held at ``beta`` (the model in use), the reflected
+    motor inertias, backlash and friction the prior's, then the start state as
+    the payload problem's (the links' quasi-static start under the changed
+    springs).  A joint whose damping is zero keeps it.
+
+    Parameters
+    ----------
+    log, plant, k0, k1, currents, gain, substeps, workers
+        As :class:`ArmPayloadProblem` (``plant`` two-mass).
+    beta : array_like, shape (r,)
+        The base parameters held (the model in use, rigid-equivalent).
+    joints : array_like, shape (4 n,)
+        The prior's ``[K, D, Ia, b]``, the factors' reference.
+
+    Raises
+    ------
+    ValueError
+        A rigid plant, or joints of the wrong size.
+    """
+
+    def __init__(self, log, plant, beta, k0, k1, currents, *, joints=None, gain=DEFAULT_GAIN,
+                 substeps=ARM_REFINE_SUBSTEPS, workers=None):
+        if not plant.flexible:
+            raise ValueError("a change of the springs needs a two-mass arm (a flexible prior)")
+        super().__init__(log, plant, beta, k0, k1, currents, gain=gain, substeps=substeps,
+                         workers=workers, joints=joints)
+        self.n_model = 2 * self.n
+
+    def lane(self, x) -> np.ndarray:
+        """Lane parameters for the replay: beta held, the springs' K and D times the factors.
+
+        Parameters
+        ----------
+        x : array_like, shape (6 n,) or (2 n,)
+            A row of X (the log factors first).
+
+        Returns
+        -------
+        ndarray, shape (1, r + 4 n)
+        """
+        n = self.n
+        joints = self.joints.copy()
+        joints[:2 * n] *= np.exp(np.asarray(x[:2 * n], dtype=float))
+        return np.concatenate([self.prior, joints])[None]
+
+
 def identify_arm_friction_change(log, prior, *, beta=None, window_s, currents="logged",
                                  gain=DEFAULT_GAIN, substeps=None, max_iter=40,
                                  workers=None) -> OptimizeResult:
@@ -576,32 +632,93 @@ def identify_arm_friction_change(log, prior, *, beta=None, window_s, currents="l
     ValueError
         As :func:`identify_arm_payload`.
     """
+    n = log.n_joints
+    box = np.tile([-FRICTION_CHANGE_LOG_BOX, FRICTION_CHANGE_LOG_BOX], (2 * n, 1))
+    res = _fit_held_change(ArmFrictionChangeProblem, log, prior, beta, window_s, currents, box,
+                           gain=gain, substeps=substeps, max_iter=max_iter, workers=workers)
+    res.update(viscous_factor=np.exp(res.x[:n]), coulomb_factor=np.exp(res.x[n:]))
+    return res
+
+
+def _fit_held_change(problem_class, log, prior, beta, window_s, currents, factor_box, *, gain,
+                     substeps, max_iter, workers, needs_joints=False) -> OptimizeResult:
+    """A rival change of a window (:func:`identify_arm_friction_change`,
+    :func:`identify_arm_drive_change`): ``problem_class``'s log factors in ``factor_box``
+    (p, 2) from no change, the start state as a payload's, the base parameters held at
+    ``beta`` (default the prior's).  Returns ``x`` (p,), ``fun``, ``nfev``, ``nit``,
+    ``success``, ``message`` and ``residuals_pulses`` (window samples, n)."""
     plant, rig, beta_prior, joints = _prior_of(prior, log, None)
+    if needs_joints and joints is None:
+        raise ValueError("a change of the springs needs a flexible prior (an identify_arm result "
+                         "with model 'flexible')")
     substeps = _substeps_of(prior, joints, substeps)
     if rig is not log.rig:
-        import dataclasses
-
         log = dataclasses.replace(log, rig=rig)
     held = beta_prior if beta is None else np.asarray(beta, dtype=float).reshape(-1)
     if held.shape != beta_prior.shape or not np.all(np.isfinite(held)):
         raise ValueError(f"beta must be {beta_prior.size} finite base parameters")
     k0, k1 = _window_samples(log, window_s)
-    i = _currents_of(log, currents)
-    n = log.n_joints
-    problem = ArmFrictionChangeProblem(log, plant, held, k0, k1, i, gain=gain, substeps=substeps,
-                                       workers=workers, joints=joints)
+    problem = problem_class(log, plant, held, k0, k1, _currents_of(log, currents), gain=gain,
+                            substeps=substeps, workers=workers, joints=joints)
     guess, nuisance_box = problem.start_box(k0)
-    box = np.vstack([np.tile([-FRICTION_CHANGE_LOG_BOX, FRICTION_CHANGE_LOG_BOX], (2 * n, 1)),
-                     nuisance_box])
-    start = np.concatenate([np.zeros(2 * n), guess])
-    ref = refine(problem, start[None], box, max_iter=max_iter, ftol=1e-8)
+    p = len(factor_box)
+    box = np.vstack([factor_box, nuisance_box])
+    ref = refine(problem, np.concatenate([np.zeros(p), guess])[None], box, max_iter=max_iter,
+                 ftol=1e-8)
     x_all = np.asarray(ref.x, dtype=float)
     ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
     return OptimizeResult(
-        x=x_all[:2 * n], fun=float(ref.fun), nfev=int(ref.nfev), nit=int(ref.nit), success=ok,
+        x=x_all[:p], fun=float(ref.fun), nfev=int(ref.nfev), nit=int(ref.nit), success=ok,
         message=(ref.message or "ok") if ok else "the predictor failed: the window does not fit",
-        viscous_factor=np.exp(x_all[:n]), coulomb_factor=np.exp(x_all[n:2 * n]),
-        residuals_pulses=problem.residuals(x_all).reshape(k1 - k0, n))
+        residuals_pulses=problem.residuals(x_all).reshape(k1 - k0, log.n_joints))
+
+
+def identify_arm_drive_change(log, prior, *, beta=None, window_s, currents="logged",
+                              gain=DEFAULT_GAIN, substeps=None, max_iter=40,
+                              workers=None) -> OptimizeResult:
+    """Fit a change of a two-mass arm's springs on a window of its log (the payload's rival).
+
+    The hypothesis a window's payload estimate is tested against on a
+    flexible prior (:class:`ctc.arm_adaptive.ArmAdaptiveComputedTorque`),
+    the arm path's counterpart of the PUMA path's
+    :class:`identification.flexible.DriveChangeParameters`: the arm is the
+    model in use (``beta``), and its joints' springs changed -- per joint a
+    factor on the stiffness K in x0.5 .. x2 and one on the damping D in
+    x0.25 .. x4 (:data:`identification.flexible.DRIVE_CHANGE_BOUNDS`, wider
+    than the flexible design's model-error set, so that a change inside that
+    set is never at the box's edge; :class:`ArmDriveChangeProblem`).  The
+    residuals, the start-state nuisances and the optimiser are
+    :func:`identify_arm_payload`'s.
+
+    Parameters
+    ----------
+    log, beta, window_s, currents, gain, substeps, max_iter, workers
+        As :func:`identify_arm_friction_change`.
+    prior : identification.arm.ArmIdentificationResult
+        A flexible result of :func:`identification.arm.identify_arm` (its
+        two-mass arm, joints and -- when the sidecar had none -- identified
+        friction).
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+        ``x`` (the 2 n log factors), ``fun`` (pulses^2), ``nfev``, ``nit``,
+        ``success``, ``message``, ``stiffness_factor`` and ``damping_factor``
+        (n each), ``residuals_pulses`` (window samples, n).
+
+    Raises
+    ------
+    ValueError
+        A rigid prior, or as :func:`identify_arm_payload`.
+    """
+    n = log.n_joints
+    bounds = np.log(np.asarray(DRIVE_CHANGE_BOUNDS, dtype=float))  # K, K, D, D of two joints
+    box = np.vstack([np.tile(bounds[0], (n, 1)), np.tile(bounds[2], (n, 1))])
+    res = _fit_held_change(ArmDriveChangeProblem, log, prior, beta, window_s, currents, box,
+                           gain=gain, substeps=substeps, max_iter=max_iter, workers=workers,
+                           needs_joints=True)
+    res.update(stiffness_factor=np.exp(res.x[:n]), damping_factor=np.exp(res.x[n:]))
+    return res
 
 
 def _window_samples(log, window_s):
