@@ -45,8 +45,9 @@ Scores (from 0.5 s after the last change to the end of the run, max abs(e)
 in pulses per joint): payload cases -- adaptive within 1 pulse, last mass
 within 5 % of the mass carried at the end (``put-down``: within 5 % of the
 tool's mass of zero); non-payload cases -- no divergence, adaptive no worse
-than static + 1 pulse, the change reported (an ``'unexplained'`` event);
-every case -- no update before the (first) change that moves the mass by
+than static + 1 pulse, the change reported (an ``'unexplained'`` event), and
+not turned into a payload (no model of more than 0.05 kg in use at any time
+after it); every case -- no update before the (first) change that moves the mass by
 more than 0.05 kg, no commanded current beyond full scale.  With
 ``--repeat`` the first case's adaptive run is repeated and compared bit for
 bit.
@@ -83,7 +84,7 @@ PAYLOAD_KINDS = ("pick-up", "put-down")
 TARGETS = {"payload_rigid": 0.90, "payload_flexible": 0.80, "mass_within_5pct": 1.0,
            "nonpayload_no_divergence": 1.0, "nonpayload_not_worse": 1.0,
            "nonpayload_reported": 1.0, "nonpayload_visible_reported": 1.0,
-           "no_false_update": 1.0, "within_full_scale": 1.0, "no_update_before": None,
+           "nonpayload_no_payload": 1.0, "no_false_update": 1.0, "within_full_scale": 1.0, "no_update_before": None,
            "oracle_payload_rigid": None, "oracle_payload_flexible": None}
 #: a run is stopped (and reported diverged) once an error exceeds this many pulses
 DIVERGED_PULSES = 5000
@@ -317,7 +318,8 @@ def score(row: dict) -> dict:
     t_first = ch["times_s"][0]
     m_before = [m for t, m in hist if t < t_first]
     v = dict(payload=None, mass=None, nonpayload_no_divergence=None, nonpayload_not_worse=None,
-             nonpayload_reported=None, nonpayload_visible_reported=None, oracle_payload=None)
+             nonpayload_reported=None, nonpayload_visible_reported=None,
+             nonpayload_no_payload=None, oracle_payload=None)
     v["no_false_update"] = all(abs(m) <= 0.05 for m in m_before)
     v["no_update_before"] = not m_before
     v["within_full_scale"] = all(row[c]["max_i_cmd"] <= row["i_full_scale"] + 1e-9
@@ -339,6 +341,9 @@ def score(row: dict) -> dict:
             and all(a <= b + 1 for a, b in zip(ad["max_e_after"], st["max_e_after"])))
         v["nonpayload_reported"] = any(ev["kind"] == "unexplained" and ev["t_s"] >= t_first
                                        for ev in ad["events"])
+        # not turned into a payload: no model with more than 0.05 kg in use at any time after
+        # the change (a payload installed, even if a later rule dropped it)
+        v["nonpayload_no_payload"] = all(abs(m) <= 0.05 for t, m in hist if t >= t_first)
         # visible: the static CTC tracks worse after the change than before it (a change
         # that leaves the errors where they were leaves no evidence to report)
         if st["max_e_after"] is not None and any(
@@ -362,6 +367,7 @@ def summarise(rows):
         "nonpayload_not_worse": frac("nonpayload_not_worse"),
         "nonpayload_reported": frac("nonpayload_reported"),
         "nonpayload_visible_reported": frac("nonpayload_visible_reported"),
+        "nonpayload_no_payload": frac("nonpayload_no_payload"),
         "no_false_update": frac("no_false_update"),
         "within_full_scale": frac("within_full_scale"),
         "no_update_before": frac("no_update_before"),
@@ -379,6 +385,7 @@ LABELS = {
     "nonpayload_not_worse": "non-payload change: adaptive <= static + 1 pulse",
     "nonpayload_reported": "non-payload change reported as not a payload",
     "nonpayload_visible_reported": "... of those the static CTC's errors show (> before + 1)",
+    "nonpayload_no_payload": "non-payload change: no payload (> 0.05 kg) installed after it",
     "no_false_update": "no update > 0.05 kg before the change",
     "within_full_scale": "no commanded current beyond full scale",
     "no_update_before": "reference: no update at all (0 kg included) before the change",
@@ -502,7 +509,10 @@ def _job(args):
     stem = br.stem_of(seed, index)
     cache = out / "cases" / f"{stem}.json"
     if cache.exists():
-        return json.loads(cache.read_text())
+        row = json.loads(cache.read_text())
+        if "verdict" in row:  # scored anew: a target added since the case ran is scored too
+            row["verdict"] = score(row)
+        return row
     try:
         row = run_case(seed, index, out, robust_out, repeat=repeat,
                        adaptive_options=adaptive_options, design_options=design_options)

@@ -236,6 +236,14 @@ it in ``optimisers``):
     of the changes benchmark rerun alone on the version whose CTC checks those
     ranges (``--cases 21 --jobs 1``, fresh ``--out``, stdout:
     ``figures/changes_20261327_case_21_joint_ranges_run.txt``).
+``changes_seventh``
+    ``benchmarks/bench_changes.py --n 58 --seed 20261329 --jobs 2`` with fresh
+    output and robustness folders: a seventh draw, on a seed chosen before its
+    first run, run once, on the version of the sixth draw's table (its report
+    ``figures/changes_20261329_run.txt``; about 65 min on 2 cores beside other runs);
+    then the same command over that run's ``--out`` folder, which rescored its cached
+    cases with the target added after it (no payload installed after a non-payload
+    change): ``figures/changes_20261329.txt``, ``.rst``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the
@@ -355,6 +363,18 @@ it in ``optimisers``):
     first draw, whose prior the floor rule of :data:`identification.arm.ARM_FLOOR_FACTOR`
     made flexible, ``--n 1 0``:
     ``figures/bench_arm_adaptive_compliant_payload_20262101_floor_rule.txt``).
+``arm_adaptive_drive``
+    ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
+    --seed 20261381``: compliant planar arms whose springs change (every joint's
+    stiffness x0.7 or damping x2; seed chosen before looking; the PUMA 1-3 draws, at
+    16 s per window, did not fit the stop that ran it), on the version with the springs'
+    rival of :mod:`ctc.arm_adaptive` (``figures/bench_arm_adaptive_drive_changes_20261381.txt``)
+    and, the same script at commit 5926562 (the version before it), with the benchmark's
+    new kinds copied in (``figures/bench_arm_adaptive_drive_changes_20261381_before_springs_rival.txt``);
+    then the next three planar draws of the seed, ``--n 6 --only
+    planar2:20261384,planar2:20261385,planar2:20261386``, on both versions
+    (``figures/bench_arm_adaptive_drive_changes_20261381_draws_4_6.txt``,
+    ``..._draws_4_6_before_springs_rival.txt``).
 ``arm_excitation``
     ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
     excitation design for any arm (``design_excitation(..., model=)``) against each
@@ -399,10 +419,10 @@ SECTIONS = ("simulator", "identification", "timings", "alteration", "ctc", "real
             "optimisers", "flexible", "methods", "coverage", "excitation", "online_payload",
             "robustness", "changes", "changes_updates", "changes_reported", "changes_third",
             "changes_fourth", "current_cap", "changes_inconsistent", "changes_fifth",
-            "changes_fallback", "changes_sixth",
+            "changes_fallback", "changes_sixth", "changes_seventh",
             "arms", "arms_compliant", "arms_compliant_puma123", "arms_random", "arm_payload",
             "arm_adaptive",
-            "arm_adaptive_compliant", "arm_excitation")
+            "arm_adaptive_compliant", "arm_adaptive_drive", "arm_excitation")
 WELL_EXCITED = (0, 1, 3, 5, 6, 8)  # f1 f2 f4 f6 f7 f9
 
 
@@ -730,6 +750,12 @@ def changes_sixth(ctx):
                           fresh=True, own_logs=True)
 
 
+def changes_seventh(ctx):
+    """A seventh draw of the changes benchmark, seed chosen before its first run."""
+    return _bench_changes(ctx, "changes_20261329", 20261329, n=2 if ctx["quick"] else 58,
+                          fresh=True, own_logs=True)
+
+
 #: The flexible payload changes of the fourth draw of the changes benchmark (seed 20261130):
 #: every pick-up and put-down on a flexible robot, none chosen by its outcome.
 FOURTH_FLEXIBLE_PAYLOAD_CASES = "1,2,4,5,8,11,16,19,22,28,33,34,44,47,49,50,55,56"
@@ -864,6 +890,21 @@ def arm_adaptive_compliant(ctx):
         text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", *args, "--seed", seed],
                           ctx["raw"], name, timeout=3 * 3600)
         out[name] = {"printed": text.splitlines()[-18:], "wall_s": wall}
+    return out
+
+
+def arm_adaptive_drive(ctx):
+    # compliant arms whose springs change (seed chosen before looking)
+    q = ["--n", "1", "--run-s", "2.6"] if ctx["quick"] else ["--n", "3"]
+    out = {}
+    runs = ((q, "bench_arm_adaptive_drive_changes_20261381"),
+            (["--n", "6", "--only", "planar2:20261384,planar2:20261385,planar2:20261386"],
+             "bench_arm_adaptive_drive_changes_20261381_draws_4_6"))
+    for args, name in runs[:1] if ctx["quick"] else runs:
+        text, wall = _run(["benchmarks/bench_arm_adaptive.py", "--compliant", "--kinds",
+                           "stiffness,damping", *args, "--seed", "20261381"], ctx["raw"], name,
+                          timeout=3 * 3600)
+        out[name] = {"printed": text.splitlines()[-20:], "wall_s": wall}
     return out
 
 
