@@ -341,9 +341,11 @@ def score(row: dict) -> dict:
             and all(a <= b + 1 for a, b in zip(ad["max_e_after"], st["max_e_after"])))
         v["nonpayload_reported"] = any(ev["kind"] == "unexplained" and ev["t_s"] >= t_first
                                        for ev in ad["events"])
-        # not turned into a payload: no model with more than 0.05 kg in use at any time after
-        # the change (a payload installed, even if a later rule dropped it)
-        v["nonpayload_no_payload"] = all(abs(m) <= 0.05 for t, m in hist if t >= t_first)
+        # not turned into a payload: no model with more than 0.05 kg in use at any time from
+        # the change on (a payload installed, even if a later rule dropped it)
+        in_use = [m for t, m in hist if t < t_first][-1:]  # the model in use at the change
+        v["nonpayload_no_payload"] = all(abs(m) <= 0.05 for m in in_use
+                                         + [m for t, m in hist if t >= t_first])
         # visible: the static CTC tracks worse after the change than before it (a change
         # that leaves the errors where they were leaves no evidence to report)
         if st["max_e_after"] is not None and any(

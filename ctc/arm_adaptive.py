@@ -49,7 +49,14 @@ rigid or a two-mass flexible prior (the last paragraph):
    rival's, ``'friction'`` or ``'drive'`` (``cause`` of the report); once a
    window of the episode has said so, the payload must explain each window
    significantly better than that rival (``z`` below minus that quantile)
-   until a window shows no change.  Measured on
+   until a window shows no change.  And on a flexible prior with the empty
+   gripper in use, an update whose estimate a rival explains better at all
+   (``z`` > 0), if not significantly, waits for
+   :data:`ARM_PERSISTENCE_WINDOWS` agreeing estimates (decision ``'held'``,
+   the rivals ahead in the record's ``held_for``; the PUMA path's rule,
+   :mod:`ctc.adaptive` step 5): one window of a softened spring reads as a
+   payload.  The agreeing estimates then install, whatever the rivals say of
+   them.  Measured on
    ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping``
    (``docs/figures/bench_arm_adaptive_drive_changes_20261381.txt``): see
    :doc:`tutorial_your_robot`.  Motor-side
@@ -140,7 +147,8 @@ identified through the prior's two-mass arm
 (:func:`identification.arm_payload.identify_arm_payload`: the springs,
 dampers, motor inertias and backlash held, the links' start state the
 springs' quasi-static deflection under the loaded link plus refined
-offsets), and so is the friction rival; an update switches the
+offsets), and so are the friction rival and the springs' rival (step 3:
+a change of their stiffness and damping); an update switches the
 controller's rigid-equivalent model, whose link model and link-observer
 gains follow (:meth:`ctc.arm.ArmFlexibleComputedTorque.set_beta`).  The
 PUMA path does the same (:class:`ctc.adaptive.AdaptiveComputedTorqueController`
@@ -337,7 +345,9 @@ class ArmAdaptiveComputedTorque:
         ``y_now``, ``y_new`` (pulses^2), ``tracking_mse`` (pulses^2),
         ``elapsed_s``, ``reason`` and, when the decision was taken on the
         second half of a window spanning a change, ``half_window``; a window the
-        payload in use was tested by the quiet refinement, ``quiet_wald`` (step 4).
+        payload in use was tested by the quiet refinement, ``quiet_wald`` (step 4);
+        a window held because a rival explained its estimate (or the one that began
+        the wait) better, ``held_for`` (the rivals, step 3).
 
     Raises
     ------
@@ -473,6 +483,7 @@ class ArmAdaptiveComputedTorque:
         self._rejected = None  # the mass (kg) a rollback rejected, until a window shows no change
         self._probation = None  # (k_from, trigger_mse, previous beta, previous payload)
         self._cautious = False  # after a rollback or an unexplained change: agreeing estimates
+        self._held_for = []  # the rivals ahead of a held update's estimate (step 3), if that began it
         self._agree = []  # the latest successive significant estimates (m, sd, beta, com)
         self._pool = []  # estimates of the payload in use since its update (m, sd, beta, com)
         self._since = []  # estimates of windows the model in use describes, since it took effect
@@ -630,6 +641,7 @@ class ArmAdaptiveComputedTorque:
             self._causes = []
             self._agree = []
             self._cautious = False
+            self._held_for = []
             self._rejected = None
             self._named = set()
             self._quiet_refinement(k1, fit, rec, mse)
@@ -660,7 +672,7 @@ class ArmAdaptiveComputedTorque:
                 # spring that softens reads as one; module docstring, step 3) -- the update
                 # waits for ARM_PERSISTENCE_WINDOWS agreeing estimates, as after a rollback
                 self._cautious = True
-                rec["held_for"] = ahead
+                self._held_for = ahead
         self._odd = 0
         self._causes = []
         if self._rejected is not None and same_payload(m, self._rejected):
@@ -675,12 +687,14 @@ class ArmAdaptiveComputedTorque:
         self._agree = (self._agree + [entry])[-ARM_PERSISTENCE_WINDOWS:]
         if self._cautious and not (len(self._agree) == ARM_PERSISTENCE_WINDOWS and all(
                 same_payload(a[0], m) for a in self._agree)):
+            if self._held_for:
+                rec["held_for"] = list(self._held_for)
             rec.update(decision="held",
                        reason=f"{len(self._agree)} agreeing estimate(s) of "
                               f"{ARM_PERSISTENCE_WINDOWS} needed after "
-                              + (" and ".join(f"the {c} rival" for c in rec["held_for"])
-                                 + " explained the window better than the payload, if not "
-                                 "significantly" if rec.get("held_for") else
+                              + (" and ".join(f"the {c} rival" for c in self._held_for)
+                                 + " explained a window better than the payload, if not "
+                                 "significantly" if self._held_for else
                                  "a change no payload explained or a rollback"))
             return
         # the estimates this update rests on: the agreeing ones after a caution (each was
@@ -688,6 +702,7 @@ class ArmAdaptiveComputedTorque:
         agreed = self._agree if self._cautious else [entry]
         self._agree = []
         self._cautious = False
+        self._held_for = []
         kind = "refinement" if _refines(m, self.payload_mass_kg) else "update"
         if kind == "refinement" and self.payload is None:
             # the empty gripper has no payload to refine: a mass within REFINEMENT_KG of it
@@ -883,9 +898,11 @@ class ArmAdaptiveComputedTorque:
         self._causes.append(rec.get("cause", "unknown"))
         if self._odd >= 2:
             self._cautious = True
+            self._held_for = []
             if not self._warned:
+                what = "friction, springs" if self.flexible else "friction, damping"
                 msg = (f"a change the payload model does not explain at t = {k1 * self.ts:.3f} s "
-                       f"(friction, springs, a collision?): {rec['reason']}; the model is kept")
+                       f"({what}, a collision?): {rec['reason']}; the model is kept")
                 # the rival the episode's windows named last, else a change no rival describes
                 named = [c for c in self._causes if c in self.rivals]
                 cause = named[-1] if named else "unknown"
@@ -1004,6 +1021,7 @@ class ArmAdaptiveComputedTorque:
             self._install(beta_before, payload_before)
             self.payload_history.append((k1 * self.ts, self.payload_mass_kg))
             self._cautious = True
+            self._held_for = []
             self._agree = []
             self._event(k1, "rollback",
                         f"tracking mean square {mse:.3g} pulses^2 after the update, "

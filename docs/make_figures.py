@@ -243,7 +243,8 @@ it in ``optimisers``):
     ``figures/changes_20261329_run.txt``; about 65 min on 2 cores beside other runs);
     then the same command over that run's ``--out`` folder, which rescored its cached
     cases with the target added after it (no payload installed after a non-payload
-    change): ``figures/changes_20261329.txt``, ``.rst``.
+    change): ``figures/changes_20261329.txt``, ``.rst``; case 0057's record, the run's
+    ``cases/indep_20261329_0057.json``: ``figures/changes_20261329_case_57.json``.
 ``arms``
     ``benchmarks/bench_arms.py --n 10 8 6 --seed 20261122``: any serial arm
     (planar two-link, PUMA joints 1-3, six-joint PUMA) on logs of the

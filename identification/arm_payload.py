@@ -563,7 +563,7 @@ class ArmDriveChangeProblem(ArmPayloadProblem):
     Raises
     ------
     ValueError
-        A rigid plant, or joints of the wrong size.
+        A rigid plant, or joints missing or of the wrong size.
     """
 
     def __init__(self, log, plant, beta, k0, k1, currents, *, joints=None, gain=DEFAULT_GAIN,

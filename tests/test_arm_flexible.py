@@ -931,8 +931,7 @@ def test_a_softened_spring_is_no_payload_for_the_adaptive_ctc(compliant, flexibl
     library's plant): a window reads it as a payload of more than 0.3 kg, which the springs'
     rival (identify_arm_drive_change) explains better, if not significantly -- with the
     empty gripper in use that window is held for agreeing estimates, and no payload is
-    installed at any time (the version before installed one); the arm tracks within +-1
-    pulse as the static CTC does."""
+    installed at any time; the arm tracks within +-1 pulse as the static CTC does."""
     log, _, res = compliant
     _, c, _ = flexible_adaptive
     assert c.rivals == ("friction", "drive")
