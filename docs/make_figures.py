@@ -363,7 +363,13 @@ it in ``optimisers``):
     ``figures/bench_arm_adaptive_compliant_payload_20262103_at_7fee51d.txt``; its
     first draw, whose prior the floor rule of :data:`identification.arm.ARM_FLOOR_FACTOR`
     made flexible, ``--n 1 0``:
-    ``figures/bench_arm_adaptive_compliant_payload_20262101_floor_rule.txt``).
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_floor_rule.txt``); that
+    payload draw rerun whole on the version with the springs' rival (``--jobs 1``,
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_springs_rival.txt``), and its
+    draws 20262102 and 20262103 alone (``--only planar2:20262102``, ``--only
+    planar2:20262103``) by the same script at commit 5926562 with the benchmark's new
+    kinds copied in (``figures/bench_arm_adaptive_compliant_payload_20262102_at_5926562.txt``,
+    ``..._20262103_at_5926562.txt``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
@@ -375,7 +381,9 @@ it in ``optimisers``):
     then the next three planar draws of the seed, ``--n 6 --only
     planar2:20261384,planar2:20261385,planar2:20261386``, on both versions
     (``figures/bench_arm_adaptive_drive_changes_20261381_draws_4_6.txt``,
-    ``..._draws_4_6_before_springs_rival.txt``).
+    ``..._draws_4_6_before_springs_rival.txt``); and its first PUMA 1-3 draw on this
+    version, ``--n 0 2 --only puma123:20261381``
+    (``figures/bench_arm_adaptive_drive_changes_20261381_puma123_1.txt``).
 ``arm_excitation``
     ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
     excitation design for any arm (``design_excitation(..., model=)``) against each
