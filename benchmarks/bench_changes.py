@@ -84,7 +84,8 @@ PAYLOAD_KINDS = ("pick-up", "put-down")
 TARGETS = {"payload_rigid": 0.90, "payload_flexible": 0.80, "mass_within_5pct": 1.0,
            "nonpayload_no_divergence": 1.0, "nonpayload_not_worse": 1.0,
            "nonpayload_reported": 1.0, "nonpayload_visible_reported": 1.0,
-           "nonpayload_no_payload": 1.0, "no_false_update": 1.0, "within_full_scale": 1.0, "no_update_before": None,
+           "nonpayload_no_payload": 1.0, "no_false_update": 1.0, "within_full_scale": 1.0,
+           "no_update_before": None,
            "oracle_payload_rigid": None, "oracle_payload_flexible": None}
 #: a run is stopped (and reported diverged) once an error exceeds this many pulses
 DIVERGED_PULSES = 5000
