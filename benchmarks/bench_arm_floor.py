@@ -2,7 +2,7 @@
 
 ``identify_arm(model="auto")`` keeps the rigid model without fitting two-mass
 joints when its prediction-error cost is at most
-:data:`identification.arm.ARM_FLOOR_FACTOR` quantisation floors (``n / 12``
+:data:`identification.model_choice.ARM_FLOOR_FACTOR` quantisation floors (``n / 12``
 pulse^2, a count known to a unit cell).  The threshold must lie above what
 the rigid model leaves on a *rigid* robot -- the quantisation noise and the
 numerics -- and below what a compliant arm's rigid fit leaves.  This
@@ -66,7 +66,7 @@ def _line(c) -> str:
 
 
 def main(argv=None):
-    from identification.arm import ARM_FLOOR_FACTOR
+    from identification.model_choice import ARM_FLOOR_FACTOR
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, nargs="+", default=(6, 6, 0, 6, 6), metavar="N",

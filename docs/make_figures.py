@@ -195,7 +195,7 @@ it in ``optimisers``):
     output and robustness folders: a sixth draw, on a seed chosen before its
     first run (``figures/changes_20261327.rst``, its report
     ``figures/changes_20261327.txt``: its sixth run, on the version whose PUMA
-    model choice uses every robot's rule (:class:`identification.arm.ModelImprovement`),
+    model choice uses every robot's rule (:class:`identification.model_choice.ModelImprovement`),
     with the robustness suite's logs in ``benchmarks/out/robustness`` and every
     prior made anew, ``--out`` fresh; its stdout's progress lines were not kept.
     The version before's, the fifth run below:
@@ -217,7 +217,7 @@ it in ``optimisers``):
     another machine with the same code (``--cases 33,52`` and ``--cases 20,21``,
     fresh folders): ``figures/changes_20261327_cases_33_52_rerun.txt``,
     ``..._cases_20_21_rerun.txt``.  The model choice's excess test
-    (:class:`identification.arm.ModelImprovement`, now the PUMA path's rule
+    (:class:`identification.model_choice.ModelImprovement`, now the PUMA path's rule
     too) on one of its logs, ``tests/data/independent/indep_20261327_0046.csv``:
     ``python -m identification tests/data/independent/indep_20261327_0046.csv``
     (``figures/model_choice_indep_20261327_0046.txt``); the friction box widened
@@ -254,7 +254,7 @@ it in ``optimisers``):
     ``benchmarks/bench_arms.py --compliant --n 6 0 0 --seed 20261701 --jobs 2``:
     planar two-link arms with two-mass joints, half with backlash
     (``figures/arms_compliant.rst``; before the arm path's floor rule,
-    :data:`identification.arm.ARM_FLOOR_FACTOR`:
+    :data:`identification.model_choice.ARM_FLOOR_FACTOR`:
     ``figures/bench_arms_compliant_before_floor_rule.txt``; 3.5 min on 2 cores since the arm's lane
     loop vectorises, 6 min before, with the flexible fit's ``leader_stop``,
     about 25 min before it:
@@ -286,7 +286,7 @@ it in ``optimisers``):
     20262731 --jobs 2`` (the random DH chains with two-mass joints;
     ``figures/bench_arms_random_compliant_20262731.txt`` when rerun: the committed run
     is of the version before the arm path's floor rule,
-    :data:`identification.arm.ARM_FLOOR_FACTOR`, ``..._20262731_before_floor_rule.txt``;
+    :data:`identification.model_choice.ARM_FLOOR_FACTOR`, ``..._20262731_before_floor_rule.txt``;
     its three draws that the rule moves,
     ``--n 0 0 0 2 --seed 20262731`` and ``--n 0 0 0 1 --seed 20262735``, after it:
     ``..._20262731_floor_rule.txt``, ``..._20262735_floor_rule.txt``; before the
@@ -361,7 +361,7 @@ it in ``optimisers``):
     its draw 20262103 on the version before the quiet refinement, the same script at
     commit 7fee51d with ``--only planar2:20262103``:
     ``figures/bench_arm_adaptive_compliant_payload_20262103_at_7fee51d.txt``; its
-    first draw, whose prior the floor rule of :data:`identification.arm.ARM_FLOOR_FACTOR`
+    first draw, whose prior the floor rule of :data:`identification.model_choice.ARM_FLOOR_FACTOR`
     made flexible, ``--n 1 0``:
     ``figures/bench_arm_adaptive_compliant_payload_20262101_floor_rule.txt``); that
     payload draw rerun whole on the version with the springs' rival (``--jobs 1``,
@@ -369,7 +369,11 @@ it in ``optimisers``):
     draws 20262102 and 20262103 alone (``--only planar2:20262102``, ``--only
     planar2:20262103``) by the same script at commit 5926562 with the benchmark's new
     kinds copied in (``figures/bench_arm_adaptive_compliant_payload_20262102_at_5926562.txt``,
-    ``..._20262103_at_5926562.txt``).
+    ``..._20262103_at_5926562.txt``); and that payload draw rerun whole (``--jobs 1``) on
+    the version whose two-mass windows start in the wider box of
+    :mod:`identification.arm_payload` and whose return to the empty gripper is not held
+    (:mod:`ctc.arm_adaptive`, step 3):
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_return_to_prior.txt``.
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
@@ -383,7 +387,12 @@ it in ``optimisers``):
     (``figures/bench_arm_adaptive_drive_changes_20261381_draws_4_6.txt``,
     ``..._draws_4_6_before_springs_rival.txt``); and its first PUMA 1-3 draw on this
     version, ``--n 0 2 --only puma123:20261381``
-    (``figures/bench_arm_adaptive_drive_changes_20261381_puma123_1.txt``).
+    (``figures/bench_arm_adaptive_drive_changes_20261381_puma123_1.txt``).  The six
+    planar draws, ``--n 6 0``, on the version with the wider start box of the two-mass
+    windows (:mod:`identification.arm_payload`)
+    (``figures/bench_arm_adaptive_drive_changes_20261381_start_box.txt``; the return to
+    the empty gripper, which came with it, does not act on these draws: no payload is
+    ever in use).
 ``arm_excitation``
     ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
     excitation design for any arm (``design_excitation(..., model=)``) against each

@@ -10,7 +10,7 @@ from scipy.optimize import OptimizeResult
 import plant
 from plant.logs.sanity import check_experiment
 
-from .ga import run_ga
+from .ga import PAPER_GA, run_ga
 from .objective import IDENTIFICATION_SUBSTEPS, OutputError
 from .parameters import (
     DEFAULT_PAYLOAD_BOUNDS,
@@ -22,7 +22,7 @@ from .parameters import (
 from .flexible import MODELS, apply_model, open_joints_text
 from .friction import FrictionParameters, default_friction_bounds, unknown_friction_indices
 from .models import result_entries
-from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine
+from .refinement import DEFAULT_GAIN, PredictionErrorProblem, refine, widen_guessed_box
 from .result import IdentificationResult
 from .uncertainty import PoorExcitationWarning, uncertainty_entries, warning_text
 from .window import estimate_initial_state
@@ -35,13 +35,6 @@ __all__ = ["identify", "METHODS", "DEFAULT_METHOD", "DEFAULT_PAYLOAD_BOUNDS",
 #: refinement (the default).
 METHODS = ("ga+pem", "paper", "idim-ls", "idim-iv")
 DEFAULT_METHOD = "ga+pem"
-
-#: The paper's GA settings (section 4): 4 subpopulations of 20, 40
-#: generations, SP 2.0, single-point crossover 0.6, generation gap 0.94,
-#: complete-net migration at rate 0.3.
-PAPER_GA = dict(n_subpops=4, n_ind=20, n_gen=40, sp=2.0, p_xover=0.6, ggap=0.94,
-                migration_rate=0.3, migration_interval=5, bits=20)
-
 
 def _check_rng(rng):
     """``rng`` must be None, a seed >= 0 or a numpy Generator (one-line error otherwise)."""
@@ -226,7 +219,7 @@ def identify(
         flexible-joint model (friction included when the sidecar does not
         know it) with every fourth 0.1 s block held back, chooses it when it
         predicts the held-back samples better by the tests of every robot's
-        model choice (:class:`identification.arm.ModelImprovement`: half the
+        model choice (:class:`identification.model_choice.ModelImprovement`: half the
         rigid model's held-back cost, a paired t per block, the
         quantisation floor reached, or half the excess over it), and adds
         gearbox backlash when the model chosen so far stays above the
@@ -500,7 +493,7 @@ def _widen_friction_box(problem, ref, bounds, space, log, ropts):
     box, the fit on that bound far above the quantisation floor;
     ``tests/test_independent_logs.py``).  Its rows are widened as
     :func:`identification.arm.identify_arm` widens its guessed box
-    (:func:`identification.arm.widen_guessed_box`); the f box (the
+    (:func:`identification.refinement.widen_guessed_box`); the f box (the
     sidecar's or a caller's) is kept.
 
     Parameters
@@ -524,8 +517,6 @@ def _widen_friction_box(problem, ref, bounds, space, log, ropts):
         whole widened friction box ``friction_bounds`` (6, 2) for the model
         choice, ``message``; None when nothing was on the box).
     """
-    from .arm import widen_guessed_box
-
     names = space.names(log)
     k = len(names)
     rows = np.arange(k - len(unknown_friction_indices(log.rig)), k)

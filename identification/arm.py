@@ -57,13 +57,15 @@ from plant.simulation.core import cell_centre
 from plant.robot.model import friction_torque
 from plant.logs.rig import F_NAMES, p_law_current, rig_constants
 
-from .flexible import (CHOICE_RATIO, CONTINUATION_FTOL, CONTINUATION_GAINS, INADEQUATE_FACTOR,
+from .flexible import (CONTINUATION_FTOL, CONTINUATION_GAINS, INADEQUATE_FACTOR,
                        MAX_RESTARTS, RESTART_FRACTION, quantisation_floor)
 from .friction import FRICTION_COMPONENTS, friction_layout, joint_friction_columns
+from .ga import PAPER_GA
+from .model_choice import ARM_FLOOR_FACTOR, BACKLASH_T, CHOICE_RATIO, CHOICE_T, ModelImprovement
 from .objective import IDENTIFICATION_SUBSTEPS
 from .idim import (IDIM_FILTER_ORDER, IV_ITERATIONS, REVERSAL_GUARD, cutoff_from_counts,
                    reversal_mask)
-from .refinement import DEFAULT_GAIN, refine, refine_through_gains
+from .refinement import DEFAULT_GAIN, refine, refine_through_gains, widen_guessed_box
 from .result_schema import jsonable
 from .uncertainty import RSE_WARN, sandwich_covariance
 
@@ -72,10 +74,8 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "ARM_METHODS", "ARM_DEFAULT_METHOD", "IDIM_FALLBACK_SEED", "friction_layout",
            "output_error_substeps",
            "ARM_DAMPING_STEP", "ARM_REPORT_SUBSTEPS", "motor_side_friction", "rig_with_friction",
-           "FRICTION_COMPONENTS", "ARM_MODELS", "BACKLASH_T", "ARM_FLOOR_FACTOR", "CHOICE_T",
-           "ARM_MAX_RESTARTS", "BOX_WIDENINGS", "BOX_EDGE", "ModelImprovement", "EXCESS_T",
-           "widen_guessed_box",
-           "held_back_paired_t"]
+           "FRICTION_COMPONENTS", "ARM_MODELS",
+           "ARM_MAX_RESTARTS"]
 
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper", "idim-ls", "idim-iv")
@@ -84,21 +84,6 @@ ARM_DEFAULT_METHOD = "idim+pem"
 #: Seed of the GA that replaces an IDIM-LS start that does not simulate (``"idim+pem"``
 #: with ``rng=None``): the same log gives the same result.
 IDIM_FALLBACK_SEED = 0
-
-#: Times the box around the IDIM estimate is widened when the refinement ends on one of
-#: its bounds (each time that bound moves out by the box's whole width, so the width at
-#: least doubles a round; then the fit is refined again from its point; a widening that
-#: lowers no cost is undone).  That box, the estimate +- (50 % + 10 standard errors), is a
-#: guess, not the robot's: IDIM-LS is biased on a compliant arm (the springs bend the
-#: motor-side accelerations it differentiates), and on the random compliant chain 20262916
-#: of ``benchmarks/bench_arms.py`` a true base parameter (MY1R) lay outside it; the rigid
-#: fit ended on the bound and the two-mass fit, in the same box of beta, could not reach
-#: the robot.  The search restart (:data:`ARM_MAX_RESTARTS`) runs in the widened box, as
-#: the caller's.
-BOX_WIDENINGS = 3
-
-#: A component within this fraction of its box's width from a bound is on that bound.
-BOX_EDGE = 1e-6
 
 #: Relative cost decrease below which the refinement has converged: 1e-6 of a
 #: cost of ~1e3 pulses^2 is ~1e-3 pulses^2, far below what moves an estimate
@@ -655,7 +640,7 @@ class ArmIdentificationResult(OptimizeResult):
         :func:`identify_arm`'s rule: ``flexible_paired_t`` and
         ``flexible_test`` (springs against the rigid model; the test passed:
         ``"ratio"``, ``"paired_t"``, ``"floor"``, ``"excess"`` or None;
-        :class:`ModelImprovement`), ``backlash_paired_t``,
+        :class:`~identification.model_choice.ModelImprovement`), ``backlash_paired_t``,
         ``backlash_test`` and ``backlash_against`` (``"springs"`` or
         ``"rigid"``, the model chosen before the backlash).
     warnings : list of str
@@ -893,7 +878,7 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         the box of :func:`identification.identify`); else the IDIM
         estimate +- (50 % + 10 standard errors), a guess that is widened
         where the refinement ends on one of its bounds
-        (:data:`BOX_WIDENINGS`; ``warnings`` names the parameters, ``bounds``
+        (:data:`~identification.refinement.BOX_WIDENINGS`; ``warnings`` names the parameters, ``bounds``
         of the result is the box the fit ran in).
     ranges : dict, optional
         Physical ranges of the links (masses, centres of mass, inertias,
@@ -912,16 +897,16 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         The robot model (:mod:`identification.arm_flexible`): ``"rigid"``;
         ``"flexible"``, two-mass joints; ``"auto"`` (default): rigid when
         its prediction errors sit at the encoder's quantisation floor
-        (within :data:`ARM_FLOOR_FACTOR` floors), otherwise the springs when
+        (within :data:`~identification.model_choice.ARM_FLOOR_FACTOR` floors), otherwise the springs when
         their held-back prediction-error cost is below
-        :data:`~identification.flexible.CHOICE_RATIO` times the rigid
-        model's or lower per held-back block by more than :data:`CHOICE_T`
+        :data:`~identification.model_choice.CHOICE_RATIO` times the rigid
+        model's or lower per held-back block by more than :data:`~identification.model_choice.CHOICE_T`
         standard errors (a paired t test), or reach the floor where the
         rigid model does not, or leave less than ``CHOICE_RATIO`` of its
-        excess over the floor (:class:`ModelImprovement`).  When the model chosen so far (the springs, or
+        excess over the floor (:class:`~identification.model_choice.ModelImprovement`).  When the model chosen so far (the springs, or
         the rigid model) leaves the held-back samples above the floor, the
         gearbox backlash is fitted too and kept by the same tests against it
-        (:data:`BACKLASH_T`); a model at the floor leaves the backlash
+        (:data:`~identification.model_choice.BACKLASH_T`); a model at the floor leaves the backlash
         nothing to explain, and it is not tried.  A flexible
         fit whose link model is no robot near the log's configurations
         (:meth:`~identification.arm_flexible.ArmFlexibleSpace.link_check`)
@@ -970,7 +955,6 @@ def identify_arm(log, *, method=ARM_DEFAULT_METHOD, plant=None, gain=DEFAULT_GAI
         As :func:`arm_idim_ls`, an unknown method or model, malformed bounds or
         ``output_substeps``.
     """
-    from .api import PAPER_GA
     from .ga import run_ga
 
     t0 = time.perf_counter()
@@ -1279,80 +1263,6 @@ _NO_JOINTS = dict(joint_stiffness_Nm_per_rad=None, joint_damping_Nms_per_rad=Non
                   joint_intervals=None)
 
 
-def widen_guessed_box(problem, ref, bounds, *, guessed=None, nonnegative=None, max_iter, ftol,
-                      callback=None):
-    """Widen a guessed box where the refinement ended on a bound; refine again from there.
-
-    A box that is a guess (:func:`identify_arm`'s around the IDIM estimate;
-    the unknown friction's box that :func:`identification.identify` takes
-    from the log, :func:`identification.friction.default_friction_bounds`)
-    is no constraint of the robot's: a fit that ends on one of its bounds
-    says the data want the parameter beyond it.  Each round moves every
-    such bound of a guessed row out by the box's whole width in that
-    parameter (a non-negative row stays so) and refines again from the
-    fit's point, up to :data:`BOX_WIDENINGS` rounds; a round that does not
-    lower the cost is undone and ends the widening.  The same treatment as a
-    trust region's; a caller's box, the sidecar's or physical ranges are
-    not guesses and are kept as they are.
-
-    Parameters
-    ----------
-    problem : object
-        The refinement's problem (``residuals``; its bounds do not enter it).
-    ref : scipy.optimize.OptimizeResult
-        The refinement's result (``x``, ``fun``, ``nfev``, ``nit``).
-    bounds : ndarray, shape (k, 2)
-        The box of x.
-    guessed : array_like of bool, shape (k,), optional
-        The rows whose box is a guess (default every row).
-    nonnegative : array_like of bool, shape (k,), optional
-        The rows whose lower bound 0 is physical (a friction constant).
-    max_iter, ftol : int, float
-        The refinement's.
-    callback : callable or None
-        The refinement's callback.
-
-    Returns
-    -------
-    ref : OptimizeResult
-        The last refinement (its ``nfev`` and ``nit`` summed over the rounds).
-    bounds : ndarray, shape (k, 2)
-        The box it ran in.
-    widened : list of int
-        Indices of x whose box was widened (in the kept rounds).
-    """
-    bounds = np.asarray(bounds, dtype=float)
-    k = bounds.shape[0]
-    guessed = np.ones(k, bool) if guessed is None else np.asarray(guessed, bool)
-    nonnegative = np.zeros(k, bool) if nonnegative is None else np.asarray(nonnegative, bool)
-    widened = []
-    for _ in range(BOX_WIDENINGS):
-        x = np.asarray(ref.x, dtype=float)
-        width = bounds[:, 1] - bounds[:, 0]
-        low = guessed & (x <= bounds[:, 0] + BOX_EDGE * width)
-        high = guessed & (x >= bounds[:, 1] - BOX_EDGE * width)
-        box = bounds.copy()
-        box[low, 0] -= width[low]
-        box[high, 1] += width[high]
-        box[nonnegative, 0] = np.maximum(box[nonnegative, 0], 0.0)
-        moved = np.flatnonzero(np.any(box != bounds, axis=1))
-        if moved.size == 0:
-            break
-        new = refine(problem, x[None], box, max_iter=max_iter, ftol=ftol, callback=callback)
-        new.nfev = int(new.nfev) + int(ref.nfev)
-        new.nit = int(new.nit) + int(ref.nit)
-        if not new.fun < ref.fun:
-            ref.nfev, ref.nit = new.nfev, new.nit
-            if getattr(new, "interrupted", False):
-                ref.interrupted, ref.message = True, new.message
-            break
-        ref, bounds = new, box
-        widened += [int(i) for i in moved if int(i) not in widened]
-        if getattr(new, "interrupted", False):
-            break
-    return ref, bounds, widened
-
-
 def _held_cost(problem, x, held, residuals=False):
     """Prediction-error cost of x on the held-back residuals (and the residuals, if asked)."""
     r = problem.residuals(np.asarray(x, dtype=float)[None])[0]
@@ -1553,169 +1463,6 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
 
 #: Gains of the backlash fit's continuation (it starts from the spring fit's point).
 CONTINUATION_BACKLASH = (0.1,)
-
-#: ``identify_arm(model="auto")`` keeps the rigid model without fitting the two-mass
-#: joints when its prediction-error cost is at most this many quantisation floors
-#: (``n / 12`` pulse^2; a model chosen within it on the held-back blocks skips the backlash
-#: likewise).  A model that describes
-#: the robot leaves the quantisation noise alone: on 24 rigid robots of the independent
-#: simulator (``benchmarks/bench_arm_floor.py --seed 20262901``: planar, PUMA 560 joints
-#: 1-3, random DH and random URDF chains of 2-4 joints, 500-4096 ppr, friction known or
-#: identified) the rigid fit's cost was 0.990-1.033 floors.  The PUMA 560 path's
-#: :data:`identification.flexible.FLOOR_FACTOR` (2) lets a compliant arm's rigid fit at
-#: 1.4-1.8 floors pass for the noise, and its base parameters carry the springs' bend
-#: (1.2-3.3 % off; ``docs/tutorial_your_robot.rst``, "Compliant joints near the floor").
-ARM_FLOOR_FACTOR = 1.1
-
-#: The two-mass joints are chosen when they halve the rigid model's held-back cost
-#: (:data:`identification.flexible.CHOICE_RATIO`), or lower the cost of the held-back blocks
-#: on average by more than this many standard errors of the mean (a one-sided paired t
-#: test; blocks 0.3 s apart are nearly independent, unlike the quantisation errors of
-#: neighbouring samples: 0.6 % false alarms with a 5 s log's 12 held-back blocks, 1.2 %
-#: with a 3 s log's 7), or reach the quantisation floor (:data:`ARM_FLOOR_FACTOR`, on the
-#: held-back blocks) where the rigid model does not: a spring that is real but stiff
-#: improves the prediction by less than half (and the excess over the floor halved:
-#: :class:`ModelImprovement`).  On the held-back blocks the floor is that of
-#: the whole log: the two-mass models chosen on 18 compliant draws of
-#: ``benchmarks/bench_arms.py`` (``docs/figures/bench_arms_compliant.txt``,
-#: ``..._20262921.txt``, ``bench_arms_random_compliant_20262831.txt``) predict them to
-#: 0.978-1.041 floors, but for two fits that missed the robot (1.70 and 4.98).
-CHOICE_T = 3.0
-
-#: The backlash is kept when, against the model chosen before it (the springs, or the rigid
-#: model when the springs were not chosen), it passes the same tests
-#: (:class:`ModelImprovement`): half the held-back cost, this paired t (:data:`CHOICE_T`),
-#: the floor, or half the excess over the floor.
-BACKLASH_T = 3.0
-
-#: The excess test of :class:`ModelImprovement` (half the simpler model's excess over the
-#: quantisation floor) also asks the held-back blocks for some consistency: a paired t
-#: above this (about one chance in five for a model no better, over 6-12 blocks), so that
-#: one block alone (a reversal, say) does not decide what the costs' levels say.
-EXCESS_T = 1.0
-
-
-class ModelImprovement:
-    """Whether a richer model's held-back prediction beats a simpler one's, and why (a sentence).
-
-    The model choice's rule, for every robot (:func:`identify_arm` and the
-    PUMA 560 path's :func:`identification.flexible.apply_model`): the
-    richer model is *better* when its held-back prediction-error cost is
-    lower and one of these holds:
-
-    * ``"ratio"``: below :data:`~identification.flexible.CHOICE_RATIO` times
-      the simpler's;
-    * ``"paired_t"``: lower per held-back block by more than ``t_threshold``
-      standard errors (:func:`held_back_paired_t`);
-    * ``"floor"``: at the quantisation floor (within :data:`ARM_FLOOR_FACTOR`
-      floors) where the simpler's is not;
-    * ``"excess"``: the simpler's is above the floor's allowance, the
-      richer model leaves less than ``CHOICE_RATIO`` of its *excess* over
-      the floor (``c - floor``, the model error's share of the cost), and
-      the held-back blocks agree at least weakly (paired t above
-      :data:`EXCESS_T`): the ratio test on what a model can explain.  Near
-      the floor the raw ratio cannot reach one half even for a model of
-      the robot (springs at 2.09 floors against a backlash fit's 1.13 is a
-      ratio of 0.54, ``docs/figures/model_choice_indep_20261327_0046.txt``),
-      while a model error halved is the same evidence at any distance from
-      the floor.
-
-    Parameters
-    ----------
-    c_new, c_old : float
-        Held-back costs (pulses^2) of the richer and of the simpler model.
-    r_new, r_old : array_like, shape (n_samples * n_joints,)
-        Their prediction residuals (pulses), sample-major, the whole log.
-    floor : float
-        The quantisation floor (pulses^2) of the held-back samples (their
-        count / 12, :func:`identification.flexible.quantisation_floor`).
-    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
-        The log (its joints and sample time place the held-back blocks).
-    t_threshold : float
-        The paired t test's threshold (:data:`CHOICE_T`, :data:`BACKLASH_T`).
-
-    Attributes
-    ----------
-    t : float
-        The paired t statistic (> 0: the richer model better).
-    test : str or None
-        The first test passed (``"ratio"``, ``"paired_t"``, ``"floor"``,
-        ``"excess"``), or None.
-    why : str
-        The sentence the model choice's ``reason`` quotes.
-    """
-
-    def __init__(self, c_new, r_new, c_old, r_old, floor, log, t_threshold):
-        self.t = held_back_paired_t(r_old, r_new, log)
-        floor_at = ARM_FLOOR_FACTOR * floor
-        ratio = c_new / c_old if c_old > 0 else 1.0
-        applies = c_old > floor_at
-        excess = (c_new - floor) / (c_old - floor) if applies else math.nan
-        lower = bool(np.isfinite(c_new) and c_new < c_old)
-        tests = (("ratio", ratio < CHOICE_RATIO, f"cost ratio {ratio:.3g} < {CHOICE_RATIO}"),
-                 ("paired_t", self.t > t_threshold, f"paired t {self.t:.3g} > {t_threshold:g}"),
-                 ("floor", c_new <= floor_at < c_old,
-                  f"at the quantisation floor ({c_new:.4g} <= {floor_at:.4g} pulses^2), the "
-                  f"simpler model not ({c_old:.4g})"),
-                 ("excess", applies and excess < CHOICE_RATIO and self.t > EXCESS_T,
-                  f"excess over the quantisation floor {floor:.4g} pulses^2 ratio {excess:.3g} "
-                  f"< {CHOICE_RATIO} ({c_new - floor:.4g} / {c_old - floor:.4g}), paired t "
-                  f"{self.t:.3g} > {EXCESS_T:g}"))
-        passed = [(name, why) for name, ok, why in tests if lower and ok]
-        #: the first test passed (``"ratio"``, ``"paired_t"``, ``"floor"``, ``"excess"``), or None
-        self.test = passed[0][0] if passed else None
-        self.why = (passed[0][1] if passed else
-                    f"cost ratio {ratio:.3g} >= {CHOICE_RATIO}, paired t {self.t:.3g} <= "
-                    f"{t_threshold:g}, held-back cost {c_new:.4g} pulses^2 "
-                    + (("above the floor, excess ratio "
-                        + (f"{excess:.3g}" if applies else "n/a (the simpler at the floor)")
-                        + f" (needs < {CHOICE_RATIO} with paired t > {EXCESS_T:g})")
-                       if c_new > floor_at else "with the simpler model at the floor too"))
-
-    @property
-    def better(self) -> bool:
-        """Whether a test passed."""
-        return self.test is not None
-
-
-def held_back_paired_t(ra, rb, log) -> float:
-    """Paired t statistic of the held-back block costs of residuals ``ra`` minus ``rb``.
-
-    Per held-back block (every :data:`~identification.refinement.HOLD_EVERY`-th
-    block of :data:`~identification.refinement.HOLD_BLOCK_S` s) the cost
-    difference ``sum ra^2 - sum rb^2``; their mean over the standard error
-    of the mean (Student's paired t; blocks 0.3 s apart are nearly
-    independent, unlike the quantisation errors of neighbouring samples).
-
-    Parameters
-    ----------
-    ra, rb : array_like, shape (n_samples * n_joints,)
-        Prediction residuals (pulses), sample-major.
-    log : plant.ExperimentLog or plant.logs.arm_log.ArmLog
-        The log (its joints: the columns of ``e_pulses``; ``rig.sample_time_s``).
-
-    Returns
-    -------
-    float
-        > 0 when ``rb`` predicts the held-back blocks better; 0 with fewer
-        than three blocks or a failed prediction (no evidence).
-    """
-    from .refinement import HOLD_BLOCK_S, HOLD_EVERY
-
-    n = int(np.shape(log.e_pulses)[1])
-    ra = np.asarray(ra, dtype=float).reshape(-1, n)
-    rb = np.asarray(rb, dtype=float).reshape(-1, n)
-    block = max(1, int(round(HOLD_BLOCK_S / log.rig.sample_time_s)))
-    idx = np.arange(ra.shape[0]) // block
-    held = idx % HOLD_EVERY == HOLD_EVERY - 1
-    ids = np.unique(idx[held])
-    d = np.array([np.sum(ra[idx == b] ** 2) - np.sum(rb[idx == b] ** 2) for b in ids])
-    if d.size < 3 or not np.all(np.isfinite(d)):
-        return 0.0  # too few blocks, or a failed prediction: no evidence
-    sd = d.std(ddof=1)
-    if sd == 0:
-        return math.inf if d.mean() > 0 else 0.0
-    return float(d.mean() / (sd / math.sqrt(d.size)))
 
 
 def _judge_arm(res, choice, cost, floor_h):

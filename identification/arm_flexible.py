@@ -39,10 +39,10 @@ creep along one flat valley toward the same point.  The model choice
 (:func:`identification.arm.identify_arm`, ``model='auto'``) compares the
 rigid and the flexible fits on held-back blocks
 (:func:`identification.refinement.held_back_mask`) by the tests of
-:class:`identification.arm.ModelImprovement` (the cost ratio of
+:class:`identification.model_choice.ModelImprovement` (the cost ratio of
 :mod:`identification.flexible`, ``CHOICE_RATIO``, a paired t test over the
-blocks, :data:`identification.arm.CHOICE_T`, the quantisation floor,
-:data:`identification.arm.ARM_FLOOR_FACTOR`, and the excess over it), adds the backlash when the
+blocks, :data:`identification.model_choice.CHOICE_T`, the quantisation floor,
+:data:`identification.model_choice.ARM_FLOOR_FACTOR`, and the excess over it), adds the backlash when the
 model chosen so far leaves more than that floor, says which model and why,
 and flags a chosen model above ``INADEQUATE_FACTOR`` floors.
 
@@ -61,7 +61,7 @@ from plant.simulation.arm import arm_plant, link_mode_bound, symmetric_from_lowe
 
 from .flexible import CONTINUATION_FTOL, CONTINUATION_GAINS, H_OMEGA, scan_joints
 from .friction import FRICTION_COMPONENTS, friction_layout
-from .refinement import DEFAULT_GAIN, MaskedProblem, refine_through_gains
+from .refinement import BOX_EDGE, DEFAULT_GAIN, MaskedProblem, refine_through_gains
 
 __all__ = ["ArmFlexibleSpace", "fit_flexible_arm", "MAX_MODE_HZ", "N_STARTS", "ARM_BACKLASH_GRID",
            "IA_FRACTION_BOUNDS", "IA_FRACTION_MAX", "H_REAL",
@@ -208,7 +208,7 @@ class ArmFlexibleSpace:
             A point of the two-mass fit (beta, K, D, Ia, ...).
         edge : float or None
             "On the bound": within this fraction of the bound's width; None:
-            :data:`identification.arm.BOX_EDGE`, the rule the guessed box's
+            :data:`identification.refinement.BOX_EDGE`, the rule the guessed box's
             widening uses.
 
         Returns
@@ -216,7 +216,7 @@ class ArmFlexibleSpace:
         bool
         """
         if edge is None:
-            from .arm import BOX_EDGE as edge
+            edge = BOX_EDGE
         cols = slice(self.r + 2 * self.n, self.r + 3 * self.n)
         hi = np.asarray(box, dtype=float)[cols, 1]
         width = hi - np.asarray(box, dtype=float)[cols, 0]

@@ -45,8 +45,11 @@ a payload bends the springs, and a start state that ignored that would
 start each window with a spring transient of the payload's size (M. W.
 Spong, J. Dyn. Syst. Meas. Control 109, 1987: the link is driven by the
 spring torque alone).  The springs' ringing about that deflection is
-refined too: per joint a link angle offset (within +-20 pulses) and a link
-rate offset.  A window at the log's first sample starts as the plant's
+refined too: per joint a link angle offset (within +-100 pulses: a
+change's transient of tens of pulses leaves the springs ringing; a box of
+20 pulses left the windows after a put-down on the independent simulator
+unexplained) and a link rate offset (within that ringing's rate at the
+joint's two-mass frequency, :meth:`ArmPayloadProblem.start_box`).  A window at the log's first sample starts as the plant's
 simulation of a log does, springs relaxed (the links where the motors are).
 
 Bounded Levenberg--Marquardt (:func:`identification.refinement.refine`)
@@ -142,8 +145,11 @@ WIDE_SEARCH_Z = 3.0
 _WIDE_CORNER_FRACTION = 0.4
 
 #: Half-width (pulses) of a two-mass arm's link-angle offsets from the springs'
-#: quasi-static start (:meth:`ArmPayloadProblem.start_box`): the springs' ringing.
-_LINK_BOX_PULSES = 20.0
+#: quasi-static start (:meth:`ArmPayloadProblem.start_box`): the springs' ringing, which a
+#: change's transient of tens of pulses leaves behind (a box of 20 pulses left the windows
+#: after a put-down unexplained: ``benchmarks/bench_arm_adaptive.py --compliant``, seed
+#: 20262101, planar draw 20262103).
+_LINK_BOX_PULSES = 100.0
 
 
 class ArmPayloadProblem:
@@ -236,9 +242,12 @@ class ArmPayloadProblem:
 
         The rates: the reference's minus the logged error's slope, +- 0.2 rad/s
         + 20 %; the count offsets within +-0.5 pulse of the cell's centre; a
-        two-mass arm's link offsets within +-20 pulses and its link rate
-        offsets within the rates' half-width (the springs ring about their
-        quasi-static deflection).
+        two-mass arm's link offsets within +-100 pulses (``_LINK_BOX_PULSES``)
+        and its link rate offsets within that ringing's rate, ``omega A``
+        (at least the rates' half-width): the springs ring about their
+        quasi-static deflection at the two-mass joint's frequency ``omega =
+        sqrt(K / D_link,jj + K / Ia)`` (the other joints locked, the prior's
+        link inertia at the window's start angles).
 
         Parameters
         ----------
@@ -255,11 +264,28 @@ class ArmPayloadProblem:
         guess = [qd_guess, np.zeros(n)]
         box = [rate_box, np.tile([-0.5, 0.5], (n, 1))]
         if self.joints is not None:
-            half = 0.5 * (rate_box[:, 1] - rate_box[:, 0])
+            half = np.maximum(0.5 * (rate_box[:, 1] - rate_box[:, 0]),
+                              self._ringing_rate(_LINK_BOX_PULSES / self.spr))
             guess += [np.zeros(n), np.zeros(n)]
             box += [np.tile([-_LINK_BOX_PULSES, _LINK_BOX_PULSES], (n, 1)),
                     np.column_stack([-half, half])]
         return np.concatenate(guess), np.vstack(box)
+
+    def _ringing_rate(self, amplitude) -> np.ndarray:
+        """Rate amplitude (rad/s, (n,)) of the springs ringing at ``amplitude`` (rad, (n,))
+        about the window's start: per joint the two-mass frequency ``sqrt(K / D_jj + K /
+        Ia)``, the link inertia ``D_jj`` the prior's at the start angles (the others
+        locked)."""
+        n = self.n
+        K, Ia = self.joints[:n], self.joints[2 * n:3 * n]
+        link_beta = self.prior - Ia @ self.plant.motor_inertia_columns
+        sc = np.empty(2 * n)
+        sc[0::2], sc[1::2] = np.sin(self.q0), np.cos(self.q0)
+        lower, _ = self._dyn(sc, np.zeros(n), link_beta)
+        d = np.abs(np.diag(symmetric_from_lower(lower, n)))
+        with np.errstate(divide="ignore"):
+            omega2 = np.where(d > 0, K / d, 0.0) + np.where(Ia > 0, K / Ia, 0.0)
+        return np.sqrt(omega2) * np.abs(amplitude)
 
     def row(self, beta, *extra) -> np.ndarray:
         """The plant's lane row of base parameters ``beta``: ``[beta, joints, *extra]``.

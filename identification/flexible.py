@@ -23,7 +23,7 @@ Procedure (:func:`apply_model`, called by ``identify(model=...)``):
    the rigid model is chosen);
 2. ``auto``: a log that the rigid fit already predicts to the quantisation
    floor (prediction-error cost at most
-   :data:`identification.arm.ARM_FLOOR_FACTOR` times ``n / 12`` pulse^2, the
+   :data:`identification.model_choice.ARM_FLOOR_FACTOR` times ``n / 12`` pulse^2, the
    variance of a count known to a unit cell; every robot's rule) keeps the
    rigid result without a flexible fit;
 3. otherwise both models are fit with every fourth 0.1 s block *held back*
@@ -34,15 +34,15 @@ Procedure (:func:`apply_model`, called by ``identify(model=...)``):
    Levenberg-Marquardt refinement of :mod:`identification.refinement` from
    the grid's best points.  The flexible model is chosen when it predicts
    the held-back samples better than the rigid model by one of the tests
-   of :class:`identification.arm.ModelImprovement`, the rule of every
+   of :class:`identification.model_choice.ModelImprovement`, the rule of every
    robot's model choice: its held-back prediction-error cost below
-   :data:`CHOICE_RATIO` times the rigid model's, lower per held-back block
-   by a paired t above :data:`identification.arm.CHOICE_T`, at the
+   :data:`~identification.model_choice.CHOICE_RATIO` times the rigid model's, lower per held-back block
+   by a paired t above :data:`identification.model_choice.CHOICE_T`, at the
    quantisation floor where the rigid model is not, or half the rigid
    model's excess over the floor;
 4. backlash, by the rule of every robot (:func:`identification.arm.identify_arm`'s):
    when the model chosen so far (the springs, or the rigid model) leaves
-   the held-back cost above :data:`identification.arm.ARM_FLOOR_FACTOR`
+   the held-back cost above :data:`identification.model_choice.ARM_FLOOR_FACTOR`
    quantisation floors, the fit is repeated with
    the backlash widths (:func:`fit_backlash`: a stiffness x width grid
    from 0, 1 and 2.5 mrad, three gain schedules :data:`BACKLASH_SCHEDULES`,
@@ -50,8 +50,8 @@ Procedure (:func:`apply_model`, called by ``identify(model=...)``):
    joint parameter, then random moves of all of them at once from a stream
    spawned from ``identify``'s ``rng``) and kept when it predicts the
    held-back samples better than that model by one of the tests of
-   :class:`identification.arm.ModelImprovement` (half the cost, a paired t
-   per held-back block above :data:`identification.arm.BACKLASH_T`, the
+   :class:`identification.model_choice.ModelImprovement` (half the cost, a paired t
+   per held-back block above :data:`identification.model_choice.BACKLASH_T`, the
    floor reached, or half the cost's excess over the floor); a width
    reported in ``joint_backlash_rad`` exceeds :data:`BACKLASH_SIGNIFICANCE`
    standard errors;
@@ -124,6 +124,7 @@ from plant.simulation.plants import FlexibleJoints
 from plant.simulation.friction import FRICTION_NAMES, friction_fields
 
 from .friction import default_friction_bounds, full_friction, unknown_friction_indices
+from .model_choice import ARM_FLOOR_FACTOR, BACKLASH_T, CHOICE_RATIO, CHOICE_T, ModelImprovement
 from .parameters import (BaseParameters, HeldModelChange, Parameterisation, PayloadParameters,
                          check_bounds)
 from .refinement import DEFAULT_GAIN, MaskedProblem, PredictionErrorProblem, held_back_mask, refine
@@ -163,16 +164,11 @@ STIFFNESS_GRID = np.linspace(3.2, 5.2, 6)
 #: RK4 step times the fastest mode's angular frequency (see the module docstring).
 H_OMEGA = 0.5
 
-#: A richer model (springs, backlash) is chosen when its held-back cost is below this times
-#: the simpler's, or its excess over the quantisation floor below this times the simpler's
-#: (or by the other tests of :class:`identification.arm.ModelImprovement`).
-CHOICE_RATIO = 0.5
-
 #: A rigid fit whose prediction-error cost exceeds this many quantisation floors (``1/12``
 #: pulse^2 per residual: a count known to a unit cell) has its search restarted from the
 #: IDIM-LS estimate too (:func:`identification.identify`, ``refinement['idim_start']``).
 #: It was also ``auto``'s gate for the flexible fit until the PUMA 560 path took every
-#: robot's rule, :data:`identification.arm.ARM_FLOOR_FACTOR` (1.1): a model of the robot
+#: robot's rule, :data:`identification.model_choice.ARM_FLOOR_FACTOR` (1.1): a model of the robot
 #: leaves the quantisation noise, not twice it.
 FLOOR_FACTOR = 2.0
 
@@ -877,7 +873,7 @@ def held_back_residuals(log, x, space, substeps, workers=None, gain=DEFAULT_GAIN
 
     The held-back blocks' share is the cost of :func:`held_back_cost`; the
     model choice's paired t test
-    (:func:`identification.arm.held_back_paired_t`) compares two models
+    (:func:`identification.model_choice.held_back_paired_t`) compares two models
     block by block on them.
 
     Parameters
@@ -941,7 +937,7 @@ def joint_intervals(log, x, space, substeps, *, workers=None, gain=DEFAULT_GAIN,
     the values, walking out from the fit, whose cost exceeds the fit's by at
     most ``allowance`` -- by default a tenth of a quantisation floor,
     ``(ARM_FLOOR_FACTOR - 1)`` floors, the margin by which the model choice
-    counts a model "at the floor" (:data:`identification.arm.ARM_FLOOR_FACTOR`).
+    counts a model "at the floor" (:data:`identification.model_choice.ARM_FLOOR_FACTOR`).
     It is a zone of indifference around the fit, not a confidence interval:
     the allowance scales with the log's length as the cost does, so a
     longer log of the same kind does not narrow it, and holding the others
@@ -1036,7 +1032,6 @@ def scan_joints(residuals, x, columns, n, box, physical, names, n_residuals, how
     dict
         :func:`range_record`'s.
     """
-    from .arm import ARM_FLOOR_FACTOR
 
     floor = quantisation_floor(n_residuals)
     allow = (ARM_FLOOR_FACTOR - 1.0) * floor if allowance is None else float(allowance)
@@ -1397,7 +1392,7 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
         The chosen model, ``model_choice`` (``rule``,
         ``held_back_cost_rigid_pulses2``, ``held_back_cost_flexible_pulses2``,
         ``ratio``, ``flexible_paired_t`` and ``flexible_test`` (the test of
-        :class:`identification.arm.ModelImprovement` passed, or None),
+        :class:`identification.model_choice.ModelImprovement` passed, or None),
         ``floor_pulses2``, ``mode_hz`` and ``mode_prominence_dec``
         of the error spectrum, ``reason``) and the held-back flexible fit
         (:func:`identify_flexible`'s dict, its x starts the full fit; with
@@ -1432,7 +1427,6 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
     except ValueError:
         mode, prom = [None, None], [None, None]
     # the springs by the rule of every robot's model choice (identify_arm's)
-    from .arm import ARM_FLOOR_FACTOR, CHOICE_T, ModelImprovement
 
     spring = ModelImprovement(c_flex, r_flex, c_rigid, r_rigid, floor, log, CHOICE_T)
     chosen = "flexible" if spring.better else "rigid"
@@ -1447,7 +1441,7 @@ def choose_model(log, rigid, *, space=None, workers=None, gain=DEFAULT_GAIN):
                               f"by paired t > {CHOICE_T:g}, at the quantisation floor (<= "
                               f"{ARM_FLOOR_FACTOR:g} floors) where the simpler is not, or its "
                               f"excess over the floor below {CHOICE_RATIO} x the simpler's "
-                              "(identification.arm.ModelImprovement)"),
+                              "(identification.model_choice.ModelImprovement)"),
                         held_back_cost_rigid_pulses2=c_rigid,
                         held_back_cost_flexible_pulses2=c_flex, ratio=ratio,
                         flexible_paired_t=spring.t, flexible_test=spring.test,
@@ -1654,7 +1648,6 @@ def _apply_model(rigid, log, model, *, workers=None, eligible=True, space=None, 
     floor = quantisation_floor(2 * log.n_samples)
     level = float(ref.get("fun", np.inf)) / floor
     # every robot's rule (identify_arm's): its floor gate, then its tests of a richer model
-    from .arm import ARM_FLOOR_FACTOR, BACKLASH_T, ModelImprovement
 
     if model == "auto" and level <= ARM_FLOOR_FACTOR:
         # the floor rule of every robot's model choice (identify_arm's): a model of the robot

@@ -31,6 +31,7 @@ from .operators import (
 )
 
 __all__ = [
+    "PAPER_GA",
     "BinaryEncoding",
     "ranking",
     "sus",
@@ -45,6 +46,12 @@ __all__ = [
     "GASolver",
     "run_ga",
 ]
+
+#: The paper's GA settings (section 4): 4 subpopulations of 20, 40
+#: generations, SP 2.0, single-point crossover 0.6, generation gap 0.94,
+#: complete-net migration at rate 0.3.
+PAPER_GA = dict(n_subpops=4, n_ind=20, n_gen=40, sp=2.0, p_xover=0.6, ggap=0.94,
+                migration_rate=0.3, migration_interval=5, bits=20)
 
 
 @dataclass(frozen=True)

@@ -174,6 +174,37 @@ def test_a_cautious_update_installs_its_agreeing_estimates_pooled(setting):
     assert c.payload_mass_kg == pytest.approx(TOOL["mass_kg"], rel=0.02)
 
 
+def test_a_return_to_the_empty_gripper_is_not_held_by_caution(setting):
+    """The 2 kg tool carried from the start and put down at 1 s, the controller cautious
+    whenever a payload is in use (as after a change no payload explained): the first window
+    after the put-down returns to the empty gripper -- the prior, the static CTC's model -- on
+    its own estimate (an update, not held for agreeing ones), and the arm tracks within +-1
+    pulse from 0.5 s after the put-down."""
+    from ctc.arm_adaptive import DEFAULT_ARM_LATENCY_S, REFINEMENT_KG
+
+    arm, rig, log, prior, loaded = setting
+    c = ArmAdaptiveComputedTorque(prior, log)
+    real_decide = c._decide
+
+    def cautious_decide(*args):
+        if c.payload is not None:
+            c._cautious = True
+        real_decide(*args)
+
+    c._decide = cautious_decide
+    r = _run(setting, c, start=loaded, schedule=[(T_CHANGE, arm.beta())], n=2000)
+    assert c.payload_history[1][1] == pytest.approx(TOOL["mass_kg"], rel=0.02)
+    after = [rec for rec in c.identifications if rec["window_s"][0] >= T_CHANGE - 1e-9]
+    first = after[0]
+    assert first["mass_kg"] <= REFINEMENT_KG and first["decision"] == "update"
+    assert c.payload is None and c.payload_history[-1][1] == 0.0
+    # in effect the fixed latency after the window's last sample
+    assert c.payload_history[-1][0] == pytest.approx(
+        first["window_s"][1] + rig.sample_time_s + DEFAULT_ARM_LATENCY_S)
+    k = int((T_CHANGE + 0.5) / rig.sample_time_s)
+    assert np.abs(r.e_pulses[k:]).max() <= 1
+
+
 def test_bad_priors_and_options_are_refused_with_one_line(setting):
     _, _, log, prior, _ = setting
     flexible = type(prior)(dict(prior))

@@ -141,7 +141,7 @@ def test_a_compliant_arm_near_the_quantisation_floor_is_not_taken_for_rigid():
     well-excited base parameters beyond 1 %.
     model="auto" fits the springs and the backlash, which reach the floor, and every base
     parameter the log determines is within 1 %."""
-    from identification.arm import ARM_FLOOR_FACTOR
+    from identification.model_choice import ARM_FLOOR_FACTOR
     from identification.flexible import FLOOR_FACTOR, quantisation_floor
 
     log = load_arm_log(DATA / f"{NEAR}.csv")
@@ -319,8 +319,8 @@ def test_a_richer_model_that_halves_the_excess_over_the_quantisation_floor_is_be
     is."""
     from types import SimpleNamespace
 
-    from identification.arm import ARM_FLOOR_FACTOR, BACKLASH_T, EXCESS_T, ModelImprovement
-    from identification.flexible import CHOICE_RATIO
+    from identification.model_choice import (ARM_FLOOR_FACTOR, BACKLASH_T, CHOICE_RATIO, EXCESS_T,
+                                             ModelImprovement)
 
     n, nj = 4000, 2
     log = SimpleNamespace(e_pulses=np.zeros((n, nj)), rig=SimpleNamespace(sample_time_s=1e-3))
@@ -799,6 +799,36 @@ def test_payload_of_a_two_mass_arm_from_a_window(compliant):
         identify_arm_payload(llog, dict(res, plant_row=None), window_s=(0.5, 0.6))
     with pytest.raises(ValueError, match="two-mass plant"):
         identify_arm_payload(llog, res, window_s=(0.5, 0.6), plant=res.plant)
+
+
+def test_the_start_box_holds_the_springs_ringing(compliant):
+    """A window of a two-mass arm starts with its springs ringing about their quasi-static
+    deflection (after a change's transient of tens of pulses): the box of the links' start
+    offsets holds +-100 pulses, and that of their rate offsets the rate of that ringing at
+    each joint's two-mass frequency sqrt(K / D_jj + K / Ia) -- D the prior's link inertia
+    matrix at the window's start (the robot model's, through
+    identification.arm_flexible.inertia_matrices), the other joints locked."""
+    from identification.arm_flexible import inertia_matrices
+    from identification.arm_payload import ArmPayloadProblem
+
+    log, _, res = compliant
+    n, r = log.n_joints, res.plant.base.rank
+    joints = np.asarray(res.plant_row, dtype=float)[r:r + 4 * n]
+    two_mass = arm_plant(res.plant.model, res.plant.base, flexible=True)
+    k0 = 1200
+    p = ArmPayloadProblem(log, two_mass, res.beta, k0, k0 + 200, log.i_A, joints=joints)
+    guess, box = p.start_box(k0)
+    assert box.shape == (4 * n, 2) and np.all(box[:, 0] <= guess) and np.all(guess <= box[:, 1])
+    links, rates = box[2 * n:3 * n], box[3 * n:]
+    assert np.array_equal(links, np.tile([-100.0, 100.0], (n, 1)))
+    K, Ia = joints[:n], joints[2 * n:3 * n]
+    link_beta = res.beta - Ia @ two_mass.motor_inertia_columns
+    D = inertia_matrices(arm_plant(res.plant.model, res.plant.base), link_beta, p.q0[None])[0]
+    ringing = np.sqrt(K / np.diag(D) + K / Ia) * 100.0 / np.abs(p.spr)  # a gear may be < 0
+    motor_half = 0.5 * (box[:n, 1] - box[:n, 0])
+    np.testing.assert_allclose(rates[:, 1], np.maximum(ringing, motor_half), rtol=1e-9)
+    np.testing.assert_allclose(rates[:, 0], -rates[:, 1])
+    assert np.any(ringing > motor_half)  # the ringing widens the box the rates had before
 
 
 def test_a_change_of_the_springs_of_a_two_mass_arm_from_a_window(compliant):

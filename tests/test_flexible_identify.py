@@ -109,10 +109,10 @@ def test_drill_log_with_no_options(drill_log, truth):
     K = np.asarray(t["emulator"]["variant"]["flex_stiffness"])
     assert np.all(np.abs(np.asarray(r.joint_stiffness_Nm_per_rad) - K) < 0.1 * K)
     assert r.model_choice["ratio"] < 0.5
-    # the rule of every robot's model choice (identification.arm.ModelImprovement): the
+    # the rule of every robot's model choice (identification.model_choice.ModelImprovement): the
     # springs by the ratio test; the drill robot has no backlash, and at the floor the
     # springs leave it nothing to explain, so it is not fitted
-    from identification.arm import ARM_FLOOR_FACTOR
+    from identification.model_choice import ARM_FLOOR_FACTOR
 
     mc = r.model_choice
     assert mc["flexible_test"] == "ratio" and mc["flexible_paired_t"] > 0

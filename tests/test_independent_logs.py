@@ -27,7 +27,7 @@ log                                    set-up
                                        friction unknown; the springs alone leave the
                                        held-back samples at 2.1 floors, the backlash
                                        at 1.13 (kept by the excess test of
-                                       ``identification.arm.ModelImprovement``)
+                                       ``identification.model_choice.ModelImprovement``)
 ``indep_20261327_0054``                a draw of the robustness suite (seed 20261327,
                                        index 54): rigid, 3.4 kg payload, friction
                                        unknown; the true viscous friction of joint 2
@@ -191,7 +191,7 @@ def test_identify_meets_the_issue_targets(stem):
 def test_a_backlash_the_springs_leave_above_the_floor_is_kept():
     """The PUMA path's model choice tries the backlash whenever the springs leave the held-back
     samples above the quantisation floor, and keeps it by the tests every robot's model choice
-    uses (identification.arm.ModelImprovement): on the 0.7-0.9 mrad draw the springs sit at
+    uses (identification.model_choice.ModelImprovement): on the 0.7-0.9 mrad draw the springs sit at
     2.1 floors, which the former rule (backlash only above INADEQUATE_FACTOR = 4 floors, kept
     at half the cost) left without backlash."""
     res, _ = _identify("indep_20261327_0046")
@@ -210,7 +210,7 @@ def test_a_friction_box_the_fit_ends_on_is_widened():
     bounds are the widened box, the refinement record and the message say so; a caller's
     friction box is kept as given (and the fit stays on it)."""
     import identification
-    from identification.arm import ARM_FLOOR_FACTOR
+    from identification.model_choice import ARM_FLOOR_FACTOR
     from identification.flexible import FLOOR_FACTOR, quantisation_floor
     from identification.friction import FrictionParameters, default_friction_bounds
 

@@ -1,4 +1,4 @@
-"""The plant package's layout: three subpackages, and the 0.1 flat paths still import."""
+"""The library's layout: plant's three subpackages, the 0.1 flat paths, and no import circles."""
 from __future__ import annotations
 
 import importlib
@@ -50,3 +50,83 @@ def test_subpackages_do_not_import_upwards():
                 assert not mod.startswith(("identification", "ctc")), (path, mod)
                 if path.parent.name == "logs":
                     assert not mod.startswith("plant.simulation"), (path, mod)
+
+
+def _import_graph(packages=("plant", "identification", "ctc")) -> dict:
+    """The library's module import graph ``{module: {modules it imports}}``, read from the
+    source: every ``import`` and ``from ... import`` at any depth (a function-level import
+    is a dependency too), but not those of a module's PEP 562 ``__getattr__`` (a lazy
+    alias under an old name, not a dependency of the module's code)."""
+    import ast
+    from pathlib import Path
+
+    repo = Path(plant.__file__).resolve().parents[1]
+    files = {}
+    for pkg in packages:
+        for path in (repo / pkg).rglob("*.py"):
+            parts = path.relative_to(repo).with_suffix("").parts
+            files[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+
+    def targets(name, node):
+        if isinstance(node, ast.Import):
+            return [a.name for a in node.names if a.name in files]
+        if node.level:
+            base = name.split(".")
+            if files[name].name != "__init__.py":
+                base = base[:-1]
+            base = base[:len(base) - node.level + 1]
+            mod = ".".join(base + ([node.module] if node.module else []))
+        else:
+            mod = node.module
+        found = [f"{mod}.{a.name}" for a in node.names if f"{mod}.{a.name}" in files]
+        return found or ([mod] if mod in files else [])
+
+    graph = {}
+    for name, path in files.items():
+        tree = ast.parse(path.read_text())
+        skip = {id(n) for f in tree.body if isinstance(f, ast.FunctionDef)
+                and f.name == "__getattr__" for n in ast.walk(f)}
+        graph[name] = {t for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
+                       and id(node) not in skip for t in targets(name, node) if t != name}
+    return graph
+
+
+def test_no_module_of_the_library_imports_itself_through_others():
+    """No import circle among the library's modules, function-level imports included
+    (issue 23: the circles of identification's api/arm/flexible and of the closed loop's
+    sample step are gone): the modules form layers.  A package's ``__init__`` re-exports
+    its modules' names, so edges into a package are left out (a module may import a
+    sibling through its package's name only when the package does not import it back)."""
+    graph = _import_graph()
+    packages = {m for m in graph if any(k.startswith(m + ".") for k in graph)}
+    edges = {m: {t for t in deps if t not in packages} for m, deps in graph.items()}
+    # Tarjan's strongly connected components
+    index, low, stack, on, circles = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                circles.append(sorted(comp))
+
+    for v in list(edges):
+        if v not in index:
+            visit(v)
+    assert circles == []
+    # the checker sees function-level imports (identify_arm's of the two-mass fit)
+    assert "identification.arm_flexible" in graph["identification.arm"]

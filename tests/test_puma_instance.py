@@ -229,7 +229,7 @@ def test_identify_arm_auto_chooses_the_flexible_model_on_the_drill_log(drill_res
     assert res.success and res.model == "flexible", res.model_choice
     assert res.model_choice["adequate"] and res.model_choice["ratio"] < 0.1
     # the springs reach the quantisation floor: no backlash left to explain, none fitted
-    from identification.arm import ARM_FLOOR_FACTOR
+    from identification.model_choice import ARM_FLOOR_FACTOR
 
     assert res.model_choice["floor_ratio"] <= ARM_FLOOR_FACTOR
     assert "held_back_cost_backlash_pulses2" not in res.model_choice

@@ -64,7 +64,7 @@ import casadi as ca
 import numpy as np
 
 from plant.robot.codegen import function_source, multiple_angle_form
-from plant.simulation.core import LANE_PAD, STATUS_MESSAGES, STATUS_OK
+from plant.simulation.core import LANE_PAD, STATUS_MESSAGES, STATUS_OK, hold_and_advance
 from plant.simulation.generated import load, module_text
 from plant.simulation.lanes import new_lanes
 from plant.simulation.controllers import P_LAW, LoggedController
@@ -557,10 +557,9 @@ def _module_text(model, rhs_source, code, n_states, n_parameters, flexible) -> s
     Its right-hand side (inlined into the drivers' lane loops up to
     :data:`INLINE_MAX_INSTRUCTIONS`) and dynamics kernel, and copies of the
     drivers :func:`plant.simulation.simulate.logged_run` and
-    :func:`plant.simulation.closed_loop.hold_and_advance` compiled for its kind,
+    :func:`plant.simulation.core.hold_and_advance` compiled for its kind,
     all with numba's on-disk cache.
     """
-    from plant.simulation.closed_loop import hold_and_advance
     from plant.simulation.simulate import logged_run
 
     n = model.n_joints

@@ -39,8 +39,7 @@ import math
 
 import numpy as np
 
-from plant.simulation.anchors import REANCHOR
-from plant.simulation.core import STATUS_MESSAGES, STATUS_OK, advance_sample, encoder_read
+from plant.simulation.core import STATUS_MESSAGES, STATUS_OK, encoder_read, hold_and_advance
 from plant.simulation.plants import RIGID, FlexibleJoints  # noqa: F401 (re-exported for older code)
 from plant.simulation.response import ClosedLoopResponse
 from plant.logs.rig import rig_constants
@@ -66,19 +65,6 @@ def read_encoders(X, enc, c, ref, act, err):
         _, t = encoder_read(ref[m], 1.0)
         act[m] = a
         err[m] = t - a
-
-
-def hold_and_advance(kind, lanes, c, substeps, k, i):
-    """Hold the currents ``i`` (n,) and advance lane 0 over sample ``k``; returns the status.
-
-    Compiled here for the PUMA 560 plants; a robot model's arm compiles a copy
-    for its kind (:attr:`plant.simulation.arm.ArmPlant.kernels`).
-    """
-    P, X, U, A, S, E, idx, W = lanes
-    for m in range(U.shape[0]):
-        U[m, 0] = i[m]
-    advance_sample(kind, P, c, X, U, A, S, W, 1, substeps, k % REANCHOR == 0)
-    return S[0]
 
 
 _read = kernel(read_encoders)

@@ -16,6 +16,10 @@ functions of this module and nothing else::
              v
         next sample
 
+* :func:`hold_and_advance` is the closed loop's sample step of one lane:
+  the controller's currents held, then :func:`advance_sample` (compiled by
+  :mod:`plant.simulation.closed_loop` for the PUMA 560 plants; each robot
+  model's generated module compiles a copy for its kind).
 * :func:`encoder_read` reads an angle as the card does (continuous count and
   its truncation toward zero); :func:`cell_centre` gives the centre of the
   continuous counts an integer count allows.
@@ -103,7 +107,7 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
-from plant.simulation.anchors import lane_sincos, update_anchors, update_anchors_impl
+from plant.simulation.anchors import REANCHOR, lane_sincos, update_anchors, update_anchors_impl
 from plant.simulation.plants import RIGHT_HAND_SIDES
 
 #: LLVM's limit on the run-time alias checks of a loop it vectorises
@@ -148,6 +152,7 @@ __all__ = [
     "anchors_update",
     "store_lane_state",
     "advance_sample",
+    "hold_and_advance",
     "new_workspace",
     "padded_lanes",
     "RUNTIME_MEMORY_CHECKS",
@@ -662,3 +667,39 @@ def advance_sample(kind, P, c, X, U, A, S, W, n, substeps, reanchor):
     for j in range(n):
         if S[j] == STATUS_OK and not _all_finite(lane_state(kind, X, j)):
             S[j] = STATUS_NONFINITE
+
+
+def hold_and_advance(kind, lanes, c, substeps, k, i):
+    """Hold the currents ``i`` (n,) and advance lane 0 over sample ``k``; returns the status.
+
+    The closed loop's sample step (:func:`plant.simulation.closed_loop.simulate_closed_loop`
+    compiles it for the PUMA 560 plants; a robot model's arm compiles a copy for its
+    kind, :attr:`plant.simulation.arm.ArmPlant.kernels`).
+
+    Parameters
+    ----------
+    kind : NamedTuple
+        The plant's kind (its type selects the right-hand side, :func:`plant_rhs`).
+    lanes : plant.simulation.lanes.Lanes
+        The lanes ``(P, X, U, A, S, E, idx, W)``: parameters, state, inputs, anchors,
+        status, ...; lane 0 is advanced.
+    c : NamedTuple
+        The rig constants (:func:`plant.logs.rig.rig_constants`).
+    substeps : int
+        RK4 steps over the sample.
+    k : int
+        The sample's index (every ``plant.simulation.anchors.REANCHOR``-th re-anchors
+        the angles).
+    i : ndarray, shape (n,)
+        The motor currents held over the sample (A).
+
+    Returns
+    -------
+    int
+        Lane 0's status (:data:`STATUS_OK` or a failure code).
+    """
+    P, X, U, A, S, E, idx, W = lanes
+    for m in range(U.shape[0]):
+        U[m, 0] = i[m]
+    advance_sample(kind, P, c, X, U, A, S, W, 1, substeps, k % REANCHOR == 0)
+    return S[0]
