@@ -290,7 +290,7 @@ def optimiser_overhead(bounds, repeats=3):
     (same box, same budget, same population sizes); best of ``repeats``.
     The refinement's overhead is not included (its cost is simulations).
     """
-    from identification.api import PAPER_GA
+    from identification.ga import PAPER_GA
     from identification.ga import run_ga
 
     c, w = bounds.mean(1), bounds[:, 1] - bounds[:, 0]

@@ -77,7 +77,11 @@ rigid or a two-mass flexible prior (the last paragraph):
    significant estimate within :data:`REFINEMENT_KG` of none, which
    describes its window, installs the prior itself -- the static CTC's
    model, the reference the adaptive CTC must not fall behind -- from its
-   one window, whatever the caution (and on probation, as every update).
+   one window, whatever the caution (not when a rollback rejected that
+   return, step 4); it is an update (on probation when it moves the model
+   by more than a refinement would), it is fitted against no rival (the
+   prior is what the static CTC runs), and it ends no episode of caution:
+   a payload after it still needs agreeing estimates.
    Measured on ``benchmarks/bench_arm_adaptive.py --compliant --kinds
    pick-up,put-down --n 3 0 --seed 20262101``, planar draw 20262103 (a
    3.46 kg tool put down at 0.71 s), the version before held the first
@@ -98,12 +102,13 @@ rigid or a two-mass flexible prior (the last paragraph):
    ``explain_factor`` times that of the window that triggered the update
    (and one pulse^2), the update made the arm track worse and the
    controller returns to the model it replaced (event ``'rollback'``);
-   again only agreeing estimates update after that, and none of the payload
-   the rollback rejected (one payload: within 25 % + 50 g) until a window
-   shows no change (the model in use describes the robot: an episode of
-   caution ends there).  A window that shows a
-   change no payload describes (one spanning a pick-up or a put-down) does
-   not judge: its tracking answers that change, and the next window judges.
+   again only agreeing estimates update after that (but a return to the
+   empty gripper, step 3), and none of the payload the rollback rejected
+   (one payload: within 25 % + 50 g) until a window shows no change (the
+   model in use describes the robot: an episode of caution ends there).  A
+   window that shows a change no payload describes (one spanning a pick-up
+   or a put-down) does not judge: its tracking answers that change, and the
+   next window judges.
    A refinement -- an estimate within :data:`REFINEMENT_KG` + 5 % of the
    payload in use, significant against it -- installs every estimate of
    that payload since its update pooled by their information (the
@@ -720,9 +725,12 @@ class ArmAdaptiveComputedTorque:
         # held, none installed), else this window's
         agreed = self._agree if self._cautious else [entry]
         self._agree = []
-        self._cautious = False
-        self._held_for = []
-        kind = "refinement" if _refines(m, self.payload_mass_kg) else "update"
+        if not to_prior:
+            # a return to the prior ends no episode of caution: a window the model
+            # describes does (the payload that comes next still needs agreeing estimates)
+            self._cautious = False
+            self._held_for = []
+        kind = "refinement" if _refines(m, self.payload_mass_kg) and not to_prior else "update"
         if kind == "refinement" and self.payload is None:
             # the empty gripper has no payload to refine: a mass within REFINEMENT_KG of it
             # is the model in use (a refinement installed 0.0002 kg on an unchanged arm)
@@ -751,6 +759,7 @@ class ArmAdaptiveComputedTorque:
         self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com, mass_std=sd_pool)
                          if m_pool > 0 else None, mse, False)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"
+                   + ("; back to the prior (the empty gripper)" if to_prior else "")
                    + (", the second half of a window spanning a change" if rec.get("half_window")
                       else "")
                    + (f"; {len(self._pool)} estimates pooled: {m_pool:.3g} kg"

@@ -77,6 +77,25 @@ __all__ = ["identify_arm", "arm_idim_ls", "rig_search_box", "ArmIdentificationRe
            "FRICTION_COMPONENTS", "ARM_MODELS",
            "ARM_MAX_RESTARTS"]
 
+#: Names that moved below this module (no import circles, issue 23), by their new module.
+_MOVED = {"EXCESS_T": "identification.model_choice",
+          "held_back_paired_t": "identification.model_choice",
+          "BOX_WIDENINGS": "identification.refinement",
+          "BOX_EDGE": "identification.refinement"}
+
+
+def __getattr__(name):
+    """A name that moved below this module (:data:`_MOVED`) is still importable from here,
+    with a DeprecationWarning naming its module (PEP 562)."""
+    if name in _MOVED:
+        import importlib
+        import warnings
+
+        warnings.warn(f"identification.arm.{name} is {_MOVED[name]}.{name}", DeprecationWarning,
+                      stacklevel=2)
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 #: Methods of :func:`identify_arm`; the default.
 ARM_METHODS = ("idim+pem", "ga+pem", "paper", "idim-ls", "idim-iv")
 ARM_DEFAULT_METHOD = "idim+pem"
@@ -1374,7 +1393,7 @@ def _apply_arm_model(res, log, model, problem, bounds, *, workers, max_iter, fto
                         f"simpler's, lower per held-back block by paired t > {CHOICE_T:g}, or "
                         f"at the quantisation floor (<= {ARM_FLOOR_FACTOR:g} floors) where the "
                         f"simpler is not, or its excess over the floor below {CHOICE_RATIO} x the "
-                        "simpler's (ModelImprovement)"),
+                        "simpler's (identification.model_choice.ModelImprovement)"),
                   held_back_cost_rigid_pulses2=c_rigid, held_back_cost_flexible_pulses2=c_flex,
                   held_back_cost_springs_pulses2=c_flex, floor_pulses2=floor_h,
                   flexible_paired_t=spring.t, flexible_test=spring.test)

@@ -39,8 +39,8 @@ creep along one flat valley toward the same point.  The model choice
 (:func:`identification.arm.identify_arm`, ``model='auto'``) compares the
 rigid and the flexible fits on held-back blocks
 (:func:`identification.refinement.held_back_mask`) by the tests of
-:class:`identification.model_choice.ModelImprovement` (the cost ratio of
-:mod:`identification.flexible`, ``CHOICE_RATIO``, a paired t test over the
+:class:`identification.model_choice.ModelImprovement` (the cost ratio,
+:data:`identification.model_choice.CHOICE_RATIO`, a paired t test over the
 blocks, :data:`identification.model_choice.CHOICE_T`, the quantisation floor,
 :data:`identification.model_choice.ARM_FLOOR_FACTOR`, and the excess over it), adds the backlash when the
 model chosen so far leaves more than that floor, says which model and why,

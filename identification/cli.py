@@ -79,6 +79,7 @@ from pathlib import Path
 import numpy as np
 
 from . import sigint
+from .ga import PAPER_GA
 
 __all__ = ["main", "build_parser", "format_result_table"]
 
@@ -525,7 +526,7 @@ def _run(args, stdout, stderr) -> int:
         kwargs.update(consistent=True)
 
     ctrl_c = _GracefulInterrupt(stderr, quiet=args.quiet)
-    n_gen = args.generations or getattr(api, "PAPER_GA", {}).get("n_gen")
+    n_gen = args.generations or PAPER_GA["n_gen"]
     status = _Status(stderr, args.quiet, ctrl_c, n_gen=n_gen)
     status.say(f"identifying {log.name} ({log.n_samples} samples), method {args.method}, "
                f"seed {args.seed}")
@@ -582,7 +583,6 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
     from plant.simulation.arm import kernels_cached
     from plant.simulation.generated import kernel_directory
 
-    from . import api
     from .arm import ARM_DEFAULT_METHOD, identify_arm
 
     unsupported = [opt for opt, on in (("--consistent", args.consistent),
@@ -594,7 +594,7 @@ def _run_arm(args, log_path, out, plot_dir, stdout, stderr) -> int:
         return _run_arm_payload(args, log_path, out, plot_dir, stdout, stderr)
     method = args.method or ARM_DEFAULT_METHOD  # every --method choice is identify_arm's too
     ctrl_c = _GracefulInterrupt(stderr, quiet=args.quiet)
-    n_gen = args.generations or getattr(api, "PAPER_GA", {}).get("n_gen")
+    n_gen = args.generations or PAPER_GA["n_gen"]
     status = _Status(stderr, args.quiet, ctrl_c, n_gen=n_gen)
     log = load_arm_log(log_path)
     status.say(f"identifying {log.name} ({log.n_samples} samples, {log.model.name}, "

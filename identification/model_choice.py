@@ -68,7 +68,7 @@ EXCESS_T = 1.0
 class ModelImprovement:
     """Whether a richer model's held-back prediction beats a simpler one's, and why (a sentence).
 
-    The model choice's rule, for every robot (:func:`identify_arm` and the
+    The model choice's rule, for every robot (:func:`identification.arm.identify_arm` and the
     PUMA 560 path's :func:`identification.flexible.apply_model`): the
     richer model is *better* when its held-back prediction-error cost is
     lower and one of these holds:

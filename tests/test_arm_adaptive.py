@@ -197,6 +197,7 @@ def test_a_return_to_the_empty_gripper_is_not_held_by_caution(setting):
     after = [rec for rec in c.identifications if rec["window_s"][0] >= T_CHANGE - 1e-9]
     first = after[0]
     assert first["mass_kg"] <= REFINEMENT_KG and first["decision"] == "update"
+    assert "back to the prior" in first["reason"]
     assert c.payload is None and c.payload_history[-1][1] == 0.0
     # in effect the fixed latency after the window's last sample
     assert c.payload_history[-1][0] == pytest.approx(
