@@ -373,7 +373,15 @@ it in ``optimisers``):
     the version whose two-mass windows start in the wider box of
     :mod:`identification.arm_payload` and whose return to the empty gripper is not held
     (:mod:`ctc.arm_adaptive`, step 3):
-    ``figures/bench_arm_adaptive_compliant_payload_20262101_return_to_prior.txt``.
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_return_to_prior.txt``, with
+    ``--json`` its windows' decisions (``..._20262101_return_to_prior.json``); and its
+    draw 20262103 alone on the version before (commit b895508, ``--only planar2:20262103
+    --json``): ``figures/bench_arm_adaptive_compliant_payload_20262103_at_b895508.json``.
+    A fresh draw on a seed chosen before its run, ``--compliant --n 6 0 --seed 20261831``
+    (every kind of change), on this version and at commit b895508 side by side
+    (``figures/bench_arm_adaptive_compliant_20261831.txt``,
+    ``..._20261831_at_b895508.txt``; this version's ``--json`` record:
+    ``..._20261831.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's

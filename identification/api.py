@@ -219,8 +219,8 @@ def identify(
         flexible-joint model (friction included when the sidecar does not
         know it) with every fourth 0.1 s block held back, chooses it when it
         predicts the held-back samples better by the tests of every robot's
-        model choice (:class:`identification.model_choice.ModelImprovement`: half the
-        rigid model's held-back cost, a paired t per block, the
+        model choice (:class:`identification.model_choice.ModelImprovement`:
+        half the rigid model's held-back cost, a paired t per block, the
         quantisation floor reached, or half the excess over it), and adds
         gearbox backlash when the model chosen so far stays above the
         quantisation floor and the backlash predicts the held-back samples

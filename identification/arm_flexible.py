@@ -42,8 +42,9 @@ rigid and the flexible fits on held-back blocks
 :class:`identification.model_choice.ModelImprovement` (the cost ratio,
 :data:`identification.model_choice.CHOICE_RATIO`, a paired t test over the
 blocks, :data:`identification.model_choice.CHOICE_T`, the quantisation floor,
-:data:`identification.model_choice.ARM_FLOOR_FACTOR`, and the excess over it), adds the backlash when the
-model chosen so far leaves more than that floor, says which model and why,
+:data:`identification.model_choice.ARM_FLOOR_FACTOR`, and the excess over it),
+adds the backlash when the model chosen so far leaves more than that floor,
+says which model and why,
 and flags a chosen model above ``INADEQUATE_FACTOR`` floors.
 
 Source: M. W. Spong, "Modeling and control of elastic joint robots", J. Dyn.

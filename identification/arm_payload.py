@@ -49,8 +49,9 @@ refined too: per joint a link angle offset (within +-100 pulses: a
 change's transient of tens of pulses leaves the springs ringing; a box of
 20 pulses left the windows after a put-down on the independent simulator
 unexplained) and a link rate offset (within that ringing's rate at the
-joint's two-mass frequency, :meth:`ArmPayloadProblem.start_box`).  A window at the log's first sample starts as the plant's
-simulation of a log does, springs relaxed (the links where the motors are).
+joint's two-mass frequency, :meth:`ArmPayloadProblem.start_box`).  A
+window at the log's first sample starts as the plant's simulation of a log
+does, springs relaxed (the links where the motors are).
 
 Bounded Levenberg--Marquardt (:func:`identification.refinement.refine`)
 from several masses.  A short window may determine some first moments
@@ -148,7 +149,9 @@ _WIDE_CORNER_FRACTION = 0.4
 #: quasi-static start (:meth:`ArmPayloadProblem.start_box`): the springs' ringing, which a
 #: change's transient of tens of pulses leaves behind (a box of 20 pulses left the windows
 #: after a put-down unexplained: ``benchmarks/bench_arm_adaptive.py --compliant``, seed
-#: 20262101, planar draw 20262103).
+#: 20262101, planar draw 20262103, whose windows' decisions on either box are
+#: ``docs/figures/bench_arm_adaptive_compliant_payload_20262103_at_b895508.json`` and
+#: ``..._20262101_return_to_prior.json``).
 _LINK_BOX_PULSES = 100.0
 
 

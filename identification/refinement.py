@@ -526,8 +526,8 @@ def refine(problem, starts, bounds, *, max_iter=40, ftol=1e-10, xtol=1e-10, call
 #: motor-side accelerations it differentiates), and on the random compliant chain 20262916
 #: of ``benchmarks/bench_arms.py`` a true base parameter (MY1R) lay outside it; the rigid
 #: fit ended on the bound and the two-mass fit, in the same box of beta, could not reach
-#: the robot.  The search restart (:data:`identification.arm.ARM_MAX_RESTARTS`) runs in the widened box, as
-#: the caller's.
+#: the robot.  The search restart (:data:`identification.arm.ARM_MAX_RESTARTS`) runs in the
+#: widened box, as the caller's.
 BOX_WIDENINGS = 3
 
 #: A component within this fraction of its box's width from a bound is on that bound.
@@ -538,8 +538,8 @@ def widen_guessed_box(problem, ref, bounds, *, guessed=None, nonnegative=None, m
                       callback=None):
     """Widen a guessed box where the refinement ended on a bound; refine again from there.
 
-    A box that is a guess (:func:`identification.arm.identify_arm`'s around the IDIM estimate;
-    the unknown friction's box that :func:`identification.identify` takes
+    A box that is a guess (:func:`identification.arm.identify_arm`'s around the IDIM
+    estimate; the unknown friction's box that :func:`identification.identify` takes
     from the log, :func:`identification.friction.default_friction_bounds`)
     is no constraint of the robot's: a fit that ends on one of its bounds
     says the data want the parameter beyond it.  Each round moves every
