@@ -381,7 +381,10 @@ it in ``optimisers``):
     (every kind of change), on this version and at commit b895508 side by side
     (``figures/bench_arm_adaptive_compliant_20261831.txt``,
     ``..._20261831_at_b895508.txt``; this version's ``--json`` record:
-    ``..._20261831.json``).
+    ``..._20261831.json``); and a second, payload changes only, ``--compliant --kinds
+    pick-up,put-down --n 6 0 --seed 20261841``, likewise
+    (``figures/bench_arm_adaptive_compliant_payload_20261841.txt``,
+    ``..._20261841_at_b895508.txt``, and both ``--json`` records, ``.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
