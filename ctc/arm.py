@@ -35,6 +35,39 @@ the mid-sample one +-1 (``benchmarks/independent_arm.py``, ``draw("puma123", 1)`
 * the current is saturated at the drive's full scale; the observer is then
   driven by the acceleration the saturated current gives (no windup).
 
+**Held feedback** (``set_beta(beta, feedback_beta=...)``): the model's
+feed-forward with the feedback multiplied by another model's inertia
+matrix::
+
+    tau = D_hat(q_m) qdd_d + D_f(q_m) (a - qdd_d) + n_hat(q_m, qd_d) - tau_f(qd_d)
+
+a computed torque whose feedback keeps the design model's inertia, between
+computed torque and the feedforward scheme with fixed feedback gains
+(Khosla & Kanade, "Experimental evaluation of nonlinear feedback and
+feedforward control schemes for manipulators", IJRR 7(1), 1988; An,
+Atkeson & Hollerbach, *Model-Based Control of a Robot Manipulator*, MIT
+Press 1988).  The observer is driven by the acceleration ``a`` the
+feedback model gives (saturated: ``qdd_d + D_f^-1 (tau - D_hat qdd_d -
+n_hat + tau_f)``), not by the one the model in use predicts (``qdd_d +
+D_hat^-1 D_f (a - qdd_d)``): a trade-off, the observer's correction
+absorbing that bias, for a controller whose map from the measured counts
+to the feedback current is the design's -- gains, observer and ``D_f``
+-- whichever model is in use; the model in use adds ``D_hat qdd_d +
+n_hat``, torque along the reference (at the estimated configuration, so
+its gravity still feeds the position back, as any computed torque's
+does).  Why: where a two-mass joint's motor moves alone against its
+spring, the feedback torque, ``D_hat`` times the outer loop's
+acceleration, drives the motor inertia only, so the loop gain there
+grows with the model's inertia (the two-mass joint of Spong, "Modeling
+and control of elastic joint robots", ASME JDSMC 109(4), 1987); a
+payload's model raises it.  Measured on a compliant planar arm (``benchmarks/bench_arm_adaptive.py --compliant``, seed 20261831,
+draw 20261835) the rigid-equivalent CTC given the right 2.09 kg model
+diverged on the identified two-mass arm carrying the tool
+(``docs/figures/bench_arm_adaptive_compliant_20261831.json``, its switch
+check); with the feedback held it tracks that arm within 36 pulses
+(``..._20261831_held_feedback.json``; the adaptive CTC of such a design
+holds it so, :mod:`ctc.arm_adaptive`).
+
 Safety: :meth:`ArmComputedTorque.from_result` arms the following-error
 limit (``envelope``, :func:`log_envelope`, :class:`ctc.guard.FollowingErrorLimit`,
 the same rule as the PUMA controllers' ``from_result``): a tracking error
@@ -226,6 +259,11 @@ class ArmCTCParameters(NamedTuple):
         friction feed-forward and current limit; n joints).
     beta : ndarray, shape (r,)
         Base parameters of the controller's model.
+    beta_feedback : ndarray, shape (r,)
+        Base parameters of the inertia matrix that multiplies the feedback
+        when ``held_feedback`` (else unused).
+    held_feedback : bool
+        The feedback held at ``beta_feedback``'s inertia matrix (module docstring).
     reference : ndarray, shape (n_samples, 5 n)
         Per sample ``k``: ``q_d, qd_d`` at ``t_k = k Ts`` and ``q, qd, qdd``
         at ``t_k + Ts / 2`` (rad, rad/s, rad/s^2), n columns each.
@@ -249,6 +287,8 @@ class ArmCTCParameters(NamedTuple):
 
     rig: RigConstants
     beta: np.ndarray
+    beta_feedback: np.ndarray
+    held_feedback: bool
     reference: np.ndarray
     kp: np.ndarray
     kv: np.ndarray
@@ -357,7 +397,8 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
     Parameters
     ----------
     lp : ArmCTCParameters
-        The controller's model, reference table, gains and watchdog.
+        The controller's model (and, with ``held_feedback``, the feedback
+        model), reference table, gains and watchdog.
     c : plant.logs.rig.RigConstants
         Rig layout of the simulation (unused: the controller's own is ``lp.rig``).
     k : int
@@ -394,11 +435,19 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
         v[m] = ref[k, 3 * n + m]
     lower, nvec = dynamics(sc, v, lp.beta)  # noqa: F821 - the generated module's
     D = np.empty((n, n))
+    Df = np.empty((n, n))
+    held = lp.held_feedback
+    if held:
+        lower_f, _ = dynamics(sc, v, lp.beta_feedback)  # noqa: F821 - the generated module's
+    else:
+        lower_f = lower
     o = 0
     for m in range(n):
         for i in range(m + 1):
             D[m, i] = lower[o] + 0.0
             D[i, m] = lower[o] + 0.0
+            Df[m, i] = lower_f[o] + 0.0
+            Df[i, m] = lower_f[o] + 0.0
             o += 1
     tf = np.empty(n)
     cur = np.empty(n)
@@ -406,8 +455,15 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
         tf[m] = friction_torque(v[m], rc.viscous[m], rc.coulomb_pos[m], rc.coulomb_neg[m],
                                 rc.ramp_speed[m])
         tau = 0.0
-        for i in range(n):
-            tau += D[m, i] * a[i]
+        if held:  # the model's feed-forward, the feedback at the feedback model's inertia
+            tau_fb = 0.0
+            for i in range(n):
+                tau += D[m, i] * ref[k, 4 * n + i]
+                tau_fb += Df[m, i] * (a[i] - ref[k, 4 * n + i])
+            tau = tau + tau_fb
+        else:
+            for i in range(n):
+                tau += D[m, i] * a[i]
         cur[m] = (tau + nvec[m] - tf[m]) / rc.torque_per_amp[m]
     # saturated: the observer sees the acceleration the saturated current gives the model
     if limit_and_integrate(lp, k, cur, CS, j, n):
@@ -416,10 +472,19 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
         for m in range(n):
             cur[m] = min(max(cur[m], -lim), lim)
             rhs[m] = cur[m] * rc.torque_per_amp[m] - nvec[m] + tf[m]
+        if held:  # ... as the feedback model's: qdd_d + D_f^-1 (tau - D_hat qdd_d - n + tf)
+            for m in range(n):
+                ff = 0.0
+                for i in range(n):
+                    ff += D[m, i] * ref[k, 4 * n + i]
+                rhs[m] = rhs[m] - ff
         try:
-            a = solve_dense(D, rhs)
+            a = solve_dense(Df, rhs)
         except Exception:  # non-finite (numpy's solve gives NaN there) or singular: this lane fails
             a = np.full(n, np.nan)
+        if held:
+            for m in range(n):
+                a[m] += ref[k, 4 * n + m]
     for m in range(n):
         CS[2 * n + m, j] = a[m]
         U[m, j] = cur[m]
@@ -695,6 +760,7 @@ class ArmComputedTorque:
         if np.any(np.linalg.eigvalsh(D) <= 0):
             raise ValueError("the controller's D_hat(q) is not positive definite at the reference's start")
         self._rig = rig
+        self.feedback_beta = None  # the feedback at the model's own inertia (set_beta)
         self.envelope = envelope
         self.reset()
 
@@ -822,12 +888,18 @@ class ArmComputedTorque:
         # the result's rig: the log's, with the friction the identification found
         return cls(result["plant"], m.f, result["rig"], log.trajectory, **design)
 
-    def set_beta(self, beta) -> np.ndarray:
+    def set_beta(self, beta, *, feedback_beta=None) -> np.ndarray:
         """Switch the controller's model to the base parameters ``beta`` (the observer keeps its state).
 
         Parameters
         ----------
         beta : array_like, shape (r,)
+        feedback_beta : array_like, shape (r,), optional
+            Hold the feedback at this model's inertia matrix: ``beta`` then
+            gives the feed-forward ``D_hat qdd_d + n_hat`` only (held
+            feedback, module docstring).  Default: none, the computed
+            torque ``D_hat a + n_hat`` of ``beta`` (a call without it ends a
+            held feedback).
 
         Returns
         -------
@@ -837,10 +909,35 @@ class ArmComputedTorque:
         Raises
         ------
         ValueError
-            beta of the wrong size or not finite.
+            beta or feedback_beta of the wrong size or not finite, or a
+            feedback model whose inertia matrix is not positive definite at
+            the reference's start.
         """
-        self.beta = self.plant.lane_parameters(beta)[:, 0].copy()
+        beta = self.plant.lane_parameters(beta)[:, 0].copy()
+        if feedback_beta is not None:
+            feedback_beta = self.plant.lane_parameters(feedback_beta)[:, 0].copy()
+            q, _, _ = self.trajectory.evaluate(np.zeros(1))
+            if np.any(np.linalg.eigvalsh(self.inertia_matrix(q[0], feedback_beta)) <= 0):
+                raise ValueError("the feedback model's inertia matrix is not positive definite "
+                                 "at the reference's start")
+        self.beta, self.feedback_beta = beta, feedback_beta
         return self.beta
+
+    def inertia_matrix(self, q, beta=None) -> np.ndarray:
+        """The inertia matrix ``D(q)`` (n, n) kg m^2 of the controller's model, or of ``beta``.
+
+        Parameters
+        ----------
+        q : array_like, shape (n,)
+            Joint angles (rad).
+        beta : array_like, shape (r,), optional
+            Base parameters (default: the model in use).
+
+        Returns
+        -------
+        ndarray, shape (n, n)
+        """
+        return self._evaluate(q, np.zeros(self.n), self.beta if beta is None else beta)[0]
 
     def terms(self, q, qd):
         """``D_hat(q)`` (n, n) and ``n_hat(q, qd)`` (n,) of the controller's model.
@@ -855,14 +952,19 @@ class ArmComputedTorque:
         (ndarray, ndarray)
             Inertia matrix (kg m^2) and Coriolis/centrifugal plus gravity torques (N m).
         """
+        return self._evaluate(q, qd, self.beta)
+
+    def _evaluate(self, q, qd, beta):
+        """``D(q)`` and ``n(q, qd)`` of the base parameters ``beta`` (the casadi function's call
+        buffer)."""
         if self._buffer is None:
             self._buffer = _CallBuffer(self._dyn)
-        sc, qd_in, beta, (lower, nvec) = self._buffer.arrays
+        sc, qd_in, beta_in, (lower, nvec) = self._buffer.arrays
         q = np.asarray(q, dtype=float)
         sc[0::2] = np.sin(q)
         sc[1::2] = np.cos(q)
         qd_in[:] = qd
-        beta[:] = self.beta
+        beta_in[:] = beta
         self._buffer.evaluate()
         return self._symmetric(lower), nvec.copy()
 
@@ -932,14 +1034,22 @@ class ArmComputedTorque:
         q_d, qd_d, q_m, qd_m, qdd_m = self._reference(t)
         a = (qdd_m + self.gains.Kv * (qd_d - self.x[1]) + self.gains.Kp * (q_d - self.x[0])
              + self.gains.Ki * self.z)
-        D, nv = self.terms(self.x[0] + (q_m - q_d), qd_m)
+        q_mid = self.x[0] + (q_m - q_d)
+        D, nv = self.terms(q_mid, qd_m)
         tf = self._friction_torque(qd_m)
-        tau = D @ a + nv - tf
+        if self.feedback_beta is None:
+            tau = D @ a + nv - tf
+        else:  # held feedback: the model's feed-forward, the feedback model's inertia
+            Df = self.inertia_matrix(q_mid, self.feedback_beta)
+            tau = (D @ qdd_m + Df @ (a - qdd_m)) + nv - tf
         i = tau / self.torque_per_amp
         self._integrate(q_d, self.x[0], i)
         if np.any(np.abs(i) > self.limit):  # saturated: the observer sees what the drive gives
             i = np.clip(i, -self.limit, self.limit)
-            a = np.linalg.solve(D, i * self.torque_per_amp - nv + tf)
+            if self.feedback_beta is None:
+                a = np.linalg.solve(D, i * self.torque_per_amp - nv + tf)
+            else:  # ... as the feedback model's
+                a = np.linalg.solve(Df, i * self.torque_per_amp - nv + tf - D @ qdd_m) + qdd_m
         self.a_prev = a
         return i
 
@@ -951,8 +1061,8 @@ class ArmComputedTorque:
         the loop of every candidate robot at once, e.g. the tracking of this
         model on a set of robots it may meet.  Each lane starts as
         :meth:`reset` leaves the controller (observer on the reference's
-        start, the watchdog re-armed), with the model, gains and watchdog in
-        use now.  The model evaluation is the robot's dynamics kernel
+        start, the watchdog re-armed), with the model (and held feedback),
+        gains and watchdog in use now.  The model evaluation is the robot's dynamics kernel
         (:attr:`plant.simulation.arm.ArmPlant.dynamics_kernel`: the casadi
         function's operations), the matrix product a plain sum: the currents
         are ``__call__``'s to rounding.
@@ -1035,7 +1145,9 @@ class ArmComputedTorque:
                      fe.dwell_s, fe.window_s, np.asarray(fe.p_gain, dtype=float).copy(),
                      fe.current_limit)
             ring = int(math.ceil(fe.window_s / ts)) + 2
-        lp = ArmCTCParameters(self.c, self.beta.copy(), table, *(
+        held = self.feedback_beta is not None
+        lp = ArmCTCParameters(self.c, self.beta.copy(),
+                              (self.feedback_beta if held else self.beta).copy(), held, table, *(
             np.ascontiguousarray(v, dtype=float) for v in (
                 g.Kp, g.Kv, g.Ki, g.observer_gain[:, 0], g.observer_gain[:, 1])),
             self._integral, *watch)
@@ -1196,7 +1308,7 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
                    motor_inertia=m.motor_inertia_reflected_kgm2, backlash=m.backlash_rad,
                    **options)
 
-    def set_beta(self, beta) -> np.ndarray:
+    def set_beta(self, beta, *, feedback_beta=None) -> np.ndarray:
         """Switch the model to the rigid-equivalent ``beta``; the link model follows.
 
         The link's beta becomes ``beta - Ia @ columns`` and the link estimate's
@@ -1211,6 +1323,10 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         ----------
         beta : array_like, shape (r,)
             Rigid-equivalent base parameters (link plus ``Ia``).
+        feedback_beta : None
+            Not taken: the flexible-joint CTC's feedback is its motor loop on
+            the link model (held feedback is the rigid CTC's,
+            :meth:`ArmComputedTorque.set_beta`).
 
         Returns
         -------
@@ -1221,9 +1337,13 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
         ValueError
             beta of the wrong size or not finite, or whose link model's inertia
             matrix is not positive definite at the reference's start (the model
-            in use is then kept).
+            in use is then kept); a ``feedback_beta``.
         """
         from .flexible import two_mass_observer_gains
+
+        if feedback_beta is not None:
+            raise ValueError("the flexible-joint CTC takes no feedback_beta (held feedback is the "
+                             "rigid CTC's)")
 
         old = self.beta, self.link_beta
         super().set_beta(beta)

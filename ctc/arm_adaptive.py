@@ -74,14 +74,21 @@ rigid or a two-mass flexible prior (the last paragraph):
    payload: within 25 % + 50 g) update, and they install their estimates
    pooled by information (as a refinement's, step 4), not the last alone.
    **A return to the empty gripper is not held**: with a payload in use, a
-   significant estimate within :data:`REFINEMENT_KG` of none, which
-   describes its window, installs the prior itself -- the static CTC's
-   model, the reference the adaptive CTC must not fall behind -- from its
-   one window, whatever the caution (not when a rollback rejected that
-   return, step 4); it is an update (on probation when it moves the model
-   by more than a refinement would), it is fitted against no rival (the
-   prior is what the static CTC runs), and it ends no episode of caution:
-   a payload after it still needs agreeing estimates.
+   significant estimate within :data:`REFINEMENT_KG` of none installs the
+   prior itself -- the static CTC's model, the reference the adaptive CTC
+   must not fall behind -- from its one window, whatever the caution (not
+   when a rollback rejected that return, step 4), and whether or not it
+   describes its window: the window rejects the payload in use for none,
+   and what the static CTC runs needs no description of it (an
+   undescribed window -- a friction change, a collision -- whose fit
+   lies at the empty gripper can so cost a carried tool its model, never
+   the static CTC's tracking; the next windows identify the tool again;
+   an undescribed window whose return a rollback rejected is
+   unexplained).  The return is an
+   update (on probation when it moves the model by more than a refinement
+   would), it is fitted against no rival (the prior is what the static CTC
+   runs), and it ends no episode of caution: a payload after it still
+   needs agreeing estimates.
    Measured on ``benchmarks/bench_arm_adaptive.py --compliant --kinds
    pick-up,put-down --n 3 0 --seed 20262101``, planar draw 20262103 (a
    3.46 kg tool put down at 0.71 s), the version before held the first
@@ -90,7 +97,16 @@ rigid or a two-mass flexible prior (the last paragraph):
    :mod:`identification.arm_payload`, were unexplained) for a caution set
    before the put-down, and the 3.46 kg model ran the empty arm for a
    second: 19 / 12 pulses against the static CTC's 1 / 1
-   (:doc:`tutorial_your_robot`).
+   (:doc:`tutorial_your_robot`).  On seed 20261861, planar draw 20261863
+   (a 2.32 kg tool put down at 1.58 s), the first window after the
+   put-down rejected the 2.32 kg model (36 million pulses^2) for 0.02 kg,
+   which left 1254 pulses^2, beyond its limit of 33 (the springs rang);
+   when a return had to describe its window, that one was unexplained,
+   the next held for a caution, and the tool's model ran the empty arm
+   until 2.3 s: 15 / 20 pulses against the static CTC's 1 / 1
+   (``docs/figures/bench_arm_adaptive_compliant_payload_20261863_at_84efcc3.json``);
+   returning on it, the prior takes effect at 1.9 s and the arm tracks
+   1 / 1 (``..._payload_20261861.json``).
    A window that spans a pick-up or a put-down is half old robot, half
    new, and no payload describes it: its second half (at least 20 samples)
    is fitted again, and when a payload describes that half significantly
@@ -186,15 +202,38 @@ loaded arm either.  So before an update to another payload takes effect,
 a copy of the inner controller with the new model runs on the prior's
 two-mass arm carrying that payload along the first
 :data:`ctc.arm.FLEXIBLE_CHECK_S` seconds of the reference (the design
-check's simulation), and the update is made only when its error after
+check's simulation), and the update is made when its error after
 0.1 s stays within :data:`SWITCH_MARGIN_PULSES` of the worst case the
 design check accepted (at least :data:`ctc.arm.GOAL_PULSES`).  Otherwise
-the model is kept (decision ``'unsafe'``, an event ``'unsafe'`` and a
-``RuntimeWarning`` once per payload): the controller says that it
-cannot carry the payload it found, rather than carry it unstably.  A
-later estimate of the same payload (within 25 % + 50 g) is refused
-without another check.  Rigid priors skip the check (a rigid arm's CTC
-with its right model is the design).
+the model in use, kept on that arm, is checked beside it: the update is
+still made when it tracks there at least :data:`SWITCH_GAIN_PULSES`
+better than the model in use (the alternative to the switch; its reason
+says so) and has not lost that arm (every joint within
+:func:`ctc.guard.lost_bound` of the log, the bound beyond which the
+design check counts a run as lost).  If neither, the model is kept (decision ``'unsafe'``, an event
+``'unsafe'`` and a ``RuntimeWarning`` once per payload): the controller
+says that it cannot carry the payload it found, rather than carry it
+unstably.  A later estimate of the same payload (within 25 % + 50 g) is
+refused without another check.  Rigid priors skip the check (a rigid
+arm's CTC with its right model is the design).
+
+**Held feedback** (a flexible prior whose design is the rigid-equivalent
+CTC, ``held_feedback``).  That CTC's gains and observer were checked with
+the design model's inertia multiplying its feedback; a payload's model
+enters its feed-forward only, the feedback held at the design's model
+(:meth:`ctc.arm.ArmComputedTorque.set_beta` with ``feedback_beta``,
+:mod:`ctc.arm`): the map from
+the counts to the feedback current stays the checked one.  Measured on
+``benchmarks/bench_arm_adaptive.py --compliant`` (seed 20261831, planar
+draw 20261835, a 2.07 kg pick-up): given the right 2.09 kg model with its
+own inertia on the feedback, the CTC diverged on the identified two-mass
+arm carrying the tool, and the check refused every window (the arm
+tracked as the static CTC, 37 / 16 pulses;
+``docs/figures/bench_arm_adaptive_compliant_20261831.json``); with the
+feedback held it tracks that arm within 36 pulses against the model in
+use's 50, the update is made, and the arm of the independent simulator
+tracks 4 / 2 pulses from 0.5 s after the pick-up (before it, the same
+CTC tracked 6 / 1; ``..._20261831_held_feedback.json``).
 
 The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
@@ -213,10 +252,11 @@ import numpy as np
 from .adaptive import (DEFAULT_LATENCY_S, PERSISTENCE_WINDOWS, UnmodelledChangeWarning,
                        residual_statistics, same_payload, vuong_residual_statistic)
 from .arm import ArmComputedTorque, ArmFlexibleComputedTorque, log_envelope
+from .guard import lost_bound
 
 __all__ = ["ArmAdaptiveComputedTorque", "DEFAULT_ARM_LATENCY_S", "DEFAULT_ARM_WINDOW_S",
            "ARM_PERSISTENCE_WINDOWS", "QUIET_WINDOWS", "REFINEMENT_KG",
-           "SWITCH_MARGIN_PULSES"]
+           "SWITCH_MARGIN_PULSES", "SWITCH_GAIN_PULSES"]
 
 #: Default window (s): the paper's 100-200 ms, its upper end (a window of an n-joint arm
 #: determines the mass and the first moment of a point mass on the last link;
@@ -237,6 +277,10 @@ QUIET_WINDOWS = PERSISTENCE_WINDOWS
 #: The switch check's tolerance (flexible priors, module docstring): an update's model may
 #: track the loaded identified arm this many pulses worse than the design check's worst case.
 SWITCH_MARGIN_PULSES = 1.0
+
+#: ... or track it at least this many pulses better than the model in use does there
+#: (the alternative to the switch: the model kept on the arm carrying the payload).
+SWITCH_GAIN_PULSES = 1.0
 
 
 #: A new estimate whose mass is within this many kg (plus 5 %) of the payload in use
@@ -329,6 +373,10 @@ class ArmAdaptiveComputedTorque:
     design_warnings : list of str
         A flexible prior's design warnings (e.g. the rigid-equivalent CTC
         kept because no flexible design holds the model-error set).
+    held_feedback : bool
+        A flexible prior whose inner controller is the rigid-equivalent CTC:
+        a payload's model enters its feed-forward, the feedback held at the
+        design's model (module docstring).
     beta : ndarray, shape (r,)
         The base parameters in use.
     payload : dict or None
@@ -357,7 +405,9 @@ class ArmAdaptiveComputedTorque:
         ``'held'``, ``'implausible'``,
         ``'unexplained'``, ``'friction'``, ``'drive'``, ``'unsafe'``, ``'failed'``; a
         flexible prior's switch check adds ``switch_check_pulses`` and
-        ``switch_check_bound``; a fitted friction
+        ``switch_check_bound`` (beyond it, the model in use's
+        ``switch_check_kept_pulses``, and for an update made on it
+        ``switch_note``); a fitted friction
         rival adds ``friction_z``, ``friction_y`` and ``friction_factors``, a fitted
         springs' rival ``drive_z``, ``drive_y`` and ``drive_factors``), ``mass_kg``,
         ``mass_std``, ``lr``, ``threshold``,
@@ -444,6 +494,10 @@ class ArmAdaptiveComputedTorque:
             self._ctc = ArmComputedTorque(prior["plant"], self.prior_beta, prior["rig"],
                                           self.trajectory, envelope=envelope, **design)
         self.n = self._ctc.n
+        # a flexible prior's rigid-equivalent CTC holds its feedback at the design's model
+        # (ctc.arm, held feedback): a payload's model adds its feed-forward only
+        self.held_feedback = self.flexible and not isinstance(self._ctc, ArmFlexibleComputedTorque)
+        self._design_beta = self._ctc.beta.copy()
         self._identify_payload = identify_arm_payload
         self._identify_friction = identify_arm_friction_change
         self._identify_drive = identify_arm_drive_change
@@ -547,7 +601,13 @@ class ArmAdaptiveComputedTorque:
     def _install(self, beta, payload) -> None:
         self.beta = np.asarray(beta, dtype=float).copy()
         self.payload = payload
-        self._ctc.set_beta(self.beta)
+        self._ctc.set_beta(self.beta, feedback_beta=self._feedback_for(self.beta))
+
+    def _feedback_for(self, beta):
+        """The model the inner CTC holds its feedback at with ``beta`` in use (None: its own)."""
+        if self.held_feedback and not np.array_equal(beta, self._design_beta):
+            return self._design_beta
+        return None
 
     def _event(self, k, kind, message, **details) -> None:
         self.events.append(dict(t_s=k * self.ts, kind=kind, message=message, **details))
@@ -669,13 +729,20 @@ class ArmAdaptiveComputedTorque:
             rec.update(decision="implausible", reason=f"mass {m:.3g} kg at the box's upper end")
             self._unexplained(k1, rec)
             return
-        if st["y_new"] > limit:
+        # a return to the empty gripper -- the prior, the static CTC's model -- is no payload
+        # to doubt: caution holds payloads, not the model the static CTC runs on; nor need
+        # its window be described: the payload in use rejected significantly for none is
+        # reason enough to run what the static CTC runs (module docstring, step 3)
+        to_prior = self.payload is not None and m <= REFINEMENT_KG
+        rejected = self._rejected is not None and same_payload(m, self._rejected)
+        if st["y_new"] > limit and not (to_prior and not rejected):
             rec.update(decision="unexplained",
                        reason=(f"the best payload ({m:.3g} kg) leaves {st['y_new']:.4g} pulses^2, "
                                f"more than {INADEQUATE_FACTOR:g} quantisation floors "
                                f"({floor:.4g})"))
             self._unexplained(k1, rec)
             return
+        undescribed = st["y_new"] > limit
         if not _refines(m, self.payload_mass_kg) and m > REFINEMENT_KG:
             # the rivals (step 3): a change of the drive friction, and on a flexible prior of
             # the joints' springs, under the model in use
@@ -704,10 +771,6 @@ class ArmAdaptiveComputedTorque:
         entry = (m, sd if np.isfinite(sd) and sd > 0 else math.nan,
                  np.asarray(est.beta, dtype=float), payload["com_m"])
         self._agree = (self._agree + [entry])[-ARM_PERSISTENCE_WINDOWS:]
-        # a return to the empty gripper -- the prior, the static CTC's model -- is no payload
-        # to doubt: caution holds payloads, not the model the static CTC runs on (module
-        # docstring, step 3)
-        to_prior = self.payload is not None and m <= REFINEMENT_KG
         if self._cautious and not to_prior and not (
                 len(self._agree) == ARM_PERSISTENCE_WINDOWS and all(
                 same_payload(a[0], m) for a in self._agree)):
@@ -760,10 +823,14 @@ class ArmAdaptiveComputedTorque:
                          if m_pool > 0 else None, mse, False)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"
                    + ("; back to the prior (the empty gripper)" if to_prior else "")
+                   + (f", though {m:.3g} kg leaves {st['y_new']:.4g} pulses^2 (more than "
+                      f"{INADEQUATE_FACTOR:g} quantisation floors, {floor:.4g})"
+                      if undescribed else "")
                    + (", the second half of a window spanning a change" if rec.get("half_window")
                       else "")
                    + (f"; {len(self._pool)} estimates pooled: {m_pool:.3g} kg"
-                      if len(self._pool) > 1 else ""))
+                      if len(self._pool) > 1 else "")
+                   + (f"; {rec['switch_note']}" if rec.get("switch_note") else ""))
 
     def _quiet_refinement(self, k1, fit, rec, mse) -> None:
         """Windows the model in use describes refine it (module docstring, step 4).
@@ -827,7 +894,8 @@ class ArmAdaptiveComputedTorque:
                    reason=(f"the {len(same)} windows since the model took effect, pooled with "
                            f"its payload ({m0:.3g} +- {sd0:.2g} kg): {m_comb:.3g} +- "
                            f"{sd_comb:.2g} kg; the model lies outside its confidence interval, "
-                           f"Wald {q:.3g} > {threshold:.3g}"))
+                           f"Wald {q:.3g} > {threshold:.3g}")
+                   + (f"; {rec['switch_note']}" if rec.get("switch_note") else ""))
 
     def _switch_refused(self, k1, mass, beta, rec):
         """The switch check of a flexible prior (module docstring): None when the update to
@@ -852,27 +920,48 @@ class ArmAdaptiveComputedTorque:
         n = int(round(FLEXIBLE_CHECK_S / rig.sample_time_s))
         row = np.array(self.prior["plant_row"], dtype=float)
         row[:self.prior_beta.size] = beta
-        ctrl = copy.deepcopy(self._ctc)
-        ctrl.envelope = None  # the law itself, as the design check saw it
-        ctrl.reset()
-        ctrl.set_beta(beta)
-        try:
-            r = _plant.simulate_closed_loop(rig, row, ctrl, trajectory=self.trajectory,
-                                            n_samples=n, plant=self.prior["flexible_plant"],
-                                            substeps=int(self.prior.get("flexible_substeps") or 8))
-            err = float(r.max_abs_error(0.1).max()) if r.success else math.inf
-        except ValueError:
-            err = math.inf
+
+        def tracking(model):
+            """Max |e| per joint after 0.1 s of the inner CTC with ``model`` (None: the one in
+            use) on the identified arm carrying the payload (inf: the run failed)."""
+            ctrl = copy.deepcopy(self._ctc)
+            ctrl.envelope = None  # the law itself, as the design check saw it
+            ctrl.reset()
+            if model is not None:
+                ctrl.set_beta(model, feedback_beta=self._feedback_for(model))
+            try:
+                r = _plant.simulate_closed_loop(
+                    rig, row, ctrl, trajectory=self.trajectory, n_samples=n,
+                    plant=self.prior["flexible_plant"],
+                    substeps=int(self.prior.get("flexible_substeps") or 8))
+                if r.success:
+                    return np.asarray(r.max_abs_error(0.1), dtype=float)
+            except ValueError:
+                pass
+            return np.full(self.n, math.inf)
+
+        errs = tracking(beta)
+        err = float(errs.max())
         rec["switch_check_pulses"] = err
         rec["switch_check_bound"] = bound
         if np.isfinite(err) and err <= bound:
+            return None
+        # the alternative to the switch: the model in use, kept on the arm carrying the payload;
+        # better than it, and not lost (within the bound beyond which the design check counts
+        # a run as lost, ctc.guard.lost_bound of the log)
+        kept = float(tracking(None).max())
+        rec["switch_check_kept_pulses"] = kept
+        if np.all(errs <= lost_bound(self.log.e_pulses)) and err + SWITCH_GAIN_PULSES <= kept:
+            rec["switch_note"] = (f"the switch check: {err:.4g} pulses after 0.1 s on the "
+                                  f"identified arm carrying it, beyond the design's "
+                                  f"{bound:.4g} but better than the model in use's {kept:.4g}")
             return None
         self._unsafe.append(mass)
         msg = (f"the controller cannot carry the {mass:.3g} kg payload it identified: with "
                f"that model, on the identified arm carrying it, it tracks "
                f"{err:.4g} pulses after 0.1 s, more than {bound:.4g} (its design check's "
-               f"worst case {float(promised):.4g} + {SWITCH_MARGIN_PULSES:g}); the model in "
-               "use is kept")
+               f"worst case {float(promised):.4g} + {SWITCH_MARGIN_PULSES:g}) and no better "
+               f"than the model in use there ({kept:.4g}); the model in use is kept")
         self._event(k1, "unsafe", msg, mass_kg=mass, check_pulses=err)
         warnings.warn(msg, RuntimeWarning, stacklevel=4)
         return msg

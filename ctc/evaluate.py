@@ -170,7 +170,9 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
 
     The law of ``ArmComputedTorque.__call__`` without its
     watchdog (measurement at the count's cell centre, current observer,
-    outer loop at mid-sample, ``D_hat a + n_hat - tau_f``, the clip at the
+    outer loop at mid-sample, ``D_hat a + n_hat - tau_f``, or with the
+    feedback held at another model's inertia ``D_f`` (``feedback_beta``)
+    ``D_hat qdd_d + D_f (a - qdd_d) + n_hat - tau_f``, the clip at the
     current full scale with the observer driven by the saturated current
     and the error sum frozen) on the robot model's rigid arm, advanced by the
     casadi twin of the core's sample step.
@@ -178,7 +180,8 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
     Parameters
     ----------
     controller : ctc.arm.ArmComputedTorque
-        Supplies the model beta, rig constants, gains and reference.
+        Supplies the model beta (and a held feedback's ``feedback_beta``), rig
+        constants, gains and reference.
     beta_robot : array_like, shape (r,)
         Base parameters of the simulated robot (the controller's robot model).
     substeps : int
@@ -235,14 +238,22 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
         qmid = qh[j] + (q_m[j] - q_d[j])
         sc += [ca.sin(qmid), ca.cos(qmid)]
         ys.append(y)
+
+    def inertia(lower):
+        return ca.vertcat(*[ca.horzcat(*[lower[j * (j + 1) // 2 + k] if k <= j
+                                         else lower[k * (k + 1) // 2 + j] for k in range(n)])
+                            for j in range(n)])
+
     lower, nvec = plant.dynamics_function(ca.vertcat(*sc), qd_m, ca.DM(controller.beta))
-    D = ca.vertcat(*[ca.horzcat(*[lower[j * (j + 1) // 2 + k] if k <= j
-                                  else lower[k * (k + 1) // 2 + j] for k in range(n)])
-                     for j in range(n)])
+    D = inertia(lower)
+    held = getattr(controller, "feedback_beta", None) is not None
+    if held:
+        Df = inertia(plant.dynamics_function(ca.vertcat(*sc), qd_m,
+                                             ca.DM(controller.feedback_beta))[0])
     av = ca.vertcat(*a)
     tf = ca.vertcat(*[friction_sx(qd_m[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
                                   c.ramp_speed[j]) for j in range(n)])
-    tau = D @ av + nvec - tf
+    tau = ((D @ qdd_m + Df @ (av - qdd_m)) if held else D @ av) + nvec - tf
     cur, z_next, over = [], [], []
     for j in range(n):
         ij = tau[j] / c.torque_per_amp[j]
@@ -256,7 +267,8 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
     cur = ca.vertcat(*cur)
     if limited:  # saturated: the observer sees the acceleration the clipped current gives the model
         tpa = ca.DM(np.asarray(c.torque_per_amp, dtype=float))
-        a_sat = ca.solve(D, cur * tpa - nvec + tf)
+        a_sat = (ca.solve(Df, cur * tpa - nvec + tf - D @ qdd_m) + qdd_m if held
+                 else ca.solve(D, cur * tpa - nvec + tf))
         any_over = over[0]
         for o in over[1:]:
             any_over = ca.logic_or(any_over, o)

@@ -385,6 +385,21 @@ it in ``optimisers``):
     pick-up,put-down --n 6 0 --seed 20261841``, likewise
     (``figures/bench_arm_adaptive_compliant_payload_20261841.txt``,
     ``..._20261841_at_b895508.txt``, and both ``--json`` records, ``.json``).
+    With the feedback held (a rigid-equivalent design's adaptive CTC) and the return to
+    the prior from a window it does not describe, both draws and the payload draw rerun
+    with ``--json`` (``figures/bench_arm_adaptive_compliant_20261831_held_feedback.txt``,
+    ``figures/bench_arm_adaptive_compliant_payload_20261841_held_feedback.txt``,
+    ``figures/bench_arm_adaptive_compliant_payload_20262101_held_feedback.txt``, each
+    with its ``.json``), the development draw ``--compliant --n 6 0 --seed 20261901
+    --only planar2:20261902 --json``
+    (``figures/bench_arm_adaptive_compliant_20261902_held_feedback.txt``, ``.json``),
+    and a fresh draw on a seed chosen before its run, ``--compliant --kinds
+    pick-up,put-down --n 6 0 --seed 20261861 --json``
+    (``figures/bench_arm_adaptive_compliant_payload_20261861.txt``, ``.json``), whose
+    two draws that differ were rerun on the version before (``--only
+    planar2:20261863``, ``--only planar2:20261866``, at 84efcc3:
+    ``figures/bench_arm_adaptive_compliant_payload_20261863_at_84efcc3.txt``,
+    ``..._20261866_at_84efcc3.txt``, each with its ``.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's

@@ -284,17 +284,21 @@ def test_arm_ctc_tracks_within_a_pulse_and_p_does_not(arm):
     assert np.all(np.abs(r.i_A) <= 40.0)
 
 
-@pytest.mark.parametrize("limit, design, beta_scale, envelope", [
-    (40.0, {}, 1.0, None),                                # tracks within a pulse
-    (3.0, dict(integral_bandwidth_hz=2.0), 1.0, None),    # saturates: anti-windup, observer
-    (40.0, {}, 1.3, (9.0, 6.0)),                          # wrong model: the watchdog's dwell rule
-    (3.0, {}, 1.3, (20.0, 20.0)),                         # ... and its hard limit
+@pytest.mark.parametrize("limit, design, beta_scale, envelope, feedback", [
+    (40.0, {}, 1.0, None, None),                              # tracks within a pulse
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.0, None, None),  # saturates: anti-windup, observer
+    (40.0, {}, 1.3, (9.0, 6.0), None),                        # wrong model: the watchdog's dwell rule
+    (3.0, {}, 1.3, (20.0, 20.0), None),                       # ... and its hard limit
+    (40.0, {}, 1.0, None, 1.6),                               # held feedback (a heavier model)
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.3, None, 0.8),   # ... saturating
 ])
-def test_the_compiled_arm_ctc_is_the_controllers_law(arm, limit, design, beta_scale, envelope):
+def test_the_compiled_arm_ctc_is_the_controllers_law(arm, limit, design, beta_scale, envelope,
+                                                    feedback):
     """ArmComputedTorque.logged_controller in the arm's logged-run driver gives the pulses of the
     Python controller in plant.simulate_closed_loop, sample for sample (same core, same
-    substeps): within the limit, saturating with integral action, and with the following-error
-    watchdog handing the arm to the P law; candidates run side by side in lanes."""
+    substeps): within the limit, saturating with integral action, with the following-error
+    watchdog handing the arm to the P law, and with the feedback held at another model's
+    inertia; candidates run side by side in lanes."""
     import warnings
 
     from ctc.arm import ArmComputedTorque
@@ -302,6 +306,8 @@ def test_the_compiled_arm_ctc_is_the_controllers_law(arm, limit, design, beta_sc
 
     rig = planar_rig(p_gain=(0.05, 0.05), limit=limit)
     ctc = ArmComputedTorque(arm, beta_scale * arm.beta(), rig, TRAJ, envelope=envelope, **design)
+    if feedback is not None:
+        ctc.set_beta(beta_scale * arm.beta(), feedback_beta=feedback * arm.beta())
     n = 2000
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FollowingErrorWarning)
@@ -392,14 +398,15 @@ def test_the_compiled_arm_ctc_refuses_what_it_cannot_run(arm):
         simulate_arm(arm, arm.beta(), rig, TRAJ, 100, controller=PumaStyle())
 
 
-@pytest.mark.parametrize("limit, design, beta_scale, q0", [
-    (40.0, {}, 1.0, (0.0, 0.0)),
-    (3.0, dict(integral_bandwidth_hz=2.0), 1.0, (0.0, 0.0)),   # saturated: observer, error sum
-    (40.0, dict(integral_bandwidth_hz=2.0), 1.2, (0.0, 0.0)),  # a model 20 % off
-    (40.0, {}, 1.0, (0.32, -0.23)),                            # the rig starts off the reference
+@pytest.mark.parametrize("limit, design, beta_scale, q0, feedback", [
+    (40.0, {}, 1.0, (0.0, 0.0), None),
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.0, (0.0, 0.0), None),  # saturated: observer, sum
+    (40.0, dict(integral_bandwidth_hz=2.0), 1.2, (0.0, 0.0), None),  # a model 20 % off
+    (40.0, {}, 1.0, (0.32, -0.23), None),                         # the rig starts off the reference
+    (3.0, dict(integral_bandwidth_hz=2.0), 1.2, (0.0, 0.0), 0.8),  # held feedback, saturating
 ])
 def test_the_casadi_evaluation_of_the_arm_ctc_is_the_closed_loop(arm, limit, design, beta_scale,
-                                                                 q0):
+                                                                 q0, feedback):
     """ctc.evaluate.evaluate_ctc on an arm's CTC (casadi: the robot model's function, the twin of
     the sample step) gives the pulses of plant.simulate_closed_loop with the Python controller,
     sample for sample over 2 s at the same substeps, and its currents to rounding -- from the
@@ -409,6 +416,8 @@ def test_the_casadi_evaluation_of_the_arm_ctc_is_the_closed_loop(arm, limit, des
 
     rig = dataclasses.replace(planar_rig(p_gain=(0.05, 0.05), limit=limit), q0_rad=q0)
     ctc = ArmComputedTorque(arm, beta_scale * arm.beta(), rig, TRAJ, **design)
+    if feedback is not None:  # the feedback at another model's inertia
+        ctc.set_beta(beta_scale * arm.beta(), feedback_beta=feedback * arm.beta())
     r = plant.simulate_closed_loop(rig, arm.beta(), ctc, trajectory=TRAJ, n_samples=2000,
                                    plant=arm, substeps=32)
     ev = evaluate_ctc(ctc, arm.beta(), n_samples=2000, substeps=32, after_s=0.1)

@@ -985,19 +985,108 @@ def test_a_softened_spring_is_no_payload_for_the_adaptive_ctc(compliant, flexibl
 def test_an_update_the_flexible_ctc_cannot_carry_is_refused(compliant, flexible_adaptive,
                                                            monkeypatch):
     """The switch check: an update whose model does not track the identified arm carrying
-    the payload within the design check's worst case (here made impossible: a margin of
-    -100 pulses) is not made -- decision and event 'unsafe', one RuntimeWarning, the model in
-    use kept; a later estimate of the same payload is refused without another check."""
+    the payload within the design check's worst case, nor better than the model in use does
+    there (here made impossible: margins of -100 pulses and of infinitely many), is not
+    made -- decision and event 'unsafe', one RuntimeWarning, the model in use kept; a later
+    estimate of the same payload is refused without another check."""
     import ctc.arm_adaptive as aa
 
     _, c, _ = flexible_adaptive
     monkeypatch.setattr(aa, "SWITCH_MARGIN_PULSES", -100.0)
+    monkeypatch.setattr(aa, "SWITCH_GAIN_PULSES", np.inf)
     c.reset()
     with pytest.warns(RuntimeWarning, match="cannot carry the 2"):
         _pick_up_run(compliant, c)
     assert c.payload_history == [(0.0, 0.0)] and c.payload_mass_kg == 0.0
     unsafe = [rec for rec in c.identifications if rec["decision"] == "unsafe"]
     assert len(unsafe) >= 2 and "switch_check_pulses" in unsafe[0]
+    assert unsafe[0]["switch_check_kept_pulses"] > 0  # the model in use, checked beside it
     assert all("switch_check_pulses" not in rec for rec in unsafe[1:])
     assert [ev["kind"] for ev in c.events].count("unsafe") == 1
     c.reset()
+
+
+def _run_from_start(compliant, ctrl, row):
+    """``ctrl`` on the two-mass arm ``row`` from the reference's start (2.6 s)."""
+    log, _, res = compliant
+    r = plant.simulate_closed_loop(res.rig, row, ctrl, trajectory=log.trajectory,
+                                   n_samples=int(round(2.6 / log.rig.sample_time_s)),
+                                   plant=res.flexible_plant, substeps=16)
+    assert r.success
+    return np.abs(r.e_pulses)
+
+
+def test_held_feedback_carries_a_payload_the_full_computed_torque_cannot(compliant,
+                                                                          flexible_adaptive):
+    """The rigid-equivalent CTC of the flexible prior on its two-mass arm carrying a 4 kg tool:
+    given the tool's model, the computed torque multiplies its feedback by the heavier
+    inertia and loses the arm (thousands of pulses); with the feedback held at the design's
+    model (ctc.arm, held feedback) the same model's feed-forward tracks the loaded arm better
+    than the unloaded model does."""
+    log, _, res = compliant
+    loaded = _loaded_row(res, 4.0, TOOL_COM)
+    beta_loaded = loaded[:res.plant.base.rank]
+
+    def ctc(model=None, feedback=None):
+        c = ArmComputedTorque(res["plant"], res.beta, res.rig, log.trajectory)
+        if model is not None:
+            assert np.array_equal(c.set_beta(model, feedback_beta=feedback), model)
+        return c
+
+    k = int(round(0.5 / log.rig.sample_time_s))
+    full = _run_from_start(compliant, ctc(beta_loaded), loaded)[k:].max()
+    held_ctc = ctc(beta_loaded, res.beta)
+    assert np.array_equal(held_ctc.feedback_beta, res.beta)
+    held = _run_from_start(compliant, held_ctc, loaded)[k:].max(axis=0)
+    static = _run_from_start(compliant, ctc(), loaded)[k:].max(axis=0)
+    assert full > 1000
+    assert np.all(held <= static) and held.max() <= static.max() / 2
+    # the flexible-joint CTC's feedback is its motor loop: it takes no feedback model
+    flexible = flexible_adaptive[0]
+    kept = flexible.beta.copy()
+    with pytest.raises(ValueError, match="takes no feedback_beta"):
+        flexible.set_beta(beta_loaded, feedback_beta=res.beta)
+    assert np.array_equal(flexible.beta, kept)
+    with pytest.raises(ValueError, match="not positive definite"):
+        held_ctc.set_beta(res.beta, feedback_beta=-res.beta)
+
+
+def test_the_adaptive_ctc_of_a_rigid_equivalent_design_holds_its_feedback(compliant, monkeypatch):
+    """A flexible prior whose design is the rigid-equivalent CTC (forced here): a 4 kg tool
+    picked up at 1 s by the two-mass arm is identified (within 5 %) and installed with the
+    feedback held at the design's model -- the switch check finds it beyond the design's
+    promise on the arm carrying the tool, but better than the model in use there, and says
+    so -- and the arm tracks better than the static CTC; nothing is installed before."""
+    import warnings
+
+    from ctc.arm_adaptive import ArmAdaptiveComputedTorque
+
+    log, _, res = compliant
+
+    def rigid_equivalent(cls, result, log, envelope=None, **design):
+        return ArmComputedTorque(result["plant"], result["beta"], result["rig"], log.trajectory,
+                                 envelope=envelope, **design)
+
+    monkeypatch.setattr(ArmComputedTorque, "from_result", classmethod(rigid_equivalent))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        c = ArmAdaptiveComputedTorque(res, log)
+    assert c.held_feedback and type(c._ctc) is ArmComputedTorque
+    static = rigid_equivalent(None, res, log)
+    ts = log.rig.sample_time_s
+    n, k = int(round(2.6 / ts)), int(round(1.5 / ts))
+    runs = []
+    for ctrl in (c, static):
+        r = plant.simulate_closed_loop(res.rig, res.plant_row, ctrl, trajectory=log.trajectory,
+                                       n_samples=n, plant=res.flexible_plant, substeps=16,
+                                       f_schedule=[(1.0, _loaded_row(res, 4.0, TOOL_COM))])
+        assert r.success
+        runs.append(np.abs(r.e_pulses[k:]).max(axis=0))
+    assert c.payload_mass_kg == pytest.approx(4.0, rel=0.05)
+    assert all(m == 0.0 for t, m in c.payload_history if t < 1.0)
+    assert np.array_equal(c._ctc.feedback_beta, res.beta)  # the design's model
+    first = next(rec for rec in c.identifications if rec["decision"] == "update")
+    assert first["switch_check_bound"] < first["switch_check_pulses"]
+    assert first["switch_check_pulses"] < first["switch_check_kept_pulses"]
+    assert "better than the model in use" in c.events[0]["message"]
+    assert np.all(runs[0] <= runs[1]) and runs[0].max() <= runs[1].max() / 2
