@@ -204,36 +204,37 @@ two-mass arm carrying that payload along the first
 :data:`ctc.arm.FLEXIBLE_CHECK_S` seconds of the reference (the design
 check's simulation), and the update is made when its error after
 0.1 s stays within :data:`SWITCH_MARGIN_PULSES` of the worst case the
-design check accepted (at least :data:`ctc.arm.GOAL_PULSES`).  Otherwise
+design check accepted (at least :data:`ctc.arm.GOAL_PULSES`). Otherwise
 the model in use, kept on that arm, is checked beside it: the update is
 still made when it tracks there at least :data:`SWITCH_GAIN_PULSES`
 better than the model in use (the alternative to the switch; its reason
 says so) and has not lost that arm (every joint within
 :func:`ctc.guard.lost_bound` of the log, the bound beyond which the
-design check counts a run as lost).  If neither, the model is kept (decision ``'unsafe'``, an event
-``'unsafe'`` and a ``RuntimeWarning`` once per payload): the controller
-says that it cannot carry the payload it found, rather than carry it
-unstably.  A later estimate of the same payload (within 25 % + 50 g) is
-refused without another check.  Rigid priors skip the check (a rigid
-arm's CTC with its right model is the design).
+design check counts a run as lost). If neither, the model is kept
+(decision ``'unsafe'``, an event ``'unsafe'`` and a ``RuntimeWarning``
+once per payload): the controller says that it cannot carry the payload
+it found, rather than carry it unstably. A later estimate of the same
+payload (within 25 % + 50 g) is refused without another check. Rigid
+priors skip the check (a rigid arm's CTC with its right model is the
+design).
 
 **Held feedback** (a flexible prior whose design is the rigid-equivalent
-CTC, ``held_feedback``).  That CTC's gains and observer were checked with
+CTC, ``held_feedback``). That CTC's gains and observer were checked with
 the design model's inertia multiplying its feedback; a payload's model
 enters its feed-forward only, the feedback held at the design's model
 (:meth:`ctc.arm.ArmComputedTorque.set_beta` with ``feedback_beta``,
-:mod:`ctc.arm`): the map from
-the counts to the feedback current stays the checked one.  Measured on
+:mod:`ctc.arm`): the map from the counts to the feedback current stays
+the checked one. Measured on
 ``benchmarks/bench_arm_adaptive.py --compliant`` (seed 20261831, planar
-draw 20261835, a 2.07 kg pick-up): given the right 2.09 kg model with its
-own inertia on the feedback, the CTC diverged on the identified two-mass
-arm carrying the tool, and the check refused every window (the arm
-tracked as the static CTC, 37 / 16 pulses;
-``docs/figures/bench_arm_adaptive_compliant_20261831.json``); with the
-feedback held it tracks that arm within 36 pulses against the model in
-use's 50, the update is made, and the arm of the independent simulator
-tracks 4 / 2 pulses from 0.5 s after the pick-up (before it, the same
-CTC tracked 6 / 1; ``..._20261831_held_feedback.json``).
+draw 20261835, a 2.07 kg pick-up):
+given the right 2.09 kg model with its own inertia on the feedback, the
+CTC diverged on the identified two-mass arm carrying the tool, and the
+check refused every window (the arm tracked as the static CTC, 37 / 16
+pulses; ``docs/figures/bench_arm_adaptive_compliant_20261831.json``);
+with the feedback held it tracks that arm within 36 pulses against the
+model in use's 50, the update is made, and the arm of the independent
+simulator tracks 4 / 2 pulses from 0.5 s after the pick-up (before it,
+the same CTC tracked 6 / 1; ``..._20261831_held_feedback.json``).
 
 The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
