@@ -435,19 +435,21 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
         v[m] = ref[k, 3 * n + m]
     lower, nvec = dynamics(sc, v, lp.beta)  # noqa: F821 - the generated module's
     D = np.empty((n, n))
-    Df = np.empty((n, n))
     held = lp.held_feedback
-    if held:
+    if held:  # the feedback model's inertia matrix beside the model's
         lower_f, _ = dynamics(sc, v, lp.beta_feedback)  # noqa: F821 - the generated module's
+        Df = np.empty((n, n))
     else:
         lower_f = lower
+        Df = D
     o = 0
     for m in range(n):
         for i in range(m + 1):
             D[m, i] = lower[o] + 0.0
             D[i, m] = lower[o] + 0.0
-            Df[m, i] = lower_f[o] + 0.0
-            Df[i, m] = lower_f[o] + 0.0
+            if held:
+                Df[m, i] = lower_f[o] + 0.0
+                Df[i, m] = lower_f[o] + 0.0
             o += 1
     tf = np.empty(n)
     cur = np.empty(n)
