@@ -399,7 +399,11 @@ it in ``optimisers``):
     two draws that differ were rerun on the version before (``--only
     planar2:20261863``, ``--only planar2:20261866``, at 84efcc3:
     ``figures/bench_arm_adaptive_compliant_payload_20261863_at_84efcc3.txt``,
-    ``..._20261866_at_84efcc3.txt``, each with its ``.json``).
+    ``..._20261866_at_84efcc3.txt``, each with its ``.json``); a fourth fresh draw,
+    ``--compliant --n 6 0 --seed 20261871 --jobs 2 --json``
+    (``figures/bench_arm_adaptive_compliant_20261871.txt``, ``.json``), its miss rerun on
+    the version before (``--only planar2:20261873``:
+    ``figures/bench_arm_adaptive_compliant_20261873_at_84efcc3.txt``, ``.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
