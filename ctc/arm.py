@@ -453,6 +453,7 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
             o += 1
     tf = np.empty(n)
     cur = np.empty(n)
+    ffw = np.empty(n)  # held: the model's D_hat qdd_d
     for m in range(n):
         tf[m] = friction_torque(v[m], rc.viscous[m], rc.coulomb_pos[m], rc.coulomb_neg[m],
                                 rc.ramp_speed[m])
@@ -462,6 +463,7 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
             for i in range(n):
                 tau += D[m, i] * ref[k, 4 * n + i]
                 tau_fb += Df[m, i] * (a[i] - ref[k, 4 * n + i])
+            ffw[m] = tau
             tau = tau + tau_fb
         else:
             for i in range(n):
@@ -476,10 +478,7 @@ def arm_ctc_law(lp, c, k, Y, E, CS, U, j):
             rhs[m] = cur[m] * rc.torque_per_amp[m] - nvec[m] + tf[m]
         if held:  # ... as the feedback model's: qdd_d + D_f^-1 (tau - D_hat qdd_d - n + tf)
             for m in range(n):
-                ff = 0.0
-                for i in range(n):
-                    ff += D[m, i] * ref[k, 4 * n + i]
-                rhs[m] = rhs[m] - ff
+                rhs[m] = rhs[m] - ffw[m]
         try:
             a = solve_dense(Df, rhs)
         except Exception:  # non-finite (numpy's solve gives NaN there) or singular: this lane fails
@@ -1043,7 +1042,8 @@ class ArmComputedTorque:
             tau = D @ a + nv - tf
         else:  # held feedback: the model's feed-forward, the feedback model's inertia
             Df = self.inertia_matrix(q_mid, self.feedback_beta)
-            tau = (D @ qdd_m + Df @ (a - qdd_m)) + nv - tf
+            ffw = D @ qdd_m
+            tau = (ffw + Df @ (a - qdd_m)) + nv - tf
         i = tau / self.torque_per_amp
         self._integrate(q_d, self.x[0], i)
         if np.any(np.abs(i) > self.limit):  # saturated: the observer sees what the drive gives
@@ -1051,7 +1051,7 @@ class ArmComputedTorque:
             if self.feedback_beta is None:
                 a = np.linalg.solve(D, i * self.torque_per_amp - nv + tf)
             else:  # ... as the feedback model's
-                a = np.linalg.solve(Df, i * self.torque_per_amp - nv + tf - D @ qdd_m) + qdd_m
+                a = np.linalg.solve(Df, i * self.torque_per_amp - nv + tf - ffw) + qdd_m
         self.a_prev = a
         return i
 

@@ -253,7 +253,8 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
     av = ca.vertcat(*a)
     tf = ca.vertcat(*[friction_sx(qd_m[j], c.viscous[j], c.coulomb_pos[j], c.coulomb_neg[j],
                                   c.ramp_speed[j]) for j in range(n)])
-    tau = ((D @ qdd_m + Df @ (av - qdd_m)) if held else D @ av) + nvec - tf
+    ffw = D @ qdd_m if held else None  # held: the model's feed-forward D_hat qdd_d
+    tau = ((ffw + Df @ (av - qdd_m)) if held else D @ av) + nvec - tf
     cur, z_next, over = [], [], []
     for j in range(n):
         ij = tau[j] / c.torque_per_amp[j]
@@ -267,7 +268,7 @@ def build_arm_step_function(controller, beta_robot, *, substeps=32, current_full
     cur = ca.vertcat(*cur)
     if limited:  # saturated: the observer sees the acceleration the clipped current gives the model
         tpa = ca.DM(np.asarray(c.torque_per_amp, dtype=float))
-        a_sat = (ca.solve(Df, cur * tpa - nvec + tf - D @ qdd_m) + qdd_m if held
+        a_sat = (ca.solve(Df, cur * tpa - nvec + tf - ffw) + qdd_m if held
                  else ca.solve(D, cur * tpa - nvec + tf))
         any_over = over[0]
         for o in over[1:]:
