@@ -166,6 +166,7 @@ def run_case(family: str, seed: int, run_s: float, repeat: bool, compliant: bool
                     round(r["y_new"], 1), round(r["tracking_mse"], 2), r.get("quiet_wald"))
                    for r in adaptive.identifications],
         fallback=adaptive.fallback_t_s,
+        handovers=[dict(h) for h in adaptive.handovers],
         # a model identified but not yet in effect when the run ended: (t_effective_s, kg)
         pending=adaptive.pending)
     if repeat:

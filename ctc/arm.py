@@ -1188,7 +1188,9 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
     * the link estimate is corrected by the motor observer's residual with
       the gains of :func:`ctc.flexible.two_mass_observer_gains` (per joint,
       the link's diagonal inertia at the reference's start): the link
-      estimate's own ringing decays within a few periods;
+      estimate's own ringing decays within a few periods; a better estimate
+      from elsewhere is taken over by :meth:`set_link_estimate` (the adaptive
+      CTC's replay of its window when its model changes, :mod:`ctc.arm_adaptive`);
     * the current is saturated at the drive's full scale; the motor
       observer is then driven by the acceleration the saturated current
       gives (no windup).
@@ -1422,6 +1424,41 @@ class ArmFlexibleComputedTorque(ArmComputedTorque):
     def link_estimate(self) -> np.ndarray:
         """The link model's state ``(q, qd)`` at the next sample, shape (2 n,) (rad, rad/s)."""
         return np.concatenate([self.ql, self.wl])
+
+    def set_link_estimate(self, q, qd) -> None:
+        """Take over a link estimate for the next sample (a state estimate from elsewhere).
+
+        The link estimate follows the link model from the motor's path, and
+        the motor observer's residual corrects it slowly (at the link mode):
+        after a change of model (:meth:`set_beta`) the old model's estimate
+        can sit hundreds of pulses from the links, ringing as they do not,
+        and the spring torque the law feeds forward is then wrong for as
+        long as the correction takes.  A controller that knows the links'
+        state better -- the adaptive CTC's replay of the identified arm over
+        its window (:func:`identification.arm_payload.replay_arm_state`) --
+        hands it over here at the change (a bumpless transfer: L. Zaccarian
+        and A. R. Teel, Automatica 41, 2005).
+
+        Parameters
+        ----------
+        q, qd : array_like, shape (n,)
+            The links' angles (rad) and rates (rad/s), joint side, at the
+            next sample's read (a law that restarts its link estimate at the
+            motor -- the first sample, a link model that diverged -- does so
+            still).
+
+        Raises
+        ------
+        ValueError
+            Not n finite numbers each.
+        """
+        q = np.asarray(q, dtype=float).reshape(-1)
+        qd = np.asarray(qd, dtype=float).reshape(-1)
+        if q.shape != (self.n,) or qd.shape != (self.n,) or not (
+                np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            raise ValueError(f"the link estimate must be {self.n} finite angles and {self.n} "
+                             "finite rates")
+        self.ql, self.wl = q.copy(), qd.copy()
 
     def _law(self, k, t, q_meas, e_pulses):
         """The flexible-joint computed-torque law of one sample (currents (n,) A)."""

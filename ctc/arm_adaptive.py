@@ -236,6 +236,33 @@ model in use's 50, the update is made, and the arm of the independent
 simulator tracks 4 / 2 pulses from 0.5 s after the pick-up (before it,
 the same CTC tracked 6 / 1; ``..._20261831_held_feedback.json``).
 
+**The hand-over** (a flexible-joint inner CTC, ``hands_over``).  That
+CTC feeds forward the spring torque of a link model driven by the motor's
+path, its link estimate corrected only slowly by the motor observer's
+residual (:class:`ctc.arm.ArmFlexibleComputedTorque`).  Before an update
+that estimate ran the old model: with a tool the model lacked, the links
+sagged and rang where it did not, and on the new model it starts from
+there.  So when an update to another payload (not a refinement) takes
+effect, the window's fit -- the output-error replay of the identified arm
+from its fitted start state, the links' ringing included -- is continued
+through the run's logged errors and commands to the present sample
+(:func:`identification.arm_payload.replay_arm_state`), and its link state
+becomes the controller's link estimate
+(:meth:`ctc.arm.ArmFlexibleComputedTorque.set_link_estimate`; a bumpless
+transfer from a state estimate: L. Zaccarian and A. R. Teel, Automatica
+41, 2005); not when the window's estimate does not describe it (the fit's
+state is then no estimate of the arm), nor on a rollback.  The replay
+runs in the sample the model takes effect (one replay of the window and
+the latency: on hardware, a longer computation in that sample).  The
+record is ``handovers``.  Measured on ``benchmarks/bench_arm_adaptive.py
+--compliant`` (seed 20261871, planar draw 20261873, a 4.20 kg pick-up at
+1.42 s), the right 4.21 kg model took effect at 1.9 s on the old model's
+link estimate, and from 0.5 s after the pick-up the arm tracked 57 / 51
+pulses, worse than the static CTC's 41 / 33
+(``docs/figures/bench_arm_adaptive_compliant_20261871.json``); handed
+over, the estimate moves by 117 / 402 pulses at 1.9 s and the arm tracks
+2 / 3 pulses (``..._20261873_handover.json``).
+
 The controller follows the sampled-controller protocol (``reset()``,
 ``__call__(k, t, q_meas, e_pulses) -> (n,) A``), so
 :func:`plant.simulate_closed_loop` (``plant=`` the arm) and the
@@ -378,6 +405,16 @@ class ArmAdaptiveComputedTorque:
         A flexible prior whose inner controller is the rigid-equivalent CTC:
         a payload's model enters its feed-forward, the feedback held at the
         design's model (module docstring).
+    hands_over : bool
+        The inner controller is the flexible-joint CTC: an update to another
+        model hands it the link estimate of the window's replay (module
+        docstring, the hand-over).
+    handovers : list of dict
+        Per hand-over: ``t_s`` (the sample the model took effect), ``from_s``
+        (the replay's first sample, the fitted window's) and
+        ``link_shift_pulses`` (n,), how far the link estimate moved (joint
+        angle times the encoder's pulses per radian), or ``message`` when the
+        replay failed and the estimate stayed.
     beta : ndarray, shape (r,)
         The base parameters in use.
     payload : dict or None
@@ -498,6 +535,8 @@ class ArmAdaptiveComputedTorque:
         # a flexible prior's rigid-equivalent CTC holds its feedback at the design's model
         # (ctc.arm, held feedback): a payload's model adds its feed-forward only
         self.held_feedback = self.flexible and not isinstance(self._ctc, ArmFlexibleComputedTorque)
+        # a flexible-joint inner CTC takes each update's link estimate from the window's replay
+        self.hands_over = isinstance(self._ctc, ArmFlexibleComputedTorque)
         self._design_beta = self._ctc.beta.copy()
         self._identify_payload = identify_arm_payload
         self._identify_friction = identify_arm_friction_change
@@ -553,7 +592,7 @@ class ArmAdaptiveComputedTorque:
         self.identifications = []
         self._E = np.zeros((0, self.n), dtype=np.int64)
         self._I = np.zeros((0, self.n))
-        self._pending = None  # (k_effective, beta, payload, trigger_mse, quiet)
+        self._pending = None  # (k_effective, beta, payload, trigger_mse, quiet, start)
         self._rejected = None  # the mass (kg) a rollback rejected, until a window shows no change
         self._probation = None  # (k_from, trigger_mse, previous beta, previous payload)
         self._cautious = False  # after a rollback or an unexplained change: agreeing estimates
@@ -566,29 +605,33 @@ class ArmAdaptiveComputedTorque:
         self._named = set()  # the rival changes reported in this episode ('friction', 'drive')
         self._warned = False
         self._unsafe = []  # payloads (kg) the switch check refused (flexible priors)
+        self.handovers = []
         self.diagnosis = None
         self.diagnoses = []
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (n,) A for sample ``k`` (sampled-controller protocol)."""
-        if self._pending is not None and k >= self._pending[0]:
-            k_eff, beta, payload, trigger, quiet = self._pending
-            self._pending = None
-            m_new = 0.0 if payload is None else payload["mass_kg"]
-            # a refinement of the payload in use (its mass within REFINEMENT_KG + 5 %, or the
-            # quiet refinement's combination) moves the model little and is on no probation
-            # (one on trial stays); another payload is
-            if not quiet and not _refines(m_new, self.payload_mass_kg):
-                self._probation = (k_eff, trigger, self.beta, self.payload)
-            self._install(beta, payload)
-            self.payload_history.append((k * self.ts, self.payload_mass_kg))
-            self._since = []  # the quiet refinement tests the model on windows it has run
-        i = np.asarray(self._ctc(k, t, q_meas, e_pulses), dtype=float)
         if k >= self._E.shape[0]:
             grow = max(k + 1, 2 * self._E.shape[0], 1024)
             self._E = np.vstack([self._E, np.zeros((grow - self._E.shape[0], self.n), np.int64)])
             self._I = np.vstack([self._I, np.zeros((grow - self._I.shape[0], self.n))])
         self._E[k] = np.asarray(e_pulses, dtype=np.int64)
+        if self._pending is not None and k >= self._pending[0]:
+            k_eff, beta, payload, trigger, quiet, start = self._pending
+            self._pending = None
+            m_new = 0.0 if payload is None else payload["mass_kg"]
+            # a refinement of the payload in use (its mass within REFINEMENT_KG + 5 %, or the
+            # quiet refinement's combination) moves the model little and is on no probation
+            # (one on trial stays); another payload is
+            moves = not quiet and not _refines(m_new, self.payload_mass_kg)
+            if moves:
+                self._probation = (k_eff, trigger, self.beta, self.payload)
+            self._install(beta, payload)
+            if moves and start is not None and self.hands_over:
+                self._hand_over(k, beta, start)
+            self.payload_history.append((k * self.ts, self.payload_mass_kg))
+            self._since = []  # the quiet refinement tests the model on windows it has run
+        i = np.asarray(self._ctc(k, t, q_meas, e_pulses), dtype=float)
         self._I[k] = i  # the inner controller's command is within full scale already
         k1 = k + 1
         if k1 % self.window_n == 0 and self._pending is None:
@@ -603,6 +646,27 @@ class ArmAdaptiveComputedTorque:
         self.beta = np.asarray(beta, dtype=float).copy()
         self.payload = payload
         self._ctc.set_beta(self.beta, feedback_beta=self._feedback_for(self.beta))
+
+    def _hand_over(self, k, beta, start) -> None:
+        """The new model's link estimate at sample ``k``: the identified arm ``beta`` replayed
+        from the window's fitted start state ``start = (t_s, state)`` through the run's logged
+        errors and commands (module docstring, hand-over)."""
+        from identification.arm_payload import replay_arm_state
+
+        t0, x0 = start
+        n = self.n
+        before = self._ctc.link_estimate()
+        rec = dict(t_s=k * self.ts, from_s=float(t0))
+        try:
+            x = replay_arm_state(self._window_log(k + 1), self.prior, beta, x0, (t0, k * self.ts))
+        except ValueError as err:  # a window the replay cannot take: the estimate stays
+            x, rec["message"] = None, str(err)
+        if x is not None and np.all(np.isfinite(x)):
+            self._ctc.set_link_estimate(x[:n], x[n:2 * n])
+            rec["link_shift_pulses"] = ((x[:n] - before[:n]) * self._ctc.spr).tolist()
+        else:
+            rec.setdefault("message", "the replay failed: the link estimate stays")
+        self.handovers.append(rec)
 
     def _feedback_for(self, beta):
         """The model the inner CTC holds its feedback at with ``beta`` in use (None: its own)."""
@@ -819,9 +883,12 @@ class ArmAdaptiveComputedTorque:
                 rec.update(decision="unsafe", reason=refused)
                 return
         self._pool = pool
-        # the effective sample is set by _identify once the window's wall time is known
+        # the window's fitted start state, for the flexible-joint CTC's link estimate (the
+        # hand-over) when its estimate describes the window; the effective sample is set by
+        # _identify once the window's wall time is known
+        start = None if undescribed else (float(est.window_s[0]), est.start_state)
         self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com, mass_std=sd_pool)
-                         if m_pool > 0 else None, mse, False)
+                         if m_pool > 0 else None, mse, False, start)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"
                    + ("; back to the prior (the empty gripper)" if to_prior else "")
                    + (f", though {m:.3g} kg leaves {st['y_new']:.4g} pulses^2 (more than "
@@ -890,7 +957,7 @@ class ArmAdaptiveComputedTorque:
         self._pool = (self._pool or [model]) + same
         self._since = []
         self._pending = (None, beta, dict(mass_kg=m_comb, com_m=com, mass_std=sd_comb), mse,
-                         True)
+                         True, None)
         rec.update(decision="refinement",
                    reason=(f"the {len(same)} windows since the model took effect, pooled with "
                            f"its payload ({m0:.3g} +- {sd0:.2g} kg): {m_comb:.3g} +- "

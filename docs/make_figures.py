@@ -404,6 +404,18 @@ it in ``optimisers``):
     (``figures/bench_arm_adaptive_compliant_20261871.txt``, ``.json``), its miss rerun on
     the version before (``--only planar2:20261873``:
     ``figures/bench_arm_adaptive_compliant_20261873_at_84efcc3.txt``, ``.json``).
+    With the hand-over of the window's link state to a flexible-joint CTC
+    (:mod:`ctc.arm_adaptive`): the fourth draw rerun, ``--compliant --n 6 0 --seed
+    20261871 --jobs 2 --json`` (``figures/bench_arm_adaptive_compliant_20261871_handover.txt``,
+    ``.json``), its draw 20261873 alone with the hand-over's record (``--only
+    planar2:20261873 --json``: ``figures/bench_arm_adaptive_compliant_20261873_handover.txt``,
+    ``.json``), the third rerun, ``--compliant --kinds pick-up,put-down --n 6 0 --seed
+    20261861 --jobs 2 --json`` (``figures/bench_arm_adaptive_compliant_payload_20261861_handover.txt``,
+    ``.json``), and a fifth fresh draw on a seed chosen before its run, ``--compliant --kinds
+    pick-up,put-down --n 6 0 --seed 20261881 --jobs 2 --json``
+    (``figures/bench_arm_adaptive_compliant_payload_20261881.txt``, ``.json``), its draw
+    20261885 rerun on the version before (``--only planar2:20261885 --json`` at 6b70524:
+    ``figures/bench_arm_adaptive_compliant_payload_20261885_at_6b70524.txt``, ``.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's

@@ -113,7 +113,7 @@ __all__ = ["identify_arm_payload", "ArmPayloadResult", "ArmPayloadProblem",
            "DEFAULT_ARM_PAYLOAD_BOUNDS", "PAYLOAD_NAMES", "WIDE_SEARCH_Z",
            "identify_arm_friction_change", "ArmFrictionChangeProblem", "FRICTION_CHANGE_LOG_BOX",
            "identify_arm_drive_change", "ArmDriveChangeProblem",
-           "prior_from_file"]
+           "prior_from_file", "replay_arm_state"]
 
 #: Names of the searched payload parameters (kg, m).
 PAYLOAD_NAMES = ("m", "cx", "cy", "cz")
@@ -362,6 +362,50 @@ class ArmPayloadProblem:
         m, c = float(x[0]), np.asarray(x[1:4], dtype=float)
         return self.prior + self.model.payload_delta(max(m, 0.0), c, base=self.plant.base)
 
+    def start_states(self, X) -> np.ndarray:
+        """The plant's state at the window's first sample for rows of X.
+
+        Parameters
+        ----------
+        X : array_like, shape (m, 4 + n_nuisance) or (4 + n_nuisance,)
+
+        Returns
+        -------
+        ndarray, shape (m, n_states) or (n_states,)
+            ``(q, qd)``, then a two-mass arm's motors ``(th, thd)`` (rad, rad/s,
+            joint side): the motors at the refined cell offsets and rates, the
+            links at the springs' quasi-static deflection plus the refined
+            ringing (module docstring).
+
+        Raises
+        ------
+        ValueError
+            Rows of another length than ``n_model + n_nuisance``.
+        """
+        single, X, _, starts = self._batch(X)
+        return starts[0] if single else starts
+
+    def _batch(self, X):
+        """``(single, X (m, width), lanes (m, row), starts (m, n_states))`` of rows ``X``."""
+        X = np.asarray(X, dtype=float)
+        single = X.ndim == 1
+        X = np.atleast_2d(X)
+        n, p = self.n, self.n_model
+        width = p + self.n_nuisance
+        if X.shape[1] != width:
+            raise ValueError(f"a row of X holds {width} values, got {X.shape[1]}")
+        # each row has its own start state: one batch, a lane per row
+        lanes = np.vstack([self.lane(x) for x in X])
+        starts = np.hstack([self.q0 + X[:, p + n:p + 2 * n] / self.spr, X[:, p:p + n]])
+        if self.joints is not None:  # the encoders read the motors; the links at the springs'
+            r = self.prior.size
+            starts = np.vstack([self._link_start(row[:r], s[:n], s[n:], row[r:r + 4 * n])
+                                for row, s in zip(lanes, starts)])
+            # the springs' ringing at the window's start: the links' offsets from there
+            starts[:, :n] += X[:, p + 2 * n:p + 3 * n] / self.spr
+            starts[:, n:2 * n] += X[:, p + 3 * n:p + 4 * n]
+        return single, X, lanes, starts
+
     def residuals(self, X) -> np.ndarray:
         """Prediction errors (pulses) of a batch of payloads and start rates.
 
@@ -379,23 +423,7 @@ class ArmPayloadProblem:
         ValueError
             Rows of another length than ``n_model + n_nuisance``.
         """
-        X = np.asarray(X, dtype=float)
-        single = X.ndim == 1
-        X = np.atleast_2d(X)
-        n, p = self.n, self.n_model
-        width = p + self.n_nuisance
-        if X.shape[1] != width:
-            raise ValueError(f"a row of X holds {width} values, got {X.shape[1]}")
-        # each row has its own start state: one batch, a lane per row
-        starts = np.hstack([self.q0 + X[:, p + n:p + 2 * n] / self.spr, X[:, p:p + n]])
-        lanes = np.vstack([self.lane(x) for x in X])
-        if self.joints is not None:  # the encoders read the motors; the links at the springs'
-            r = self.prior.size
-            starts = np.vstack([self._link_start(row[:r], s[:n], s[n:], row[r:r + 4 * n])
-                                for row, s in zip(lanes, starts)])
-            # the springs' ringing at the window's start: the links' offsets from there
-            starts[:, :n] += X[:, p + 2 * n:p + 3 * n] / self.spr
-            starts[:, n:2 * n] += X[:, p + 3 * n:p + 4 * n]
+        single, X, lanes, starts = self._batch(X)
         sim = replay_arm(self.sim_plant, lanes, self.log.rig,
                          self.ref, self.e, self.i, gain=self.gain, substeps=self.substeps,
                          initial_state=starts, bound=self.bound, workers=self.workers)
@@ -812,6 +840,11 @@ class ArmPayloadResult(OptimizeResult):
     start_offsets_pulses : ndarray, shape (n,)
         The window's refined start angles, from the centres of their count
         cells (pulses, within +-0.5; nuisance parameters).
+    start_state : ndarray, shape (n_states,)
+        The plant's state at the window's first sample at the estimate
+        (:meth:`ArmPayloadProblem.start_states`: ``(q, qd)``, then a two-mass
+        arm's motors ``(th, thd)``; rad, rad/s) -- with
+        :func:`replay_arm_state`, the loaded arm's state at a later sample.
     residuals_pulses : ndarray, shape (n_window, n)
         Prediction errors at the estimate (time-first).
     joint_names : tuple of str
@@ -853,8 +886,8 @@ class ArmPayloadResult(OptimizeResult):
         """JSON-ready dict of the result (arrays as lists, NaN as None)."""
         keys = ("x", "fun", "nfev", "nit", "success", "message", "mass_kg", "com_m", "x_std",
                 "com_identifiable", "beta", "beta_prior", "names", "window_s",
-                "start_rates_rad_s", "start_offsets_pulses", "joint_names", "quantisation_z",
-                "wide_search", "at_bounds", "elapsed_s")
+                "start_rates_rad_s", "start_offsets_pulses", "start_state", "joint_names",
+                "quantisation_z", "wide_search", "at_bounds", "elapsed_s")
         return {k: jsonable(self[k]) for k in keys}
 
     def plot(self, ax=None):
@@ -1125,8 +1158,82 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         beta=problem.beta(x), beta_prior=beta_prior, names=tuple(plant.base.names),
         window_s=(float(k0 * ts), float((k1 - 1) * ts)), start_rates_rad_s=x_all[4:4 + n].copy(),
         start_offsets_pulses=x_all[4 + n:4 + 2 * n].copy(),
-        residuals_pulses=residuals, joint_names=tuple(log.joint_names),
+        start_state=problem.start_states(x_all), residuals_pulses=residuals,
+        joint_names=tuple(log.joint_names),
         quantisation_z=quantisation_z(ref.fun, n_residuals) if ok else float("nan"),
         wide_search=wide,
         at_bounds=_at_bounds(x, box, identifiable) if ok else (),
         elapsed_s=time.perf_counter() - t_start)
+
+
+def replay_arm_state(log, prior, beta, start_state, window_s, *, plant=None, currents="logged",
+                     gain=DEFAULT_GAIN, substeps=None) -> np.ndarray:
+    """The arm's state at a window's last sample, replayed from its state at the first.
+
+    The logged-input predictor of the payload's fit
+    (:func:`plant.simulation.arm.replay_arm`: the current the drive applied
+    plus the output injection that keeps the simulated encoders in the
+    count cells the log allows) run as a state estimator: from
+    ``start_state`` at the window's first sample (an
+    :class:`ArmPayloadResult`'s ``start_state``), the arm of the base
+    parameters ``beta`` is driven over the window's samples, and its state
+    at the last one -- the instant that sample's encoders are read, before
+    its current acts -- is returned.  A two-mass arm's link state is what
+    the encoders do not see: a flexible-joint controller whose model changes
+    takes the new model's link estimate from here
+    (:meth:`ctc.arm.ArmFlexibleComputedTorque.set_link_estimate`) instead of
+    its old model's (a bumpless transfer from a state estimate: L. Zaccarian
+    and A. R. Teel, "The L2 (l2) bumpless transfer problem for linear
+    plants", Automatica 41, 2005).
+
+    Parameters
+    ----------
+    log : plant.logs.arm_log.ArmLog
+        The run (its errors and, with ``currents="logged"``, its commanded
+        currents; the last sample's current is not used).
+    prior : identification.arm.ArmIdentificationResult or array_like, shape (r,)
+        As :func:`identify_arm_payload` (its plant, rig and a flexible
+        result's joints).
+    beta : array_like, shape (r,)
+        The arm's base parameters (rigid-equivalent for a two-mass arm),
+        e.g. the estimate's ``beta``.
+    start_state : array_like, shape (n_states,)
+        The state at the window's first sample (the plant's layout).
+    window_s : (float, float)
+        First and last sample time (s); one sample or more.
+    plant, currents, gain, substeps
+        As :func:`identify_arm_payload`.
+
+    Returns
+    -------
+    ndarray, shape (n_states,)
+        ``(q, qd)``, then a two-mass arm's motors ``(th, thd)`` (rad, rad/s,
+        joint side); NaN throughout when the replay failed (a singular
+        inertia matrix, a non-finite state, a count beyond 10^6 pulses).
+
+    Raises
+    ------
+    ValueError
+        As :func:`identify_arm_payload`; ``beta`` or ``start_state`` of the
+        wrong size or not finite; a window outside the log.
+    """
+    plant, rig, _, joints = _prior_of(prior, log, plant)
+    substeps = _substeps_of(prior, joints, substeps)
+    if rig is not log.rig:
+        log = dataclasses.replace(log, rig=rig)
+    ts = rig.sample_time_s
+    t0, t1 = (float(v) for v in window_s)
+    k0, k1 = int(np.ceil(t0 / ts - 1e-9)), int(np.floor(t1 / ts + 1e-9)) + 1
+    if not (0 <= k0 < k1 <= log.n_samples):
+        raise ValueError(f"window_s {window_s} is not a window of the log (0 to {log.t[-1]:.4g} s)")
+    beta = np.asarray(beta, dtype=float).reshape(-1)
+    if beta.shape != (plant.base.rank,) or not np.all(np.isfinite(beta)):
+        raise ValueError(f"beta must be {plant.base.rank} finite base parameters, got shape "
+                         f"{beta.shape}")
+    row = beta if joints is None else np.concatenate([beta, joints])
+    i = _currents_of(log, currents)
+    sim = replay_arm(plant, row[None], rig, log.reference_counts()[k0:k1],
+                     np.asarray(log.e_pulses, dtype=float)[k0:k1], i[k0:k1], gain=gain,
+                     substeps=substeps, errors=False, bound=1e6, workers=1,
+                     initial_state=np.asarray(start_state, dtype=float), final_state=True)
+    return sim.final_state[0]

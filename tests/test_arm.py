@@ -507,6 +507,34 @@ def test_arm_replay_per_candidate_start_states_are_separate_runs(arm):
         replay_arm(arm, B, *args, gain=0.02, initial_state=np.full(4, np.nan))
 
 
+def test_a_replay_split_at_a_sample_continues_from_its_final_state(arm):
+    """replay_arm(final_state=True) returns each candidate's state at the last sample (before
+    its current acts): replaying rows 0..k and then rows k..end from that state is the replay
+    of the whole log (to the trigonometric anchors' rounding), candidate by candidate; a
+    candidate that fails has a NaN row; simulate_arm's final state is the P loop's."""
+    log = emulate_arm_log(arm, arm.beta(), planar_rig(), TRAJ, 600)
+    B = np.vstack([arm.beta(), 1.03 * arm.beta()])
+    ref, e, i = log.reference_counts(), log.e_pulses, log.i_A
+    whole = replay_arm(arm, B, log.rig, ref, e, i, gain=0.02, final_state=True)
+    assert whole.final_state.shape == (2, 4) and np.all(np.isfinite(whole.final_state))
+    k = 257
+    head = replay_arm(arm, B, log.rig, ref[:k + 1], e[:k + 1], i[:k + 1], gain=0.02,
+                      final_state=True)
+    tail = replay_arm(arm, B, log.rig, ref[k:], e[k:], i[k:], gain=0.02,
+                      initial_state=head.final_state, final_state=True)
+    np.testing.assert_allclose(tail.final_state, whole.final_state, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(tail.errors, whole.errors[:, k:], atol=1e-6)
+    assert replay_arm(arm, B, log.rig, ref, e, i, gain=0.02).final_state is None
+    bad = replay_arm(arm, np.vstack([arm.beta(), -arm.beta()]), log.rig, ref, e, i, gain=0.02,
+                     final_state=True)
+    assert bad.status[1] != 0 and np.all(np.isnan(bad.final_state[1]))
+    assert np.array_equal(bad.final_state[0], whole.final_state[0])
+    # the P loop's own state: the encoders of its last sample read what the log says
+    sim = simulate_arm(arm, arm.beta(), log.rig, TRAJ, 600, final_state=True)
+    spr = log.rig.pulses_per_rad
+    assert np.array_equal(np.trunc(sim.final_state[0, :2] * spr), np.trunc(ref[-1]) - e[-1])
+
+
 def test_compiled_dynamics_kernel_gives_the_casadi_functions_numbers():
     """ArmPlant.dynamics_kernel (numba, generated from the casadi function's instructions)
     returns the casadi dynamics function's D lower triangle and n(q, qd) to the bit, for the

@@ -801,6 +801,37 @@ def test_payload_of_a_two_mass_arm_from_a_window(compliant):
         identify_arm_payload(llog, res, window_s=(0.5, 0.6), plant=res.plant)
 
 
+def test_the_windows_replay_estimates_the_links_the_encoders_do_not_see(compliant):
+    """replay_arm_state from a payload fit's start state (a 3 kg tool on the two-mass arm's
+    P log, a 0.2 s window) through 0.1 s beyond the window: the links' angles within a tenth
+    of the springs' deflection (tens of pulses, which the motors' encoders alone do not
+    give) of the simulated arm's, and the motors within a pulse; a window outside
+    the log, or a start state of the wrong size, is a one-line error."""
+    from identification.arm_payload import identify_arm_payload, replay_arm_state
+    from plant.simulation.arm import simulate_arm
+    from plant.simulation.synthetic import emulate_arm_log
+
+    log, _, res = compliant
+    row = _loaded_row(res, 3.0, TOOL_COM)
+    llog = emulate_arm_log(res.flexible_plant, row, res.rig, log.trajectory, 3000)
+    ts, n = log.rig.sample_time_s, log.n_joints
+    spr = np.abs(res.rig.pulses_per_rad)
+    est = identify_arm_payload(llog, res, window_s=(1.0, 1.2), workers=1)
+    assert est.success and est.start_state.shape == (4 * n,)
+    k = int(round(1.3 / ts))
+    truth = simulate_arm(res.flexible_plant, row, res.rig, log.trajectory, k + 1, substeps=32,
+                         final_state=True).final_state[0]
+    x = replay_arm_state(llog, res, est.beta, est.start_state, (1.0, k * ts))
+    link_err = np.abs(x[:n] - truth[:n]) * spr
+    deflection = np.abs(truth[2 * n:3 * n] - truth[:n]) * spr
+    assert np.all(link_err <= 0.1 * deflection) and deflection.min() > 10
+    assert np.all(np.abs(x[2 * n:3 * n] - truth[2 * n:3 * n]) * spr <= 1.0)
+    with pytest.raises(ValueError, match="not a window of the log"):
+        replay_arm_state(llog, res, est.beta, est.start_state, (1.0, 9.0))
+    with pytest.raises(ValueError, match="initial_state"):
+        replay_arm_state(llog, res, est.beta, est.start_state[:n], (1.0, 1.3))
+
+
 def test_the_start_box_holds_the_springs_ringing(compliant):
     """A window of a two-mass arm starts with its springs ringing about their quasi-static
     deflection (after a change's transient of tens of pulses): the box of the links' start
@@ -902,6 +933,12 @@ def test_flexible_ctc_switches_its_link_model_with_beta(compliant):
     assert np.array_equal(c.beta, kept)
     c.set_beta(res.beta)
     assert np.allclose(c.link_gain, g0)
+    # a link estimate handed over is the one the next sample starts from
+    c.set_link_estimate([0.1, -0.2], [0.3, 0.4])
+    assert np.array_equal(c.link_estimate(), [0.1, -0.2, 0.3, 0.4])
+    for bad in (([0.1], [0.3, 0.4]), ([0.1, np.nan], [0.3, 0.4])):
+        with pytest.raises(ValueError, match="link estimate"):
+            c.set_link_estimate(*bad)
 
 
 @pytest.fixture(scope="module")
@@ -950,6 +987,11 @@ def test_adaptive_ctc_on_a_flexible_prior_tracks_a_pick_up(compliant, flexible_a
     assert c.events[0]["kind"] == "update"
     first = next(rec for rec in c.identifications if rec["decision"] == "update")
     assert first["switch_check_pulses"] <= first["switch_check_bound"]
+    # the update's link estimate came from its window's replay (the hand-over); the
+    # refinements after it keep the running estimate
+    assert c.hands_over and [h["t_s"] for h in c.handovers] == [c.events[0]["t_s"]]
+    assert c.handovers[0]["from_s"] == first["window_s"][0]
+    assert np.all(np.isfinite(c.handovers[0]["link_shift_pulses"]))
     e, i = r.e_pulses.copy(), r.i_A.copy()
     c.reset()
     r2 = _pick_up_run(compliant, c)
@@ -1072,6 +1114,7 @@ def test_the_adaptive_ctc_of_a_rigid_equivalent_design_holds_its_feedback(compli
         warnings.simplefilter("ignore", RuntimeWarning)
         c = ArmAdaptiveComputedTorque(res, log)
     assert c.held_feedback and type(c._ctc) is ArmComputedTorque
+    assert not c.hands_over  # no link estimate to hand over
     static = rigid_equivalent(None, res, log)
     ts = log.rig.sample_time_s
     n, k = int(round(2.6 / ts)), int(round(1.5 / ts))

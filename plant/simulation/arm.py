@@ -764,16 +764,21 @@ class ArmSimulation:
         (:data:`plant.simulation.core.STATUS_STOPPED` at the cap).
     message : tuple of str
         Per candidate, ``"ok"`` or the failure and its time.
+    final_state : ndarray, shape (n_candidates, n_states) or None
+        With ``final_state=True``: each candidate's state at the last sample
+        (the instant its encoders are read; the plant's layout, rad and
+        rad/s), NaN for a candidate that failed or stopped.  None otherwise.
     """
 
     errors: np.ndarray | None
     objective: np.ndarray
     status: np.ndarray
     message: tuple
+    final_state: np.ndarray | None = None
 
 
 def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0, qd0, k_start,
-         bound, cap=None, workers=None, initial_state=None, controller=None):
+         bound, cap=None, workers=None, initial_state=None, controller=None, final_state=False):
     if not isinstance(plant, ArmPlant):
         raise ValueError(f"plant must be an ArmPlant (plant.simulation.arm.arm_plant), got {type(plant).__name__}")
     n = plant.n_joints
@@ -813,6 +818,7 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
     obj = np.zeros(m)
     status = np.zeros(m, dtype=np.int64)
     compared = np.zeros(m, dtype=np.int64)
+    final = np.full((m, x0.size), np.nan) if final_state else None
 
     law = P_LAW if controller is None else controller
     make = getattr(law, "logged_controller", None)
@@ -845,18 +851,31 @@ def _run(plant, B, rig, ref, e_log, i_log, *, replay, gain, substeps, errors, q0
             bool(replay), True, float(gain), bound, cap, out, bool(errors), False, obj, status,
             compared, hi - lo, law.kind, law.parameters, law.lane_states(lanes.X.shape[1]),
             i_log, True)
+        if final is not None:
+            # the running lanes are the first columns, with their states at the last sample;
+            # a retired lane's column became padding, a stale copy of a running lane's (the
+            # first column of a candidate is its own)
+            done = set()
+            for j in range(hi - lo):
+                cand = int(lanes.idx[j])
+                if cand not in done and status[cand] == STATUS_OK:
+                    final[cand] = lanes.X[:, j]
+                done.add(cand)
 
     # the arm's lanes cost per lane: two threads as soon as there is more than one SIMD block
     run_chunks(chunk, m, workers, block=LANE_PAD)
     msgs = tuple("ok" if s == STATUS_OK else
                  f"{STATUS_MESSAGES[int(s)]} at t = {k * rig.sample_time_s:.4f} s"
                  for s, k in zip(status, compared))
-    return ArmSimulation(errors=(out if errors else None), objective=obj, status=status, message=msgs)
+    if final is not None:
+        final[status != STATUS_OK] = np.nan
+    return ArmSimulation(errors=(out if errors else None), objective=obj, status=status, message=msgs,
+                         final_state=final)
 
 
 def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=ARM_SUBSTEPS,
                  errors=True, q0=None, qd0=None, k_start=0, bound=None, cap=None,
-                 workers=None, controller=None) -> ArmSimulation:
+                 workers=None, controller=None, final_state=False) -> ArmSimulation:
     """Simulate the logged P-control experiment of an arm for candidates ``B``.
 
     At each sample ``t_k = k Ts`` the motor encoders are read
@@ -916,6 +935,9 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
         :class:`ctc.arm.ArmFlexibleComputedTorque` (its computed torque,
         compiled, in the loop of every candidate robot ``B``: the
         controller's model stays its own).
+    final_state : bool
+        Also return each candidate's state at the last sample
+        (``ArmSimulation.final_state``).
 
     Returns
     -------
@@ -935,12 +957,12 @@ def simulate_arm(plant, B, rig, trajectory, n_samples, *, e_log=None, substeps=A
         bound = default_bound(e_log)
     return _run(plant, B, rig, ref, e_log, None, replay=False, gain=0.0, substeps=substeps,
                 errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, cap=cap,
-                workers=workers, controller=controller)
+                workers=workers, controller=controller, final_state=final_state)
 
 
 def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS, errors=True,
                q0=None, qd0=None, k_start=0, bound=None, workers=None,
-               initial_state=None) -> ArmSimulation:
+               initial_state=None, final_state=False) -> ArmSimulation:
     """One-step-ahead predictor of a logged run: logged current plus output injection.
 
     The current ``i_log + P gain (m - c)`` is held over each sample, with
@@ -973,6 +995,12 @@ def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS,
         rad/s), instead of ``q0``, ``qd0`` for all -- a window's start state
         refined per candidate (:class:`identification.arm_payload.ArmPayloadProblem`).
         A lane's numbers do not depend on the other lanes of its batch.
+    final_state : bool
+        Also return each candidate's state at the last sample
+        (``ArmSimulation.final_state``): the predictor as a state estimator,
+        e.g. the loaded arm's link state a flexible-joint controller takes
+        over when its model changes
+        (:func:`identification.arm_payload.replay_arm_state`).
 
     Returns
     -------
@@ -985,4 +1013,4 @@ def replay_arm(plant, B, rig, ref, e_log, i_log, *, gain, substeps=ARM_SUBSTEPS,
     """
     return _run(plant, B, rig, ref, e_log, i_log, replay=True, gain=gain, substeps=substeps,
                 errors=errors, q0=q0, qd0=qd0, k_start=k_start, bound=bound, workers=workers,
-                initial_state=initial_state)
+                initial_state=initial_state, final_state=final_state)
