@@ -243,8 +243,10 @@ residual (:class:`ctc.arm.ArmFlexibleComputedTorque`).  Before an update
 that estimate ran the old model: with a tool the model lacked, the links
 sagged and rang where it did not, and on the new model it starts from
 there.  So when an update to another payload (not a refinement) takes
-effect, the window's fit -- the output-error replay of the identified arm
-from its fitted start state, the links' ringing included -- is continued
+effect, the window's fit -- the output-error replay of the arm identified
+on it (the window's estimate, which the installed model, pooled over
+windows or the prior itself, need not be) from its fitted start state,
+the links' ringing included -- is continued
 through the run's logged errors and commands to the present sample
 (:func:`identification.arm_payload.replay_arm_state`), and its link state
 becomes the controller's link estimate
@@ -407,8 +409,8 @@ class ArmAdaptiveComputedTorque:
         design's model (module docstring).
     hands_over : bool
         The inner controller is the flexible-joint CTC: an update to another
-        model hands it the link estimate of the window's replay (module
-        docstring, the hand-over).
+        payload whose estimate describes its window hands it the link
+        estimate of that window's replay (module docstring, the hand-over).
     handovers : list of dict
         Per hand-over: ``t_s`` (the sample the model took effect), ``from_s``
         (the replay's first sample, the fitted window's) and
@@ -628,7 +630,7 @@ class ArmAdaptiveComputedTorque:
                 self._probation = (k_eff, trigger, self.beta, self.payload)
             self._install(beta, payload)
             if moves and start is not None and self.hands_over:
-                self._hand_over(k, beta, start)
+                self._hand_over(k, start)
             self.payload_history.append((k * self.ts, self.payload_mass_kg))
             self._since = []  # the quiet refinement tests the model on windows it has run
         i = np.asarray(self._ctc(k, t, q_meas, e_pulses), dtype=float)
@@ -647,13 +649,13 @@ class ArmAdaptiveComputedTorque:
         self.payload = payload
         self._ctc.set_beta(self.beta, feedback_beta=self._feedback_for(self.beta))
 
-    def _hand_over(self, k, beta, start) -> None:
-        """The new model's link estimate at sample ``k``: the identified arm ``beta`` replayed
-        from the window's fitted start state ``start = (t_s, state)`` through the run's logged
-        errors and commands (module docstring, hand-over)."""
+    def _hand_over(self, k, start) -> None:
+        """The link estimate at sample ``k``: the window's fit ``start = (t_s, state, beta)``
+        (its first sample, its start state, the base parameters it was fitted with) continued
+        through the run's logged errors and commands (module docstring, hand-over)."""
         from identification.arm_payload import replay_arm_state
 
-        t0, x0 = start
+        t0, x0, beta = start
         n = self.n
         before = self._ctc.link_estimate()
         rec = dict(t_s=k * self.ts, from_s=float(t0))
@@ -883,10 +885,12 @@ class ArmAdaptiveComputedTorque:
                 rec.update(decision="unsafe", reason=refused)
                 return
         self._pool = pool
-        # the window's fitted start state, for the flexible-joint CTC's link estimate (the
-        # hand-over) when its estimate describes the window; the effective sample is set by
-        # _identify once the window's wall time is known
-        start = None if undescribed else (float(est.window_s[0]), est.start_state)
+        # the window's fit -- its start state and the model it was fitted with, which the
+        # installed one (pooled, or the prior) need not be -- for the flexible-joint CTC's
+        # link estimate (the hand-over) when its estimate describes the window; the effective
+        # sample is set by _identify once the window's wall time is known
+        start = None if undescribed else (float(est.window_s[0]), est.start_state,
+                                          np.asarray(est.beta, dtype=float))
         self._pending = (None, beta, dict(mass_kg=m_pool, com_m=com, mass_std=sd_pool)
                          if m_pool > 0 else None, mse, False, start)
         rec.update(decision=kind, reason=f"LR {st['lr']:.3g} > {threshold:.3g}"

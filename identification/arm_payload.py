@@ -1201,7 +1201,11 @@ def replay_arm_state(log, prior, beta, start_state, window_s, *, plant=None, cur
         The state at the window's first sample (the plant's layout).
     window_s : (float, float)
         First and last sample time (s); one sample or more.
-    plant, currents, gain, substeps
+    currents : None, "logged" or array_like, shape (n_samples, n)
+        The current the drive applied (A): the rig's P law on the logged
+        errors (None), the log's ``i_A`` (``"logged"``, the default: a
+        controller's own commands) or given.
+    plant, gain, substeps
         As :func:`identify_arm_payload`.
 
     Returns
@@ -1209,7 +1213,8 @@ def replay_arm_state(log, prior, beta, start_state, window_s, *, plant=None, cur
     ndarray, shape (n_states,)
         ``(q, qd)``, then a two-mass arm's motors ``(th, thd)`` (rad, rad/s,
         joint side); NaN throughout when the replay failed (a singular
-        inertia matrix, a non-finite state, a count beyond 10^6 pulses).
+        inertia matrix, a non-finite state, a count more than 10^6 pulses
+        from the reference).
 
     Raises
     ------

@@ -821,7 +821,7 @@ def test_the_windows_replay_estimates_the_links_the_encoders_do_not_see(complian
     k = int(round(1.3 / ts))
     truth = simulate_arm(res.flexible_plant, row, res.rig, log.trajectory, k + 1, substeps=32,
                          final_state=True).final_state[0]
-    x = replay_arm_state(llog, res, est.beta, est.start_state, (1.0, k * ts))
+    x = replay_arm_state(llog, res, est.beta, est.start_state, (1.0, k * ts), currents=None)
     link_err = np.abs(x[:n] - truth[:n]) * spr
     deflection = np.abs(truth[2 * n:3 * n] - truth[:n]) * spr
     assert np.all(link_err <= 0.1 * deflection) and deflection.min() > 10
