@@ -37,7 +37,8 @@ carried one (of the tool's mass for a put-down); friction changes -- the
 adaptive CTC no worse than the static one + 1 pulse, no payload installed
 (> 0.05 kg) at the end, the change reported (``'unexplained'``); stiffness and
 damping changes -- the same, with no payload installed at any time; no change
--- no update and no report; every run -- no update > 0.05 kg before the change, no
+-- no update and no report; every run -- no update > 0.05 kg before the change (a
+put-down: none farther than 0.05 kg + 5 % from the carried tool's mass), no
 current beyond the drive's full scale; the first draw's two adaptive runs
 identical bit for bit.
 
@@ -206,8 +207,12 @@ def score(r: dict) -> dict:
         v["drive_reported"] = any(ev["kind"] == "unexplained" for ev in a["events"])
     else:
         v["none_quiet"] = len(hist) == 1 and not a["events"]
-    if kind == "put-down":  # carried from the start: its first update is expected
-        v["no_false_update"] = True
+    if kind == "put-down":
+        # carried from the start: every model before the change is the tool's (its first
+        # update is expected; none may move away from the tool by more than 0.05 kg + 5 %)
+        m_tool = r["tool"]["mass_kg"]
+        v["no_false_update"] = all(abs(m - m_tool) <= 0.05 + MASS_TOLERANCE * m_tool
+                                   for t, m in hist[1:] if t < t_c)
     else:
         v["no_false_update"] = all(abs(m) <= 0.05 for t, m in hist if t < t_c)
     v["current_ok"] = a["i_max_over_fs"] <= 1.0 + 1e-12

@@ -415,7 +415,12 @@ it in ``optimisers``):
     pick-up,put-down --n 6 0 --seed 20261881 --jobs 2 --json``
     (``figures/bench_arm_adaptive_compliant_payload_20261881.txt``, ``.json``), its draw
     20261885 rerun on the version before (``--only planar2:20261885 --json`` at 6b70524:
-    ``figures/bench_arm_adaptive_compliant_payload_20261885_at_6b70524.txt``, ``.json``).
+    ``figures/bench_arm_adaptive_compliant_payload_20261885_at_6b70524.txt``, ``.json``);
+    a sixth fresh draw, every kind, ``--compliant --n 6 0 --seed 20261891 --jobs 2 --json``
+    (``figures/bench_arm_adaptive_compliant_20261891.txt``, ``.json``; printed before the
+    benchmark scored a carried tool's models before a put-down), its draw 20261892 rerun
+    on the version before (``--only planar2:20261892 --json`` at 6b70524:
+    ``figures/bench_arm_adaptive_compliant_20261892_at_6b70524.txt``, ``.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
