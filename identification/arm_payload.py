@@ -778,8 +778,9 @@ def identify_arm_drive_change(log, prior, *, beta=None, window_s, currents="logg
     return res
 
 
-def _window_samples(log, window_s):
-    """Samples ``(k0, k1)`` of a window (s) of a log (None: the whole log)."""
+def _window_samples(log, window_s, minimum=20):
+    """Samples ``(k0, k1)`` of a window (s) of a log (None: the whole log), at least
+    ``minimum`` of them (a fit's 20; a replay's 1)."""
     ts = log.rig.sample_time_s
     if window_s is None:
         k0, k1 = 0, log.n_samples
@@ -788,8 +789,8 @@ def _window_samples(log, window_s):
         k0, k1 = int(np.ceil(t0 / ts - 1e-9)), int(np.floor(t1 / ts + 1e-9)) + 1
         if not (0 <= k0 and k1 <= log.n_samples):
             raise ValueError(f"window_s {window_s} is outside the log (0 to {log.t[-1]:.4g} s)")
-    if k1 - k0 < 20:
-        raise ValueError(f"the window has {k1 - k0} samples; at least 20 are needed")
+    if k1 - k0 < minimum:
+        raise ValueError(f"the window has {k1 - k0} samples; at least {minimum} are needed")
     return k0, k1
 
 
@@ -1226,11 +1227,7 @@ def replay_arm_state(log, prior, beta, start_state, window_s, *, plant=None, cur
     substeps = _substeps_of(prior, joints, substeps)
     if rig is not log.rig:
         log = dataclasses.replace(log, rig=rig)
-    ts = rig.sample_time_s
-    t0, t1 = (float(v) for v in window_s)
-    k0, k1 = int(np.ceil(t0 / ts - 1e-9)), int(np.floor(t1 / ts + 1e-9)) + 1
-    if not (0 <= k0 < k1 <= log.n_samples):
-        raise ValueError(f"window_s {window_s} is not a window of the log (0 to {log.t[-1]:.4g} s)")
+    k0, k1 = _window_samples(log, window_s, minimum=1)
     beta = np.asarray(beta, dtype=float).reshape(-1)
     if beta.shape != (plant.base.rank,) or not np.all(np.isfinite(beta)):
         raise ValueError(f"beta must be {plant.base.rank} finite base parameters, got shape "

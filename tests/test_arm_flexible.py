@@ -826,7 +826,7 @@ def test_the_windows_replay_estimates_the_links_the_encoders_do_not_see(complian
     deflection = np.abs(truth[2 * n:3 * n] - truth[:n]) * spr
     assert np.all(link_err <= 0.1 * deflection) and deflection.min() > 10
     assert np.all(np.abs(x[2 * n:3 * n] - truth[2 * n:3 * n]) * spr <= 1.0)
-    with pytest.raises(ValueError, match="not a window of the log"):
+    with pytest.raises(ValueError, match="outside the log"):
         replay_arm_state(llog, res, est.beta, est.start_state, (1.0, 9.0))
     with pytest.raises(ValueError, match="initial_state"):
         replay_arm_state(llog, res, est.beta, est.start_state[:n], (1.0, 1.3))
