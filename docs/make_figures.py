@@ -421,6 +421,16 @@ it in ``optimisers``):
     benchmark scored a carried tool's models before a put-down), its draw 20261892 rerun
     on the version before (``--only planar2:20261892 --json`` at 6b70524:
     ``figures/bench_arm_adaptive_compliant_20261892_at_6b70524.txt``, ``.json``).
+    With the second opinion (:mod:`ctc.arm_adaptive`, step 3): the sixth draw rerun,
+    ``--compliant --n 6 0 --seed 20261891 --jobs 2 --json``
+    (``figures/bench_arm_adaptive_compliant_20261891_second_opinion.txt``, ``.json``), the
+    third and the second, ``--compliant --kinds pick-up,put-down --n 6 0 --seed 20261861``
+    and ``--seed 20261841`` (``--jobs 2 --json``;
+    ``figures/bench_arm_adaptive_compliant_payload_20261861_second_opinion.txt``,
+    ``..._payload_20261841_second_opinion.txt``, each with its ``.json``), and a seventh
+    fresh draw on a seed chosen before its run, every kind, ``--compliant --n 6 0 --seed
+    20261911 --jobs 2 --json`` (``figures/bench_arm_adaptive_compliant_20261911.txt``,
+    ``.json``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
