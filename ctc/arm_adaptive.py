@@ -16,7 +16,11 @@ rigid or a two-mass flexible prior (the last paragraph):
    unloaded prior's base parameters, and the window's start state refined
    as nuisance parameters.  The model in use is fitted the same way (its
    payload pinned, the start state free), so the two are compared on equal
-   terms.
+   terms: on a two-mass arm it starts from the link start box the free fit
+   ended in, and when it had to widen that box (links ringing beyond it,
+   :mod:`identification.arm_payload`) the free fit is fitted again in the
+   wider one -- else the pinned fit could search where the free one did
+   not, and the likelihood ratio go negative.
 2. **Significance.**  The estimate replaces the model in use only when it
    explains the window better than the quantisation noise can account for:
    the likelihood ratio of :func:`ctc.adaptive.residual_statistics` (the
@@ -146,7 +150,19 @@ rigid or a two-mass flexible prior (the last paragraph):
    model in use describes the robot: an episode of caution ends there).  A
    window that shows a change no payload describes (one spanning a pick-up
    or a put-down) does not judge: its tracking answers that change, and the
-   next window judges.
+   next window judges.  **The divergence guard** (the PUMA path's): two
+   whole windows under one payload model, the second tracking worse than the
+   first, than the window that brought the model in and than
+   :data:`ctc.adaptive.DIVERGE_FACTOR` times the largest mean square of a
+   window without change on the prior (and one pulse^2), return to the
+   prior -- the static CTC's model -- at once, before the window is fitted
+   (decision ``'diverging'``, an event ``'rollback'``; caution as after a
+   rollback).  A heavier link model can take a flexible-joint CTC past its
+   margins slowly, after its first window passed the probation: on the
+   compliant benchmark's planar draw 20261926 (a 2.23 kg pick-up, seed
+   20261921) the right 2.26 kg model ran the window mean squares up from
+   1.4 to 1320 pulses^2 over a second, 118 / 86 pulses against the static
+   CTC's 12 / 13 (:doc:`tutorial_your_robot`).
    A refinement -- an estimate within :data:`REFINEMENT_KG` + 5 % of the
    payload in use, significant against it -- installs every estimate of
    that payload since its update pooled by their information (the
@@ -301,8 +317,9 @@ import warnings
 
 import numpy as np
 
-from .adaptive import (DEFAULT_LATENCY_S, PERSISTENCE_WINDOWS, UnmodelledChangeWarning,
-                       residual_statistics, same_payload, vuong_residual_statistic)
+from .adaptive import (DEFAULT_LATENCY_S, DIVERGE_FACTOR, PERSISTENCE_WINDOWS,
+                       UnmodelledChangeWarning, residual_statistics, same_payload,
+                       vuong_residual_statistic)
 from .arm import ArmComputedTorque, ArmFlexibleComputedTorque, log_envelope
 from .guard import lost_bound
 
@@ -465,7 +482,8 @@ class ArmAdaptiveComputedTorque:
         ``'update'``, ``'refinement'``, ``'not material'`` (a significant
         estimate within :data:`REFINEMENT_KG` of the empty gripper in use),
         ``'held'``, ``'implausible'``,
-        ``'unexplained'``, ``'friction'``, ``'drive'``, ``'unsafe'``, ``'failed'``; a
+        ``'unexplained'``, ``'friction'``, ``'drive'``, ``'unsafe'``, ``'failed'``,
+        ``'diverging'`` (the divergence guard, step 4: no fit, NaN estimates); a
         flexible prior's switch check adds ``switch_check_pulses`` and
         ``switch_check_bound`` (beyond it, the model in use's
         ``switch_check_kept_pulses``, and for an update made on it
@@ -632,6 +650,9 @@ class ArmAdaptiveComputedTorque:
         self.handovers = []
         self.diagnosis = None
         self.diagnoses = []
+        self._mse_normal = None  # largest tracking mean square of a no-change window on the prior
+        self._trigger_mse = None  # that of the window that brought the model in use in
+        self._last_window = None  # (time the model took effect, mse) of the last whole window
 
     def __call__(self, k, t, q_meas, e_pulses) -> np.ndarray:
         """Motor currents (n,) A for sample ``k`` (sampled-controller protocol)."""
@@ -650,6 +671,7 @@ class ArmAdaptiveComputedTorque:
             moves = not quiet and not _refines(m_new, self.payload_mass_kg)
             if moves:
                 self._probation = (k_eff, trigger, self.beta, self.payload)
+            self._trigger_mse = trigger  # the window that brought the model in (the guard)
             self._install(beta, payload)
             if moves and start is not None and self.hands_over:
                 self._hand_over(k, start)
@@ -723,8 +745,17 @@ class ArmAdaptiveComputedTorque:
         window = (k0 * self.ts, (k1 - 1) * self.ts)
         est = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
                                      bounds=self.bounds, workers=1)
+        # the two fits on equal terms: the pinned one starts from the link box the free one
+        # ended in, and the free one is fitted again when the pinned one had to widen it
+        # (a two-mass arm's links ringing beyond the box, identification.arm_payload)
+        link = est.get("link_box_pulses")
         now = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
-                                     bounds=self._pinned(self.payload), workers=1)
+                                     bounds=self._pinned(self.payload), workers=1,
+                                     link_box_pulses=link)
+        wider = now.get("link_box_pulses")
+        if link is not None and wider is not None and np.any(wider > link):
+            est = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
+                                         bounds=self.bounds, workers=1, link_box_pulses=wider)
         dof = 1 + int(np.sum(est.com_identifiable))
         out = dict(window=window, est=est, now=now, ok=bool(est.success and now.success),
                    threshold=float(self._chi2.isf(self.false_alarm, dof)))
@@ -737,6 +768,9 @@ class ArmAdaptiveComputedTorque:
     def _identify(self, k1) -> None:
         """Identify the window ending before sample ``k1`` and act on the decision."""
         k0 = k1 - self.window_n
+        e = self._E[k0:k1].astype(float)
+        if self._diverging(k0, k1, float(np.mean(e * e))):
+            return
         t_wall = time.perf_counter()
         wlog = self._window_log(k1)
         fit = self._fit_window(wlog, k0, k1)
@@ -806,6 +840,8 @@ class ArmAdaptiveComputedTorque:
         if st["lr"] <= threshold:
             # the model in use describes the window: an episode of caution is over
             rec.update(decision="no change", reason=f"LR {st['lr']:.3g} <= {threshold:.3g}")
+            if self.payload is None:
+                self._mse_normal = mse if self._mse_normal is None else max(self._mse_normal, mse)
             self._odd = 0
             self._causes = []
             self._agree = []
@@ -1253,18 +1289,56 @@ class ArmAdaptiveComputedTorque:
         k_eff, trigger, beta_before, payload_before = self._probation
         self._probation = None
         if mse > self.explain_factor * max(trigger, 1.0):
-            self._rejected = self.payload_mass_kg
-            self._pool = []
-            self._since = []
-            self._install(beta_before, payload_before)
-            self.payload_history.append((k1 * self.ts, self.payload_mass_kg))
-            self._cautious = True
-            self._held_for = []
-            self._agree = []
-            self._event(k1, "rollback",
-                        f"tracking mean square {mse:.3g} pulses^2 after the update, "
-                        f"> {self.explain_factor:g} x {max(trigger, 1.0):.3g} before it: "
-                        f"back to {self.payload_mass_kg:.3g} kg")
+            self._roll_back(k1, beta_before, payload_before,
+                            f"tracking mean square {mse:.3g} pulses^2 after the update, "
+                            f"> {self.explain_factor:g} x {max(trigger, 1.0):.3g} before it")
+
+    def _roll_back(self, k1, beta, payload, why) -> None:
+        """Back to ``beta`` (``payload``) at sample ``k1``, the model in use rejected: only
+        agreeing estimates update, none of that payload until a window shows no change."""
+        self._rejected = self.payload_mass_kg
+        self._probation = None
+        self._pool = []
+        self._since = []
+        self._install(beta, payload)
+        self.payload_history.append((k1 * self.ts, self.payload_mass_kg))
+        self._cautious = True
+        self._held_for = []
+        self._agree = []
+        self._last_window = None
+        self._event(k1, "rollback", f"{why}: back to {self.payload_mass_kg:.3g} kg")
+
+    def _diverging(self, k0, k1, mse) -> bool:
+        """The divergence guard (module docstring, step 4): True when it returned to the prior.
+
+        Two whole windows under one payload model, the second tracking worse than the first,
+        than the window that brought the model in, and :data:`ctc.adaptive.DIVERGE_FACTOR`
+        times the largest mean square of a window without change on the prior (and one
+        pulse^2): the model makes the loop diverge -- a heavier link model can take a
+        flexible-joint CTC past its margins, slowly, after its first window passed the
+        probation -- and the prior, the static CTC's model, takes over at once (the PUMA
+        path's guard, :mod:`ctc.adaptive` step 4).
+        """
+        t_model = self.payload_history[-1][0]
+        one_model = k0 * self.ts >= t_model - 1e-12
+        prev, self._last_window = self._last_window, ((t_model, mse) if one_model else None)
+        if not (one_model and prev is not None and prev[0] == t_model and mse > prev[1]
+                and self.payload is not None and self._mse_normal is not None
+                and mse > (self._trigger_mse or 0.0)
+                and mse > DIVERGE_FACTOR * max(self._mse_normal, 1.0)):
+            return False
+        self.identifications.append(dict(
+            window_s=(k0 * self.ts, (k1 - 1) * self.ts), decision="diverging",
+            mass_kg=math.nan, mass_std=math.nan, lr=math.nan, threshold=math.nan,
+            y_now=math.nan, y_new=math.nan, tracking_mse=mse, elapsed_s=0.0,
+            reason=(f"tracking mean square {mse:.3g} pulses^2, up from {prev[1]:.3g} under the "
+                    f"{self.payload_mass_kg:.3g} kg model; the prior's windows without change "
+                    f"reached {self._mse_normal:.3g}")))
+        self._roll_back(k1, self.prior_beta.copy(), None,
+                        f"tracking diverging ({mse:.3g} pulses^2 mean square, more than "
+                        f"{DIVERGE_FACTOR:g} x the largest without change on the prior, "
+                        f"{self._mse_normal:.3g}, and growing)")
+        return True
 
     # ------------------------------------------------------------------ views
     @property

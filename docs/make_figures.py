@@ -430,7 +430,20 @@ it in ``optimisers``):
     ``..._payload_20261841_second_opinion.txt``, each with its ``.json``), and a seventh
     fresh draw on a seed chosen before its run, every kind, ``--compliant --n 6 0 --seed
     20261911 --jobs 2 --json`` (``figures/bench_arm_adaptive_compliant_20261911.txt``,
-    ``.json``).
+    ``.json``); the fourth draw on that version, ``--compliant --n 6 0 --seed 20261871
+    --jobs 2 --json`` (``figures/bench_arm_adaptive_compliant_20261871_second_opinion.txt``,
+    ``.json``).  With the link start box widened where a fit sits at its edge
+    (:mod:`identification.arm_payload`), before the divergence guard: the runs of seeds
+    20261871 and 20261861 (``figures/bench_arm_adaptive_compliant_20261871_ringing.txt``,
+    ``..._payload_20261861_ringing.txt``, each with its ``.json``) and an eighth fresh
+    draw on a seed chosen before its run, every kind, ``--compliant --n 6 0 --seed 20261921
+    --jobs 2 --json`` (``figures/bench_arm_adaptive_compliant_20261921_before_guard.txt``,
+    ``.json``), its draw 20261926 at a06fa66 (``--only planar2:20261926 --json``:
+    ``figures/bench_arm_adaptive_compliant_20261926_at_a06fa66.txt``, ``.json``); with the
+    divergence guard of :mod:`ctc.arm_adaptive`, the eighth draw again
+    (``figures/bench_arm_adaptive_compliant_20261921.txt``, ``.json``); the deflections that motivate the box's widening,
+    ``benchmarks/bench_spring_deflection.py --seeds 20261841 20261861 20261871 20261881
+    20261891 --n 6`` (``figures/bench_spring_deflection.txt``).
 ``arm_adaptive_drive``
     ``benchmarks/bench_arm_adaptive.py --compliant --kinds stiffness,damping --n 3
     --seed 20261381``: compliant planar arms whose springs change (every joint's
@@ -449,7 +462,8 @@ it in ``optimisers``):
     windows (:mod:`identification.arm_payload`)
     (``figures/bench_arm_adaptive_drive_changes_20261381_start_box.txt``; the return to
     the empty gripper, which came with it, does not act on these draws: no payload is
-    ever in use).
+    ever in use).  The first three draws, ``--n 3 0 --json``, with the second opinion
+    (``figures/bench_arm_adaptive_drive_changes_20261381_second_opinion.txt``, ``.json``).
 ``arm_excitation``
     ``benchmarks/bench_arm_excitation.py --n 4 4 0 --seed 20262611 --jobs 2``: the
     excitation design for any arm (``design_excitation(..., model=)``) against each

@@ -49,7 +49,12 @@ refined too: per joint a link angle offset (within +-100 pulses: a
 change's transient of tens of pulses leaves the springs ringing; a box of
 20 pulses left the windows after a put-down on the independent simulator
 unexplained) and a link rate offset (within that ringing's rate at the
-joint's two-mass frequency, :meth:`ArmPayloadProblem.start_box`).  A
+joint's two-mass frequency, :meth:`ArmPayloadProblem.start_box`).  The box
+is a numerical aid, not a prior: where a fit sits at its edge, the springs
+rang beyond it (a heavy tool picked up or put down by soft gearboxes rings
+by hundreds of pulses), and that joint's box is widened x4 and the window
+refined again, at most twice (``_ringing_stage``; on the rivals' fits
+too).  A
 window at the log's first sample starts as the plant's simulation of a log
 does, springs relaxed (the links where the motors are).
 
@@ -154,6 +159,11 @@ _WIDE_CORNER_FRACTION = 0.4
 #: ``..._20262101_return_to_prior.json``).
 _LINK_BOX_PULSES = 100.0
 
+#: Factor by which :func:`_ringing_stage` widens a joint's link start box where a fit sits at
+#: its edge, and how many times at most: the +-100 pulses grow to +-1600 at most.
+_LINK_BOX_WIDEN = 4.0
+_LINK_BOX_WIDENINGS = 2
+
 
 class ArmPayloadProblem:
     """Residuals of the logged-input predictor over a window, one payload per row of X.
@@ -240,12 +250,13 @@ class ArmPayloadProblem:
         and rate offsets (rad/s) from the springs' quasi-static start (2 n more)."""
         return (4 if self.joints is not None else 2) * self.n
 
-    def start_box(self, k0):
+    def start_box(self, k0, link_pulses=None):
         """The start-state nuisances' guess ``(n_nuisance,)`` and box ``(n_nuisance, 2)``.
 
         The rates: the reference's minus the logged error's slope, +- 0.2 rad/s
         + 20 %; the count offsets within +-0.5 pulse of the cell's centre; a
-        two-mass arm's link offsets within +-100 pulses (``_LINK_BOX_PULSES``)
+        two-mass arm's link offsets within +-100 pulses (``_LINK_BOX_PULSES``;
+        widened where a fit sits at the edge, ``_ringing_stage``)
         and its link rate offsets within that ringing's rate, ``omega A``
         (at least the rates' half-width): the springs ring about their
         quasi-static deflection at the two-mass joint's frequency ``omega =
@@ -256,6 +267,9 @@ class ArmPayloadProblem:
         ----------
         k0 : int
             The window's first sample.
+        link_pulses : array_like, shape (n,), optional
+            A two-mass arm's link offset half-widths (pulses; default
+            ``_LINK_BOX_PULSES`` each; ``_ringing_stage`` widens them).
 
         Returns
         -------
@@ -267,11 +281,12 @@ class ArmPayloadProblem:
         guess = [qd_guess, np.zeros(n)]
         box = [rate_box, np.tile([-0.5, 0.5], (n, 1))]
         if self.joints is not None:
+            a = np.broadcast_to(np.asarray(_LINK_BOX_PULSES if link_pulses is None
+                                           else link_pulses, dtype=float), (n,))
             half = np.maximum(0.5 * (rate_box[:, 1] - rate_box[:, 0]),
-                              self._ringing_rate(_LINK_BOX_PULSES / self.spr))
+                              self._ringing_rate(a / self.spr))
             guess += [np.zeros(n), np.zeros(n)]
-            box += [np.tile([-_LINK_BOX_PULSES, _LINK_BOX_PULSES], (n, 1)),
-                    np.column_stack([-half, half])]
+            box += [np.column_stack([-a, a]), np.column_stack([-half, half])]
         return np.concatenate(guess), np.vstack(box)
 
     def _ringing_rate(self, amplitude) -> np.ndarray:
@@ -515,6 +530,46 @@ def _wide_stage(problem, ref, box, max_iter, n_residuals):
     return dataclasses.replace(out, nfev=ref.nfev + wide.nfev, nit=ref.nit + wide.nit), True
 
 
+def _ringing_stage(problem, ref, box, first, max_iter, k0, link_pulses):
+    """A two-mass arm's link start box is a numerical aid, not a prior.
+
+    Where the fit's link angle offset or link rate offset of a joint sits at
+    the edge of its box (within 1 % of its half-width), the springs rang
+    beyond it (a change's transient, a heavy tool's sag): that joint's link
+    offset half-width is widened by :data:`_LINK_BOX_WIDEN` (its rate box
+    with it, :meth:`ArmPayloadProblem.start_box`) and the window refined
+    again from the fit, at most :data:`_LINK_BOX_WIDENINGS` times; the lower
+    cost wins, and a widening that lowers nothing ends the stage (the
+    project's rule for a bound: an estimate at it is the optimiser's edge,
+    not the robot's).  ``first`` is the index of the start-state nuisances
+    in a row of X (:attr:`ArmPayloadProblem.n_model`, or a rival's factor
+    count), ``k0`` the window's first sample and ``link_pulses`` (n,) the
+    half-widths ``box`` was built with.  Returns the result and the
+    half-widths (pulses, (n,)) of the box it was refined in."""
+    a = np.array(link_pulses, dtype=float)
+    if problem.joints is None or not np.isfinite(ref.fun):
+        return ref, a
+    n = problem.n
+    off, rate = first + 2 * n + np.arange(n), first + 3 * n + np.arange(n)
+    for _ in range(_LINK_BOX_WIDENINGS):
+        x = np.asarray(ref.x, dtype=float)
+        edge = (np.abs(x[off]) >= 0.99 * box[off, 1]) | (np.abs(x[rate]) >= 0.99 * box[rate, 1])
+        if not edge.any():
+            break
+        wider = np.where(edge, _LINK_BOX_WIDEN * a, a)
+        box_w = np.array(box, dtype=float)
+        box_w[first:] = problem.start_box(k0, wider)[1]
+        again = refine(problem, np.clip(x, box_w[:, 0], box_w[:, 1])[None], box_w,
+                       max_iter=max_iter, ftol=1e-8)
+        better = bool(again.fun < ref.fun)
+        ref = dataclasses.replace(again if better else ref, nfev=ref.nfev + again.nfev,
+                                  nit=ref.nit + again.nit)
+        if not better:
+            break
+        a, box = wider, box_w
+    return ref, a
+
+
 def _first_moment_stage(problem, ref, box, max_iter):
     """When the search in ``(m, c)`` stopped at its iteration limit: search again from its
     best in first moments (:class:`_FirstMoments`), then refine that point in ``(m, c)``
@@ -717,11 +772,13 @@ def _fit_held_change(problem_class, log, prior, beta, window_s, currents, factor
     k0, k1 = _window_samples(log, window_s)
     problem = problem_class(log, plant, held, k0, k1, _currents_of(log, currents), gain=gain,
                             substeps=substeps, workers=workers, joints=joints)
-    guess, nuisance_box = problem.start_box(k0)
+    link = np.full(log.n_joints, _LINK_BOX_PULSES)
+    guess, nuisance_box = problem.start_box(k0, link)
     p = len(factor_box)
     box = np.vstack([factor_box, nuisance_box])
     ref = refine(problem, np.concatenate([np.zeros(p), guess])[None], box, max_iter=max_iter,
                  ftol=1e-8)
+    ref, _ = _ringing_stage(problem, ref, box, p, max_iter, k0, link)
     x_all = np.asarray(ref.x, dtype=float)
     ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
     return OptimizeResult(
@@ -858,6 +915,10 @@ class ArmPayloadResult(OptimizeResult):
         leave, a poor prior).
     wide_search : bool
         Whether the wide search ran (module docstring).
+    link_box_pulses : ndarray, shape (n,), or None
+        A two-mass arm's link start box the fit ended in: half-widths of the
+        links' start offsets (pulses; wider than asked where the fit sat at
+        the edge, module docstring); None for a rigid arm.
     at_bounds : tuple of str
         The payload parameters that ended on a bound of their box
         (:func:`identification.api.at_bounds`, e.g. ``'m (upper)'``): a mass at
@@ -888,7 +949,7 @@ class ArmPayloadResult(OptimizeResult):
         keys = ("x", "fun", "nfev", "nit", "success", "message", "mass_kg", "com_m", "x_std",
                 "com_identifiable", "beta", "beta_prior", "names", "window_s",
                 "start_rates_rad_s", "start_offsets_pulses", "start_state", "joint_names",
-                "quantisation_z", "wide_search", "at_bounds", "elapsed_s")
+                "quantisation_z", "wide_search", "link_box_pulses", "at_bounds", "elapsed_s")
         return {k: jsonable(self[k]) for k in keys}
 
     def plot(self, ax=None):
@@ -1057,7 +1118,7 @@ def _prior_of(prior, log, plant):
 
 def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None, bounds=None,
                          gain=DEFAULT_GAIN, substeps=None, max_iter=40,
-                         workers=None) -> ArmPayloadResult:
+                         workers=None, link_box_pulses=None) -> ArmPayloadResult:
     """Identify a payload on an arm's last link from a window of its log (module docstring).
 
     Parameters
@@ -1094,6 +1155,12 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         Refinement iterations at most.
     workers : int, optional
         Threads of the simulations (default: the CPUs this process may use).
+    link_box_pulses : array_like, shape (n,), optional
+        A two-mass arm's link start box: half-widths of the links' start
+        offsets (pulses; default +-100 each), widened where the fit sits at
+        the edge (module docstring).  Two fits compared on one window (a free
+        payload against a pinned one) start from the same box: pass one's
+        ``link_box_pulses`` to the other.
 
     Returns
     -------
@@ -1106,10 +1173,16 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
     ValueError
         A prior of the wrong size, a flexible prior without its joints or
         with a rigid plant, unknown friction with a bare vector, a window outside the log or shorter than 20 samples,
-        malformed currents or bounds.
+        malformed currents or bounds, ``link_box_pulses`` not n positive finite numbers.
     """
     t_start = time.perf_counter()
     plant, rig, beta_prior, joints = _prior_of(prior, log, plant)
+    link = np.full(log.n_joints, _LINK_BOX_PULSES)
+    if link_box_pulses is not None:
+        link = np.asarray(link_box_pulses, dtype=float).reshape(-1)
+        if link.shape != (log.n_joints,) or not np.all(np.isfinite(link)) or np.any(link <= 0):
+            raise ValueError(f"link_box_pulses must be {log.n_joints} positive finite numbers "
+                             "(pulses)")
     substeps = _substeps_of(prior, joints, substeps)
     if rig is not log.rig:
         import dataclasses
@@ -1125,7 +1198,7 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
     problem = ArmPayloadProblem(log, plant, beta_prior, k0, k1, i, gain=gain, substeps=substeps,
                                 workers=workers, joints=joints)
     # the start rates: the reference's minus the logged error's slope, refined as nuisances
-    guess, nuisance_box = problem.start_box(k0)
+    guess, nuisance_box = problem.start_box(k0, link)
     full_box = np.vstack([box, nuisance_box])
     starts = _starts(box, guess)
     if box[0, 1] - box[0, 0] < 1e-6:  # a pinned mass (a model's own fit): one start
@@ -1136,6 +1209,7 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
     if starts.shape[0] > 1:
         ref = _first_moment_stage(problem, ref, full_box, max_iter)
         ref, wide = _wide_stage(problem, ref, full_box, max_iter, n_residuals)
+    ref, link = _ringing_stage(problem, ref, full_box, problem.n_model, max_iter, k0, link)
     x_all = np.asarray(ref.x, dtype=float)
     ok = bool(np.isfinite(ref.fun) and ref.fun < problem.bound ** 2)
     x_std = np.full(4, np.nan)
@@ -1162,7 +1236,7 @@ def identify_arm_payload(log, prior, *, window_s=None, plant=None, currents=None
         start_state=problem.start_states(x_all), residuals_pulses=residuals,
         joint_names=tuple(log.joint_names),
         quantisation_z=quantisation_z(ref.fun, n_residuals) if ok else float("nan"),
-        wide_search=wide,
+        wide_search=wide, link_box_pulses=link if joints is not None else None,
         at_bounds=_at_bounds(x, box, identifiable) if ok else (),
         elapsed_s=time.perf_counter() - t_start)
 

@@ -1133,3 +1133,40 @@ def test_the_adaptive_ctc_of_a_rigid_equivalent_design_holds_its_feedback(compli
     assert first["switch_check_pulses"] < first["switch_check_kept_pulses"]
     assert "better than the model in use" in c.events[0]["message"]
     assert np.all(runs[0] <= runs[1]) and runs[0].max() <= runs[1].max() / 2
+
+
+def test_a_fit_at_the_link_start_boxs_edge_widens_it(compliant, monkeypatch):
+    """The link start box is a numerical aid, not a prior (identification.arm_payload's
+    _ringing_stage): on a window of the independent arm (1.5-1.7 s) with the box shrunk to
+    +-1 pulse, the fit sits at its edge, the stage widens it (x4, twice) and the window's
+    output error drops to the default box's (measured: 295 -> 66 pulses^2); with no
+    widening allowed it stays where the box held it.  On the default box, which holds that
+    window's ringing, the fit is the same with and without the stage.  The box the fit
+    ended in (``link_box_pulses``) given to another fit is where that one starts; a
+    malformed one is a one-line error."""
+    import identification.arm_payload as ap
+
+    log, _, res = compliant
+    fits = {}
+    for box, widenings in ((1.0, 2), (1.0, 0), (ap._LINK_BOX_PULSES, 2), (ap._LINK_BOX_PULSES, 0)):
+        monkeypatch.setattr(ap, "_LINK_BOX_PULSES", box)
+        monkeypatch.setattr(ap, "_LINK_BOX_WIDENINGS", widenings)
+        fits[box, widenings] = ap.identify_arm_payload(log, res, window_s=(1.5, 1.7), workers=1)
+        assert fits[box, widenings].success
+    narrow, held = fits[1.0, 2], fits[1.0, 0]
+    assert narrow.fun < 0.5 * held.fun and narrow.nfev > held.nfev
+    assert np.all(held.link_box_pulses == 1.0) and np.any(narrow.link_box_pulses > 1.0)
+    assert set(narrow.link_box_pulses) <= {1.0, 4.0, 16.0}
+    default = [f for (b, _), f in fits.items() if b != 1.0]
+    assert default[0].fun == default[1].fun and default[0].nfev == default[1].nfev
+    assert np.all(default[0].link_box_pulses == ap._LINK_BOX_PULSES)
+    assert narrow.fun == pytest.approx(default[0].fun, rel=0.05)
+    # a box given is the box the fit starts from (a pinned fit's, from its free twin's)
+    monkeypatch.setattr(ap, "_LINK_BOX_WIDENINGS", 0)
+    again = ap.identify_arm_payload(log, res, window_s=(1.5, 1.7), workers=1,
+                                    link_box_pulses=narrow.link_box_pulses)
+    np.testing.assert_array_equal(again.link_box_pulses, narrow.link_box_pulses)
+    assert again.fun == pytest.approx(narrow.fun, rel=0.05)
+    for bad in ([100.0], [100.0, -1.0], [100.0, np.nan]):
+        with pytest.raises(ValueError, match="link_box_pulses must be 2 positive"):
+            ap.identify_arm_payload(log, res, window_s=(1.5, 1.7), link_box_pulses=bad)
