@@ -19,8 +19,10 @@ rigid or a two-mass flexible prior (the last paragraph):
    terms: on a two-mass arm it starts from the link start box the free fit
    ended in, and when it had to widen that box (links ringing beyond it,
    :mod:`identification.arm_payload`) the free fit is fitted again in the
-   wider one -- else the pinned fit could search where the free one did
-   not, and the likelihood ratio go negative.
+   wider one, the lower cost kept -- else the pinned fit could search where
+   the free one did not.  (The free fit's starts can still miss the pinned
+   one's minimum: a likelihood ratio a little below zero reads "no
+   change".)
 2. **Significance.**  The estimate replaces the model in use only when it
    explains the window better than the quantisation noise can account for:
    the likelihood ratio of :func:`ctc.adaptive.residual_statistics` (the
@@ -754,8 +756,10 @@ class ArmAdaptiveComputedTorque:
                                      link_box_pulses=link)
         wider = now.get("link_box_pulses")
         if link is not None and wider is not None and np.any(wider > link):
-            est = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
-                                         bounds=self.bounds, workers=1, link_box_pulses=wider)
+            again = self._identify_payload(wlog, self.prior, window_s=window, currents="logged",
+                                           bounds=self.bounds, workers=1, link_box_pulses=wider)
+            if again.success and again.fun < est.fun:
+                est = again
         dof = 1 + int(np.sum(est.com_identifiable))
         out = dict(window=window, est=est, now=now, ok=bool(est.success and now.success),
                    threshold=float(self._chi2.isf(self.false_alarm, dof)))
@@ -840,7 +844,8 @@ class ArmAdaptiveComputedTorque:
         if st["lr"] <= threshold:
             # the model in use describes the window: an episode of caution is over
             rec.update(decision="no change", reason=f"LR {st['lr']:.3g} <= {threshold:.3g}")
-            if self.payload is None:
+            if self.payload is None and k0 * self.ts >= self.payload_history[-1][0] - 1e-12:
+                # a whole window on the prior (not one a return to it took effect in)
                 self._mse_normal = mse if self._mse_normal is None else max(self._mse_normal, mse)
             self._odd = 0
             self._causes = []
@@ -1306,6 +1311,7 @@ class ArmAdaptiveComputedTorque:
         self._held_for = []
         self._agree = []
         self._last_window = None
+        self._trigger_mse = None  # the restored model's own trigger is not known
         self._event(k1, "rollback", f"{why}: back to {self.payload_mass_kg:.3g} kg")
 
     def _diverging(self, k0, k1, mse) -> bool:

@@ -160,7 +160,8 @@ _WIDE_CORNER_FRACTION = 0.4
 _LINK_BOX_PULSES = 100.0
 
 #: Factor by which :func:`_ringing_stage` widens a joint's link start box where a fit sits at
-#: its edge, and how many times at most: the +-100 pulses grow to +-1600 at most.
+#: its edge, and how many times at most: the +-100 pulses grow to +-1600 at most (a cap that
+#: holds too for fits started from another's box, ``link_box_pulses``).
 _LINK_BOX_WIDEN = 4.0
 _LINK_BOX_WIDENINGS = 2
 
@@ -556,7 +557,10 @@ def _ringing_stage(problem, ref, box, first, max_iter, k0, link_pulses):
         edge = (np.abs(x[off]) >= 0.99 * box[off, 1]) | (np.abs(x[rate]) >= 0.99 * box[rate, 1])
         if not edge.any():
             break
-        wider = np.where(edge, _LINK_BOX_WIDEN * a, a)
+        cap = _LINK_BOX_PULSES * _LINK_BOX_WIDEN ** _LINK_BOX_WIDENINGS
+        wider = np.where(edge, np.minimum(_LINK_BOX_WIDEN * a, cap), a)
+        if np.array_equal(wider, a):
+            break  # at the cap: the box a chain of fits may reach (+-1600 pulses)
         box_w = np.array(box, dtype=float)
         box_w[first:] = problem.start_box(k0, wider)[1]
         again = refine(problem, np.clip(x, box_w[:, 0], box_w[:, 1])[None], box_w,

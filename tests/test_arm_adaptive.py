@@ -525,29 +525,42 @@ def test_a_tool_swap_waits_for_a_second_opinion_unless_its_window_knows_more(set
 
 
 def test_tracking_that_diverges_under_a_payload_model_returns_to_the_prior(setting):
-    """The divergence guard: window mean squares 1.4, 9.7, 45 pulses^2 under a 2 kg model
-    that took effect at 1 s from a window of 20 pulses^2, the prior's quiet windows at 0.1:
-    the third (growing, beyond the trigger and 16 x max(0.1, 1)) returns to the prior at
-    once -- an event 'rollback', a window 'diverging', caution, the payload rejected; a
-    window that does not grow, or one on the prior, does not."""
+    """The divergence guard, each of its clauses: under a 2 kg model that took effect at
+    1 s, the prior's quiet windows at 0.1 pulses^2 (the level 16 x max(0.1, 1) = 16), a
+    window that began before the model is not judged; one that grows but stays below the
+    window that brought the model in (100), or one beyond both that does not grow, does
+    not fire; one beyond both that grows returns to the prior at once -- an event
+    'rollback', a window 'diverging', caution, the payload rejected; on the prior, or
+    without a quiet level yet, nothing fires."""
     arm, rig, log, prior, loaded = setting
-    c = ArmAdaptiveComputedTorque(prior, log)
-    n, ts = c.window_n, rig.sample_time_s
+    n, ts = None, rig.sample_time_s
     k_model = int(round(1.0 / ts))
-    c._mse_normal = 0.1
-    c._install(loaded, dict(mass_kg=2.0, com_m=np.array(TOOL["com_m"]), mass_std=0.001))
-    c.payload_history.append((k_model * ts, 2.0))
-    c._trigger_mse = 20.0
-    windows = [(k_model + i * n, k_model + (i + 1) * n) for i in range(4)]
-    assert not c._diverging(*windows[0], 1.4)
-    assert not c._diverging(*windows[1], 9.7)
-    assert not c._diverging(*windows[2], 9.0)  # not growing
-    assert c._diverging(*windows[3], 45.0)
+
+    def armed(trigger, normal=0.1):
+        c = ArmAdaptiveComputedTorque(prior, log)
+        c._mse_normal = normal
+        c._install(loaded, dict(mass_kg=2.0, com_m=np.array(TOOL["com_m"]), mass_std=0.001))
+        c.payload_history.append((k_model * ts, 2.0))
+        c._trigger_mse = trigger
+        return c
+
+    c = armed(100.0)
+    n = c.window_n
+    w = [(k_model + i * n, k_model + (i + 1) * n) for i in range(5)]
+    assert not c._diverging(k_model - 1, k_model - 1 + n, 500.0)  # began under the prior
+    assert not c._diverging(*w[0], 40.0)
+    assert not c._diverging(*w[1], 60.0)  # grows, beyond 16, below the trigger
+    assert c._diverging(*w[2], 150.0)
     assert c.payload is None and np.array_equal(c.beta, prior.beta)
     assert c.events[-1]["kind"] == "rollback" and "diverging" in c.events[-1]["message"]
     assert c.identifications[-1]["decision"] == "diverging"
-    assert c._cautious and c._rejected == 2.0
-    assert c.payload_history[-1] == (windows[3][1] * ts, 0.0)
-    # on the prior nothing is rolled back
-    k = windows[3][1]
-    assert not c._diverging(k, k + n, 50.0) and not c._diverging(k + n, k + 2 * n, 90.0)
+    assert c._cautious and c._rejected == 2.0 and c._trigger_mse is None
+    assert c.payload_history[-1] == (w[2][1] * ts, 0.0)
+    k = w[2][1]  # on the prior nothing is rolled back
+    assert not c._diverging(k, k + n, 500.0) and not c._diverging(k + n, k + 2 * n, 900.0)
+    c = armed(20.0)
+    assert not c._diverging(*w[0], 50.0)
+    assert not c._diverging(*w[1], 45.0)  # beyond both, not growing
+    assert c._diverging(*w[2], 60.0)
+    c = armed(20.0, normal=None)  # no window without change on the prior yet
+    assert not c._diverging(*w[0], 50.0) and not c._diverging(*w[1], 900.0)
