@@ -558,7 +558,7 @@ def _ringing_stage(problem, ref, box, first, max_iter, k0, link_pulses):
         if not edge.any():
             break
         cap = _LINK_BOX_PULSES * _LINK_BOX_WIDEN ** _LINK_BOX_WIDENINGS
-        wider = np.where(edge, np.minimum(_LINK_BOX_WIDEN * a, cap), a)
+        wider = np.where(edge, np.maximum(a, np.minimum(_LINK_BOX_WIDEN * a, cap)), a)
         if np.array_equal(wider, a):
             break  # at the cap: the box a chain of fits may reach (+-1600 pulses)
         box_w = np.array(box, dtype=float)
