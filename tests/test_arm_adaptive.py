@@ -441,13 +441,10 @@ def _forge_window(c, t0, **fields):
     c._identify_payload = forged
 
 
-def test_one_less_known_window_does_not_replace_a_payload_in_use(setting):
-    """The 2 kg tool carried throughout; one window's estimate forged to a 3 kg payload that
-    fits it perfectly, with a standard error ten times the model's: held for a second
-    opinion (none comes), never installed; the model stays the tool's and the arm tracks
-    within +-1 pulse after its first update."""
-    arm, rig, log, prior, loaded = setting
-    c = ArmAdaptiveComputedTorque(prior, log)
+def _three_kg_less_known(setting, c):
+    """A 3 kg payload's base parameters and an ``x_std`` forgery: ten times the standard
+    error of the model ``c`` has in use."""
+    arm, _, _, prior, _ = setting
     three = prior.beta + arm.model.payload_delta(3.0, TOOL["com_m"], base=arm.base)
 
     def wide(res):
@@ -455,6 +452,17 @@ def test_one_less_known_window_does_not_replace_a_payload_in_use(setting):
         sd[0] = 10.0 * c.payload["mass_std"]
         return sd
 
+    return three, wide
+
+
+def test_one_less_known_window_does_not_replace_a_payload_in_use(setting):
+    """The 2 kg tool carried throughout; one window's estimate forged to a 3 kg payload that
+    fits it perfectly, with a standard error ten times the model's: held for a second
+    opinion (none comes), never installed; the model stays the tool's and the arm tracks
+    within +-1 pulse after its first update."""
+    arm, rig, log, prior, loaded = setting
+    c = ArmAdaptiveComputedTorque(prior, log)
+    three, wide = _three_kg_less_known(setting, c)
     _forge_window(c, 1.0, beta=three, mass_kg=3.0, fun=0.0, x_std=wide,
                   residuals_pulses=lambda res: np.zeros_like(res.residuals_pulses))
     r = _run(setting, c, start=loaded, n=2000)
@@ -473,13 +481,7 @@ def test_a_failed_window_breaks_the_agreeing_estimates_succession(setting):
     successive, so each is held with one agreeing estimate and none is installed."""
     arm, rig, log, prior, loaded = setting
     c = ArmAdaptiveComputedTorque(prior, log)
-    three = prior.beta + arm.model.payload_delta(3.0, TOOL["com_m"], base=arm.base)
-
-    def wide(res):
-        sd = np.array(res.x_std, dtype=float)
-        sd[0] = 10.0 * c.payload["mass_std"]
-        return sd
-
+    three, wide = _three_kg_less_known(setting, c)
     _forge_window(c, (1.0, 1.4), beta=three, mass_kg=3.0, fun=0.0, x_std=wide,
                   residuals_pulses=lambda res: np.zeros_like(res.residuals_pulses))
     _forge_window(c, 1.2, success=False, message="forged: the predictor failed")
