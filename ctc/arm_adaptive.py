@@ -773,14 +773,13 @@ class ArmAdaptiveComputedTorque:
         """Identify the window ending before sample ``k1`` and act on the decision."""
         k0 = k1 - self.window_n
         e = self._E[k0:k1].astype(float)
-        if self._diverging(k0, k1, float(np.mean(e * e))):
+        mse = float(np.mean(e * e))
+        if self._diverging(k0, k1, mse):
             return
         t_wall = time.perf_counter()
         wlog = self._window_log(k1)
         fit = self._fit_window(wlog, k0, k1)
         est, now = fit["est"], fit["now"]
-        e = self._E[k0:k1].astype(float)
-        mse = float(np.mean(e * e))
         rec = dict(window_s=fit["window"], decision="failed", mass_kg=float(est.mass_kg),
                    mass_std=float(est.x_std[0]), lr=float("nan"), threshold=fit["threshold"],
                    y_now=float(now.fun), y_new=float(est.fun), tracking_mse=mse,
@@ -949,8 +948,8 @@ class ArmAdaptiveComputedTorque:
         if kind == "refinement":
             # the estimates the model in use rests on (its own evidence when a rollback
             # emptied them, as the quiet refinement's)
-            model = (self.payload_mass_kg, float(self.payload.get("mass_std", math.nan)),
-                     self.beta, np.asarray(self.payload["com_m"], dtype=float))
+            model = (self.payload_mass_kg, sd0, self.beta,
+                     np.asarray(self.payload["com_m"], dtype=float))
             pool = (self._pool or [model]) + agreed
         else:
             pool = list(agreed)
@@ -1310,7 +1309,6 @@ class ArmAdaptiveComputedTorque:
         self._cautious = True
         self._held_for = []
         self._agree = []
-        self._last_window = None
         self._trigger_mse = None  # the restored model's own trigger is not known
         self._event(k1, "rollback", f"{why}: back to {self.payload_mass_kg:.3g} kg")
 
